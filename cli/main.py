@@ -1,0 +1,78 @@
+"""``scotti``: one command, one verb per tool.
+
+Each verb lives in the room that owns it and is imported only when asked
+for, so ``scotti session info`` never loads onnxruntime and nothing but
+``train``/``export`` ever loads torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+from typing import Protocol, cast
+
+# verb -> (module that implements it, one-line help). The module exposes
+# ``add_arguments(parser)`` and ``run(args) -> int``.
+VERBS: dict[str, tuple[str, str]] = {
+    "session": ("scotti.firmware_protocol.cli", "inspect session files"),
+    "board": ("scotti.daemon.board_emulator_cli", "emulate the receiver board on a pty"),
+    "sim": ("scotti.sim.cli", "simulate scenes into session files"),
+    "train": ("scotti.export.train_cli", "train SCOTTI on session files (needs [train])"),
+    "export": ("scotti.export.export_cli", "export a checkpoint to ONNX (needs [train])"),
+    "eval": ("scotti.daemon.eval_cli", "evaluate a model on session files"),
+}
+
+
+class VerbModule(Protocol):
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None: ...
+
+    def run(self, args: argparse.Namespace) -> int: ...
+
+
+class UserError(Exception):
+    """A mistake of the user's: printed as one line, exit status 2."""
+
+
+def _load(verb: str) -> VerbModule | None:
+    module_name, _ = VERBS[verb]
+    try:
+        return cast(VerbModule, importlib.import_module(module_name))
+    except ModuleNotFoundError as exc:
+        if exc.name == module_name:
+            return None  # the verb is planned but not built yet
+        if exc.name == "torch":
+            msg = f"scotti {verb} needs torch: pip install torch==2.13.0 '.[train]'"
+            raise UserError(msg) from None
+        raise
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(prog="scotti", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+    for verb, (_, help_text) in VERBS.items():
+        sub.add_parser(verb, help=help_text, add_help=False)
+    if not argv or argv[0] not in VERBS:
+        parser.parse_args(argv)  # prints usage or the error, exits
+        return 2
+    verb = argv[0]
+    try:
+        module = _load(verb)
+        if module is None:
+            print(f"scotti: '{verb}' is not available in this build", file=sys.stderr)
+            return 2
+        verb_parser = argparse.ArgumentParser(prog=f"scotti {verb}", description=VERBS[verb][1])
+        module.add_arguments(verb_parser)
+        args = verb_parser.parse_args(argv[1:])
+        return module.run(args)
+    except UserError as exc:
+        print(f"scotti {verb}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,143 @@
+"""The model contract: what a SCOTTI model sees, predicts and promises.
+
+Everything that crosses between the simulator, training, export and the
+daemon is named here once. Numpy only (ARCHITECTURE.md, room ``models/``).
+
+Pose frame: metres, origin on the floor under the mid-hip, z up, x the way
+the person faces, y to their left.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import numpy as np
+
+# Bumped whenever a name, an order, a shape or a unit below changes; a model
+# whose metadata carries another version is refused by the runtime.
+CONTRACT_VERSION: Final = 1
+
+# --- Geometry of one foot frame and of the model input --------------------
+FRAME_ROWS: Final = 32  # taxel rows per insole (heel at row 31, toes at row 0)
+FRAME_COLS: Final = 22  # taxel columns per insole (medial side at column 0)
+SAMPLE_BITS: Final = 12  # ADC resolution of one taxel
+MAX_COUNT: Final = (1 << SAMPLE_BITS) - 1  # largest count the protocol allows
+WINDOW: Final = 40  # T, frames in the window (2.5 s at 16 Hz)
+FRAME_RATE_HZ: Final = 16.0
+
+# --- Keypoints: COCO-WholeBody body and feet without the face (19) ---------
+KEYPOINTS: Final[tuple[str, ...]] = (
+    "nose",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+    "left_big_toe",
+    "left_small_toe",
+    "left_heel",
+    "right_big_toe",
+    "right_small_toe",
+    "right_heel",
+)
+KP: Final[dict[str, int]] = {name: i for i, name in enumerate(KEYPOINTS)}
+NUM_KEYPOINTS: Final = len(KEYPOINTS)
+
+# Bones (parent, child) by keypoint name; joint angles (MPJAE) are the angles
+# between each bone and its parent bone, see ``JOINT_ANGLES``.
+BONES: Final[tuple[tuple[str, str], ...]] = (
+    ("left_shoulder", "left_elbow"),
+    ("left_elbow", "left_wrist"),
+    ("right_shoulder", "right_elbow"),
+    ("right_elbow", "right_wrist"),
+    ("left_hip", "left_knee"),
+    ("left_knee", "left_ankle"),
+    ("left_ankle", "left_heel"),
+    ("left_heel", "left_big_toe"),
+    ("left_heel", "left_small_toe"),
+    ("right_hip", "right_knee"),
+    ("right_knee", "right_ankle"),
+    ("right_ankle", "right_heel"),
+    ("right_heel", "right_big_toe"),
+    ("right_heel", "right_small_toe"),
+    ("left_shoulder", "right_shoulder"),
+    ("left_hip", "right_hip"),
+    ("left_shoulder", "left_hip"),
+    ("right_shoulder", "right_hip"),
+    ("left_shoulder", "nose"),
+    ("right_shoulder", "nose"),
+)
+BONE_INDEX: Final = np.array([[KP[a], KP[b]] for a, b in BONES], dtype=np.int64)
+
+# Joint angles as pairs of bone indices into BONES: (upper bone, lower bone).
+# Elbows, knees, ankles, the trunk-thigh (hip) angle and shoulder angle.
+JOINT_ANGLES: Final[tuple[tuple[int, int], ...]] = (
+    (0, 1),  # left elbow
+    (2, 3),  # right elbow
+    (4, 5),  # left knee
+    (9, 10),  # right knee
+    (5, 7),  # left ankle (shank to foot)
+    (10, 12),  # right ankle
+    (16, 4),  # left hip (trunk side to thigh)
+    (17, 9),  # right hip
+    (16, 0),  # left shoulder (trunk side to upper arm)
+    (17, 2),  # right shoulder
+)
+
+
+def derived_points(keypoints: np.ndarray) -> dict[str, np.ndarray]:
+    """Neck and mid-hip, the two points the paper lists that COCO lacks.
+
+    ``keypoints``: (..., 19, 3). Returns arrays of shape (..., 3).
+    """
+    k = np.asarray(keypoints)
+    return {
+        "neck": 0.5 * (k[..., KP["left_shoulder"], :] + k[..., KP["right_shoulder"], :]),
+        "mid_hip": 0.5 * (k[..., KP["left_hip"], :] + k[..., KP["right_hip"], :]),
+    }
+
+
+# --- Actions, in the fixed order of the action head's logits --------------
+ACTIONS: Final[tuple[str, ...]] = (
+    "squat",
+    "lunge",
+    "step_up",
+    "jump",
+    "side_walking",
+    "in_place_walking",
+    "backward_walking",
+    "walking",
+)
+NUM_ACTIONS: Final = len(ACTIONS)
+# Label value for frames without an action (a stand between actions):
+# training leaves them out of the action and progress losses.
+NO_ACTION: Final = -1
+
+# --- ONNX graph I/O names --------------------------------------------------
+# Streaming step: one new frame + cached embeddings of the previous T-1.
+STEP_INPUT_FRAME: Final = "frame"  # float32 (B, H, 2W) raw counts, left|right
+STEP_INPUT_PAST: Final = "past_embeddings"  # float32 (B, T-1, E), oldest first
+# Window graph: B windows of T frames.
+WINDOW_INPUT_FRAMES: Final = "frames"  # float32 (B, T, H, 2W) raw counts
+OUTPUT_POSE: Final = "pose"  # float32 (B, 19, 3) metres, pose frame
+OUTPUT_ACTION_LOGITS: Final = "action_logits"  # float32 (B, 8)
+OUTPUT_PROGRESS: Final = "progress"  # float32 (B,) in [0, 1]
+STEP_OUTPUT_EMBEDDING: Final = "embedding"  # float32 (B, E), the new frame's
+
+# Metadata keys (onnx metadata_props) every exported graph carries.
+META_CONTRACT_VERSION: Final = "scotti.contract_version"
+META_GRAPH: Final = "scotti.graph"  # "step" or "window"
+META_WINDOW: Final = "scotti.window"  # T
+META_EMBED_DIM: Final = "scotti.embed_dim"  # E
+META_FRAME_ROWS: Final = "scotti.frame_rows"
+META_FRAME_COLS: Final = "scotti.frame_cols"  # per foot (W)
+META_KEYPOINTS: Final = "scotti.keypoints"  # JSON list
+META_ACTIONS: Final = "scotti.actions"  # JSON list
+META_CARD: Final = "scotti.card"  # JSON model card (training data, metrics, ...)
