@@ -1,0 +1,113 @@
+"""The SCOTTI training objective: pose (MPJPE + MPJAE), action (CE), progress (MSE).
+
+Paper weights: total = 0.01 * pose + 1 * action + 1 * progress. The pose term
+is in the units the paper reports (millimetres and degrees), which is what
+makes 0.01 a sensible balance against a cross-entropy of about ln(8) ~ 2.
+
+Every term is finite with finite gradients on any input: zero-length bones,
+coincident points, a batch with no labelled action, NaN progress labels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from scotti.export.model import ScottiOutputs
+from scotti.models import contract
+
+_BONES = torch.as_tensor(contract.BONE_INDEX)  # (n_bones, 2) parent, child
+_ANGLE_PAIRS = torch.as_tensor(contract.JOINT_ANGLES, dtype=torch.int64)  # (n_angles, 2)
+
+# Floor for |a x b| in atan2 (m^2, about two 1 cm bones): keeps atan2 and its
+# gradient defined when a bone has zero length, at a bias below 0.001 rad.
+ANGLE_EPS = 1e-4
+# Floor inside the Euclidean distance (m^2): sqrt has no gradient at 0.
+DIST_EPS = 1e-12
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    pose: float = 0.01
+    action: float = 1.0
+    progress: float = 1.0
+
+
+@dataclass(frozen=True)
+class ScottiTargets:
+    """Labels for the predicted time t of each window in a batch."""
+
+    pose: torch.Tensor  # (B, 19, 3) metres; rows with any NaN are left out
+    action: torch.Tensor  # (B,) int64 index into ACTIONS, NO_ACTION (-1) = unlabelled
+    progress: torch.Tensor  # (B,) float in [0, 1], NaN where there is no action
+
+
+def safe_norm(v: torch.Tensor, eps: float = DIST_EPS) -> torch.Tensor:
+    """|v| over the last axis, with a finite gradient at v = 0."""
+    return torch.sqrt((v * v).sum(dim=-1) + eps)
+
+
+def joint_angles(pose: torch.Tensor) -> torch.Tensor:
+    """(..., 19, 3) keypoints -> (..., n_angles) radians in [0, pi] per JOINT_ANGLES.
+
+    atan2(|a x b|, a . b) is accurate at 0 and pi, where acos of a clamped
+    cosine has an infinite gradient.
+    """
+    bones = pose[..., _BONES[:, 1], :] - pose[..., _BONES[:, 0], :]  # (..., n_bones, 3)
+    a = bones[..., _ANGLE_PAIRS[:, 0], :]  # (..., n_angles, 3)
+    b = bones[..., _ANGLE_PAIRS[:, 1], :]
+    sin_part = safe_norm(torch.linalg.cross(a, b), eps=ANGLE_EPS**2)  # >= ANGLE_EPS
+    cos_part = (a * b).sum(dim=-1)
+    return torch.atan2(sin_part, cos_part)
+
+
+def mpjpe_mm(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean per-joint position error, (B, 19, 3) metres -> (B,) millimetres."""
+    return 1000.0 * safe_norm(pred - target).mean(dim=-1)
+
+
+def mpjae_deg(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean per-joint angle error, (B, 19, 3) metres -> (B,) degrees."""
+    diff = (joint_angles(pred) - joint_angles(target)).abs()
+    return math.degrees(1.0) * diff.mean(dim=-1)
+
+
+def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean of values where mask holds; 0 (not NaN) when nothing is masked in."""
+    m = mask.to(values.dtype)
+    return (values * m).sum() / m.sum().clamp_min(1.0)
+
+
+def scotti_loss(
+    outputs: ScottiOutputs,
+    targets: ScottiTargets,
+    weights: LossWeights = LossWeights(),
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """Weighted total and its detached parts (pose, mpjpe_mm, mpjae_deg, action, progress)."""
+    # Unlabelled values are replaced before any arithmetic: NaN * 0 is still NaN.
+    pose_ok = torch.isfinite(targets.pose).all(dim=-1).all(dim=-1)  # (B,)
+    pose_target = torch.where(pose_ok[:, None, None], targets.pose, outputs.pose.detach())
+    mpjpe = _masked_mean(mpjpe_mm(outputs.pose, pose_target), pose_ok)
+    mpjae = _masked_mean(mpjae_deg(outputs.pose, pose_target), pose_ok)
+    pose = mpjpe + mpjae
+
+    labelled = targets.action != contract.NO_ACTION  # (B,)
+    ce = F.cross_entropy(outputs.action_logits, targets.action.clamp_min(0), reduction="none")
+    action = _masked_mean(ce, labelled)
+
+    has_progress = labelled & torch.isfinite(targets.progress)  # (B,)
+    progress_target = torch.where(has_progress, targets.progress, 0.0)
+    progress = _masked_mean((outputs.progress - progress_target) ** 2, has_progress)
+
+    total = weights.pose * pose + weights.action * action + weights.progress * progress
+    parts = {
+        "total": total,
+        "pose": pose,
+        "mpjpe_mm": mpjpe,
+        "mpjae_deg": mpjae,
+        "action": action,
+        "progress": progress,
+    }
+    return total, {k: v.detach() for k, v in parts.items()}
