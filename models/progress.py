@@ -1,0 +1,274 @@
+"""Progress labels: how far through one repetition each frame is, 0..1.
+
+Han et al. (SCOTTI) define progress from a per-action indicator h(t) of the
+3D pose. Repetitions are cut at the peaks of h; inside one repetition, with
+hmax and hmin its extremes and "mid" the frame where h is smallest,
+
+    p(t) = 0.5 (hmax - h) / (hmax - hmin)          from the start to the mid
+    p(t) = 0.5 + 0.5 (h - hmin) / (hmax - hmin)    from the mid to the end
+
+so p runs 0 -> 0.5 -> 1 as h goes top -> bottom -> top.
+
+Choices the paper leaves open, fixed here:
+- Peaks are found on h smoothed by a short moving average, with a minimum
+  prominence (a share of the run's range, and an absolute floor in metres)
+  and a minimum distance in frames (``PeakParams``). Values of p use raw h.
+- A complete repetition runs from one cut to the next; its hmax/hmin include
+  both cut frames.
+- The segments before the first cut and after the last are partial (the run
+  starts or ends mid-repetition). Their hmax is the larger of their own and
+  the nearest complete repetition's; their hmin is their own when their
+  minimum lies strictly inside them (the bottom was seen), else the smaller
+  of their own and the nearest complete repetition's. With no complete
+  repetition, a segment uses its own extremes.
+- A flat segment (hmax - hmin < ``FLAT_RANGE``) gets p = 0.5 everywhere: no
+  movement, no evidence of progress, and no repetition to count.
+- Non-finite h (NaN keypoints) is filled from the nearest finite frames; an
+  all-NaN run is flat. Output is always finite and clipped to [0, 1].
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+from scotti.models.contract import ACTIONS, KP, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS
+from scotti.models.errors import ModelInputError
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+# A segment whose indicator spans less than this (metres) is flat.
+FLAT_RANGE = 1e-6
+# backward_walking: heel displacement over this many frames.
+BACKWARD_LAG = 5
+
+
+@dataclass(frozen=True)
+class PeakParams:
+    """How repetition cuts are found on the indicator (defaults suit 16 Hz)."""
+
+    smooth_frames: int = 3  # moving-average width before peak finding (1 = none)
+    min_distance: int = 4  # frames between two cuts: 0.25 s, faster than any step
+    rel_prominence: float = 0.25  # share of the smoothed run's range
+    abs_prominence: float = 1e-3  # metres: a smaller wiggle is noise, not a repetition
+
+
+class ProgressLabels(NamedTuple):
+    """Per-frame labels; unpacks as ``progress, repetition = label_progress(...)``."""
+
+    progress: npt.NDArray[np.float32]  # (N,) in [0, 1], NaN where action == NO_ACTION
+    repetition: npt.NDArray[np.int32]  # (N,) index within the action's run, -1 where none
+
+
+def progress_indicator(keypoints: npt.ArrayLike, action: int) -> FloatArray:
+    """The paper's indicator h(t) for one action: (N, 19, 3) metres -> (N,)."""
+    k = _check_keypoints(keypoints)
+    if not 0 <= action < NUM_ACTIONS:
+        msg = f"action {action} has no progress indicator (0..{NUM_ACTIONS - 1})"
+        raise ModelInputError(msg)
+    name = ACTIONS[action]
+    heels = k[:, [KP["left_heel"], KP["right_heel"]], :]  # (N, 2, 3)
+    if name in ("squat", "lunge", "step_up", "jump"):
+        mid_hip_z = 0.5 * (k[:, KP["left_hip"], 2] + k[:, KP["right_hip"], 2])
+        return -mid_hip_z if name == "jump" else mid_hip_z
+    if name in ("walking", "side_walking"):
+        return np.asarray(np.linalg.norm(heels[:, 0] - heels[:, 1], axis=-1), np.float64)
+    if name == "in_place_walking":
+        return np.asarray(heels[:, :, 2].max(axis=1), np.float64)
+    # backward_walking: max over both heels of |heel(t) - heel(t - 5)|; the first
+    # frames compare with frame 0, the oldest one available.
+    earlier = np.maximum(np.arange(len(k)) - BACKWARD_LAG, 0)
+    moved = np.linalg.norm(heels - heels[earlier], axis=-1)  # (N, 2)
+    return np.asarray(moved.max(axis=1), np.float64)
+
+
+def find_peaks(h: npt.ArrayLike, *, min_distance: int = 1, min_prominence: float = 0.0) -> IntArray:
+    """Indices of the local maxima of ``h`` (ascending) that pass both filters.
+
+    Flat tops count once, at their middle; the first and last samples are never
+    peaks. Prominence as usual: the height above the higher of the two lowest
+    points reached before meeting a higher sample (or the border) on each side.
+    Of two peaks closer than ``min_distance``, the higher is kept.
+    """
+    x = np.asarray(h, dtype=np.float64)
+    peaks = _local_maxima(x)
+    if peaks.size == 0:
+        return peaks
+    prominence = np.array([_prominence(x, int(p)) for p in peaks])
+    peaks = peaks[prominence >= min_prominence]
+    if min_distance > 1 and peaks.size > 1:
+        peaks = _keep_distant(x, peaks, min_distance)
+    return peaks
+
+
+def repetition_cuts(h: npt.ArrayLike, params: PeakParams = PeakParams()) -> IntArray:
+    """Frames where a new repetition starts: the prominent peaks of smoothed h."""
+    x = _finite(np.asarray(h, dtype=np.float64))
+    smooth = _moving_average(x, params.smooth_frames)
+    span = float(smooth.max() - smooth.min()) if smooth.size else 0.0
+    min_prominence = max(params.abs_prominence, params.rel_prominence * span)
+    return find_peaks(smooth, min_distance=params.min_distance, min_prominence=min_prominence)
+
+
+def progress_from_indicator(
+    h: npt.ArrayLike, params: PeakParams = PeakParams()
+) -> tuple[FloatArray, IntArray]:
+    """Progress (N,) in [0, 1] and repetition index (N,) for one run of one action."""
+    x = _finite(np.asarray(h, dtype=np.float64))
+    n = x.size
+    progress = np.full(n, 0.5)
+    repetition = np.zeros(n, dtype=np.int64)
+    if n == 0:
+        return progress, repetition
+    cuts = repetition_cuts(x, params)
+    bounds = [0, *cuts.tolist(), n]
+    first_complete = (int(cuts[0]), int(cuts[1])) if cuts.size >= 2 else None
+    last_complete = (int(cuts[-2]), int(cuts[-1])) if cuts.size >= 2 else None
+    for index, (start, end) in enumerate(itertools.pairwise(bounds)):
+        repetition[start:end] = index
+        leading, trailing = index == 0, index == len(bounds) - 2
+        if not (leading or trailing):
+            # Complete: from one cut up to and including the next.
+            top, bottom = _extremes(x[start : end + 1])
+        else:
+            reference = first_complete if leading else last_complete
+            top, bottom = _partial_extremes(x, start, end, reference)
+        progress[start:end] = _segment_progress(x[start:end], top, bottom)
+    return progress, repetition
+
+
+def label_progress(
+    keypoints: npt.ArrayLike, actions: npt.ArrayLike, params: PeakParams = PeakParams()
+) -> ProgressLabels:
+    """Label every frame of a session, one contiguous run of one action at a time.
+
+    ``keypoints`` (N, 19, 3) metres, ``actions`` (N,) ints, ``NO_ACTION`` for
+    stands. Repetitions are counted from 0 within each run.
+    """
+    k = _check_keypoints(keypoints)
+    a = np.asarray(actions)
+    if a.shape != (len(k),) or not np.issubdtype(a.dtype, np.integer):
+        msg = f"actions must be ({len(k)},) integers, got {a.shape} {a.dtype}"
+        raise ModelInputError(msg)
+    bad = (a != NO_ACTION) & ((a < 0) | (a >= NUM_ACTIONS))
+    if bad.any():
+        msg = f"action {int(a[bad][0])} is neither NO_ACTION nor 0..{NUM_ACTIONS - 1}"
+        raise ModelInputError(msg)
+    progress = np.full(len(k), np.nan, dtype=np.float32)
+    repetition = np.full(len(k), -1, dtype=np.int32)
+    for start, end in _runs(a):
+        action = int(a[start])
+        if action == NO_ACTION:
+            continue
+        h = progress_indicator(k[start:end], action)
+        run_progress, run_repetition = progress_from_indicator(h, params)
+        progress[start:end] = run_progress
+        repetition[start:end] = run_repetition
+    return ProgressLabels(progress, repetition)
+
+
+# --- helpers ---------------------------------------------------------------
+
+
+def _check_keypoints(keypoints: npt.ArrayLike) -> FloatArray:
+    k = np.asarray(keypoints, dtype=np.float64)
+    if k.ndim != 3 or k.shape[1:] != (NUM_KEYPOINTS, 3):
+        msg = f"keypoints must be (N, {NUM_KEYPOINTS}, 3), got {k.shape}"
+        raise ModelInputError(msg)
+    return k
+
+
+def _runs(values: npt.NDArray[np.integer]) -> list[tuple[int, int]]:
+    """[start, end) of each maximal run of equal values."""
+    if values.size == 0:
+        return []
+    starts = np.flatnonzero(np.r_[True, values[1:] != values[:-1]])
+    ends = np.r_[starts[1:], values.size]
+    return list(zip(starts.tolist(), ends.tolist(), strict=True))
+
+
+def _finite(x: FloatArray) -> FloatArray:
+    """Fill non-finite samples from their finite neighbours (all bad -> zeros)."""
+    ok = np.isfinite(x)
+    if ok.all():
+        return x
+    if not ok.any():
+        return np.zeros_like(x)
+    index = np.arange(x.size)
+    return np.interp(index, index[ok], x[ok])
+
+
+def _moving_average(x: FloatArray, width: int) -> FloatArray:
+    """Centred moving average; the borders repeat the edge samples."""
+    if width <= 1 or x.size < 2:
+        return x
+    half = width // 2
+    padded = np.pad(x, (half, width - 1 - half), mode="edge")
+    return np.convolve(padded, np.full(width, 1.0 / width), mode="valid")
+
+
+def _local_maxima(x: FloatArray) -> IntArray:
+    """Strict local maxima; a flat top counts once, at its middle."""
+    if x.size < 3:
+        return np.zeros(0, dtype=np.int64)
+    # Collapse runs of equal samples, find maxima there, map back to run middles.
+    starts = np.flatnonzero(np.r_[True, x[1:] != x[:-1]])
+    ends = np.r_[starts[1:] - 1, x.size - 1]
+    v = x[starts]
+    inner = np.flatnonzero((v[1:-1] > v[:-2]) & (v[1:-1] > v[2:])) + 1
+    return np.asarray((starts[inner] + ends[inner]) // 2, dtype=np.int64)
+
+
+def _prominence(x: FloatArray, peak: int) -> float:
+    height = x[peak]
+    higher_left = np.flatnonzero(x[:peak] > height)
+    left = int(higher_left[-1]) + 1 if higher_left.size else 0
+    higher_right = np.flatnonzero(x[peak + 1 :] > height)
+    right = peak + int(higher_right[0]) if higher_right.size else x.size - 1
+    base = max(x[left : peak + 1].min(), x[peak : right + 1].min())
+    return float(height - base)
+
+
+def _keep_distant(x: FloatArray, peaks: IntArray, min_distance: int) -> IntArray:
+    """Greedy by height (earlier first on ties): drop peaks too near a kept one."""
+    order = sorted(range(peaks.size), key=lambda i: (-x[peaks[i]], peaks[i]))
+    keep = np.ones(peaks.size, dtype=bool)
+    for i in order:
+        if keep[i]:
+            near = np.abs(peaks - peaks[i]) < min_distance
+            near[i] = False
+            keep[near] = False
+    return peaks[keep]
+
+
+def _extremes(h: FloatArray) -> tuple[float, float]:
+    return float(h.max()), float(h.min())
+
+
+def _partial_extremes(
+    x: FloatArray, start: int, end: int, reference: tuple[int, int] | None
+) -> tuple[float, float]:
+    """hmax/hmin of a segment cut off by the start or the end of the run."""
+    own = x[start:end]
+    top, bottom = _extremes(own)
+    if reference is None:
+        return top, bottom
+    ref_top, ref_bottom = _extremes(x[reference[0] : reference[1] + 1])
+    bottom_seen = 0 < int(own.argmin()) < own.size - 1
+    return max(top, ref_top), bottom if bottom_seen else min(bottom, ref_bottom)
+
+
+def _segment_progress(h: FloatArray, top: float, bottom: float) -> FloatArray:
+    """The paper's two branches around the segment's minimum, clipped to [0, 1]."""
+    span = top - bottom
+    if span < FLAT_RANGE:
+        return np.full(h.size, 0.5)
+    mid = int(h.argmin())
+    p = np.empty(h.size)
+    p[: mid + 1] = 0.5 * (top - h[: mid + 1]) / span
+    p[mid + 1 :] = 0.5 + 0.5 * (h[mid + 1 :] - bottom) / span
+    return np.clip(p, 0.0, 1.0)
