@@ -1,0 +1,138 @@
+"""A throwaway mosquitto on 127.0.0.1:<free port>, for the demo, the bench and tests.
+
+Started from a generated config in a temporary folder; can be stopped and
+started again on the same port (the broker-outage tests need that).
+"""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+from types import TracebackType
+from typing import Self
+
+MOSQUITTO_PATHS = ("mosquitto", "/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto")
+
+
+class BrokerError(Exception):
+    """mosquitto missing or not accepting connections."""
+
+
+def find_mosquitto() -> str | None:
+    for name in MOSQUITTO_PATHS:
+        found = shutil.which(name)
+        if found:
+            return found
+    return None
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+class Mosquitto:
+    """``with Mosquitto() as broker: ... broker.port ... broker.stop(); broker.start()``."""
+
+    def __init__(self, port: int | None = None, password: tuple[str, str] | None = None) -> None:
+        exe = find_mosquitto()
+        if exe is None:
+            msg = "mosquitto not found on PATH or in /usr/sbin"
+            raise BrokerError(msg)
+        self.exe = exe
+        self.host = "127.0.0.1"
+        self.port = port or free_port()
+        self._dir = Path(tempfile.mkdtemp(prefix="scotti-mosquitto-"))
+        self.log_path = self._dir / "mosquitto.log"
+        self.conf = self._write_conf(password)
+        self._proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"mqtt://{self.host}:{self.port}"
+
+    def _write_conf(self, password: tuple[str, str] | None) -> Path:
+        lines = [
+            f"listener {self.port} {self.host}",
+            "persistence false",
+            "log_dest stderr",
+            "log_type error",
+            "log_type warning",
+            "log_type notice",
+            "connection_messages true",
+            "max_queued_messages 10000",
+        ]
+        if password is None:
+            lines.append("allow_anonymous true")
+        else:
+            pwfile = self._dir / "passwd"
+            pwfile.write_text(f"{password[0]}:{password[1]}\n")
+            subprocess.run(["mosquitto_passwd", "-U", str(pwfile)], check=True)
+            lines += ["allow_anonymous false", f"password_file {pwfile}"]
+        conf = self._dir / "mosquitto.conf"
+        conf.write_text("\n".join(lines) + "\n")
+        return conf
+
+    def start(self, timeout: float = 10.0) -> None:
+        if self.running:
+            return
+        log = self.log_path.open("ab")
+        self._proc = subprocess.Popen(
+            [self.exe, "-c", str(self.conf)], stdout=log, stderr=subprocess.STDOUT
+        )
+        log.close()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self._proc.poll() is not None:
+                msg = f"mosquitto exited ({self._proc.returncode}): {self.log_tail()}"
+                raise BrokerError(msg)
+            try:
+                with socket.create_connection((self.host, self.port), timeout=0.2):
+                    return
+            except OSError:
+                time.sleep(0.05)
+        self.stop()
+        msg = f"mosquitto did not accept on port {self.port} within {timeout} s"
+        raise BrokerError(msg)
+
+    @property
+    def running(self) -> bool:
+        return self._proc is not None and self._proc.poll() is None
+
+    def stop(self) -> None:
+        """Kill the broker (clients see a dropped connection, as on a crash)."""
+        if self._proc is None:
+            return
+        if self._proc.poll() is None:
+            self._proc.kill()
+        self._proc.wait(timeout=10)
+        self._proc = None
+
+    def log_tail(self, lines: int = 20) -> str:
+        try:
+            text = self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+        return " | ".join(text.splitlines()[-lines:])
+
+    def close(self) -> None:
+        self.stop()
+        shutil.rmtree(self._dir, ignore_errors=True)
+
+    def __enter__(self) -> Self:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

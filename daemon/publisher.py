@@ -1,0 +1,230 @@
+"""MQTT publishing: one reusable aiomqtt client in a reconnect loop.
+
+The pipeline hands over one ``FrameBatch`` per prediction through a bounded
+queue that drops the oldest (the reader never waits for the broker). The
+loop here connects (also when the broker is down at boot: it keeps
+retrying with backoff), republishes the retained ``status`` and ``info`` on
+every connect, then publishes batches as they come. Retained state is
+"latest wins": ``set_status`` / ``set_health`` replace what is pending and
+whatever is current goes out after each reconnect.
+
+Pattern: aiomqtt docs/reconnection.md (one ``Client``, ``async with`` in a loop).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import logging
+import ssl
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Final, Literal
+
+import aiomqtt
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+from pydantic import BaseModel
+from scotti.daemon.schemas import CONTENT_TYPES, Health, Info, Status, encode
+from scotti.daemon.settings import MqttSettings
+
+log = logging.getLogger(__name__)
+
+BACKOFF_START_S: Final = 0.25
+RETAINED_QOS: Final = 1  # status/info/health: must arrive, late is fine
+FRAME_QOS: Final = 0  # pose/action/progress: a newer one is 62 ms away
+
+
+@dataclass(frozen=True)
+class FrameBatch:
+    """What one prediction publishes; rendered at publish time so latency is true."""
+
+    seq: int
+    last_byte_mono_ns: int  # 0 when unknown: latency is then measured from inference
+    made_mono_ns: int  # when the prediction was made
+    render: Callable[[float], list[tuple[str, BaseModel]]]  # latency_ms -> (topic, payload)
+
+
+@dataclass
+class PublisherStats:
+    published: int = 0  # predictions fully published
+    dropped_full: int = 0  # pushed out of the queue by newer ones
+    dropped_stale: int = 0  # older than the message expiry when the broker came back
+    dropped_error: int = 0  # lost in a publish that failed
+    connects: int = 0
+    last_seq: int | None = None
+
+    @property
+    def dropped(self) -> int:
+        return self.dropped_full + self.dropped_stale + self.dropped_error
+
+    @property
+    def reconnects(self) -> int:
+        return max(0, self.connects - 1)
+
+
+BrokerState = Literal["connecting", "connected", "disconnected", "stopped"]
+
+
+class Publisher:
+    """Owns the MQTT client; everything else only calls the non-blocking setters."""
+
+    def __init__(self, settings: MqttSettings, info: Info, will: Status) -> None:
+        self.settings = settings
+        self.stats = PublisherStats()
+        self.state: BrokerState = "connecting"
+        self.on_state_change: Callable[[BrokerState, str], None] = lambda _s, _r: None
+        self._fmt = settings.format
+        self._info = info
+        self._status: Status | None = None
+        self._health: Health | None = None
+        self._status_dirty = False
+        self._health_dirty = False
+        self._queue: collections.deque[FrameBatch] = collections.deque()
+        self._wake = asyncio.Event()
+        self._frame_props = _properties(self._fmt, expiry_s=settings.message_expiry_s)
+        self._retained_props = _properties(self._fmt, expiry_s=None)
+        self._health_props = _properties(
+            self._fmt, expiry_s=max(1, round(3 * settings.health_interval_s))
+        )
+        self._client = aiomqtt.Client(
+            settings.host,
+            settings.port,
+            username=settings.username,
+            password=settings.password.get_secret_value() if settings.password else None,
+            identifier=settings.client_id or f"scotti-daemon-{settings.device_id}",
+            protocol=aiomqtt.ProtocolVersion.V5,
+            will=aiomqtt.Will(
+                settings.topic("status"),
+                encode(will, self._fmt),
+                qos=RETAINED_QOS,
+                retain=True,
+                properties=self._retained_props,
+            ),
+            keepalive=settings.keepalive_s,
+            timeout=5,
+            tls_context=ssl.create_default_context() if settings.tls else None,
+            logger=logging.getLogger("scotti.daemon.mqtt"),
+        )
+
+    # --- called from the pipeline's side (event loop thread, never blocks) ---
+    @property
+    def queue_depth(self) -> int:
+        return len(self._queue)
+
+    def submit(self, batch: FrameBatch) -> None:
+        if len(self._queue) >= self.settings.queue_size:
+            self._queue.popleft()
+            self.stats.dropped_full += 1
+        self._queue.append(batch)
+        self._wake.set()
+
+    def set_status(self, status: Status) -> None:
+        self._status, self._status_dirty = status, True
+        self._wake.set()
+
+    def set_health(self, health: Health) -> None:
+        self._health, self._health_dirty = health, True
+        self._wake.set()
+
+    # --- the connection loop ---------------------------------------------------
+    async def run(self, stop: asyncio.Event) -> None:
+        """Publish until ``stop``; then drain the queue and the final status, disconnect."""
+        backoff = BACKOFF_START_S
+        while True:
+            try:
+                async with self._client:
+                    self.stats.connects += 1
+                    backoff = BACKOFF_START_S
+                    self._set_state("connected", self.settings.broker)
+                    self._status_dirty = self._health_dirty = True
+                    await self._publish(self.settings.topic("info"), self._info, True)
+                    await self._pump(stop)
+                self._set_state("stopped", "")
+                return
+            except aiomqtt.MqttError as exc:
+                self._set_state("disconnected", str(exc) or type(exc).__name__)
+            if stop.is_set():
+                self._set_state("stopped", "")
+                return
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), backoff)
+            backoff = min(2 * backoff, self.settings.reconnect_max_s)
+
+    async def _pump(self, stop: asyncio.Event) -> None:
+        while True:
+            self._wake.clear()
+            await self._flush_retained()
+            while self._queue:
+                await self._publish_batch(self._queue.popleft())
+                await self._flush_retained()  # status changes overtake a long backlog
+            if stop.is_set():
+                return
+            await _wait_any(self._wake, stop)
+
+    async def _flush_retained(self) -> None:
+        if self._status_dirty and self._status is not None:
+            self._status_dirty = False
+            await self._publish(self.settings.topic("status"), self._status, True)
+        if self._health_dirty and self._health is not None:
+            self._health_dirty = False
+            await self._publish(
+                self.settings.topic("health"), self._health, True, self._health_props
+            )
+
+    async def _publish_batch(self, batch: FrameBatch) -> None:
+        now = time.monotonic_ns()
+        if now - batch.made_mono_ns > self.settings.message_expiry_s * 1e9:
+            self.stats.dropped_stale += 1
+            return
+        origin = batch.last_byte_mono_ns or batch.made_mono_ns
+        latency_ms = (now - origin) / 1e6
+        try:
+            for name, payload in batch.render(latency_ms):
+                await self._publish(self.settings.topic(name), payload, False, self._frame_props)
+        except aiomqtt.MqttError:
+            self.stats.dropped_error += 1
+            raise
+        self.stats.published += 1
+        self.stats.last_seq = batch.seq
+
+    async def _publish(
+        self, topic: str, payload: BaseModel, retained: bool, props: Properties | None = None
+    ) -> None:
+        await self._client.publish(
+            topic,
+            encode(payload, self._fmt),
+            qos=RETAINED_QOS if retained else FRAME_QOS,
+            retain=retained,
+            properties=props or self._retained_props,
+        )
+
+    def _set_state(self, state: BrokerState, detail: str) -> None:
+        if state == self.state:
+            return
+        previous, self.state = self.state, state
+        if state == "connected":
+            log.info("broker %s: connected", self.settings.broker)
+        elif state == "disconnected":
+            level = logging.WARNING if previous != "connecting" else logging.INFO
+            log.log(level, "broker %s: %s; retrying with backoff", self.settings.broker, detail)
+        self.on_state_change(state, detail)
+
+
+def _properties(fmt: Literal["json", "msgpack"], expiry_s: int | None) -> Properties:
+    props = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
+    props.ContentType = CONTENT_TYPES[fmt]
+    if expiry_s is not None:
+        props.MessageExpiryInterval = expiry_s
+    return props
+
+
+async def _wait_any(*events: asyncio.Event) -> None:
+    waiters = [asyncio.ensure_future(e.wait()) for e in events]
+    try:
+        await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for w in waiters:
+            w.cancel()

@@ -1,0 +1,220 @@
+"""The MQTT payloads, the daemon's public API: one pydantic model per topic.
+
+Per-frame payloads (``pose``, ``action``, ``progress``, ``pressure``) share a
+``FrameStamp`` so a consumer joins them on ``seq``. ``status``, ``info`` and
+``health`` carry the schema version and the host's clocks.
+
+Run ``python -m scotti.daemon.schemas --write`` to regenerate
+``docs/schemas/*.schema.json`` and the generated section of ``docs/mqtt.md``;
+``--check`` fails when the committed files differ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any, Final, Literal, TypeVar
+
+import msgpack
+from pydantic import BaseModel, ConfigDict, Field
+
+SCHEMA_VERSION: Final = 1
+CONTENT_TYPES: Final = {"json": "application/json", "msgpack": "application/msgpack"}
+
+P = TypeVar("P", bound=BaseModel)
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class _Payload(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, ser_json_bytes="base64", val_json_bytes="base64"
+    )
+
+    schema_version: Literal[1] = Field(
+        default=SCHEMA_VERSION, description="Bumped on breaking change."
+    )
+
+
+class DeviceSeq(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    left: int = Field(description="Left insole frame sequence (u16, wraps).")
+    right: int = Field(description="Right insole frame sequence (u16, wraps).")
+
+
+class FrameStamp(_Payload):
+    """Shared by every per-frame payload: join pose, action and progress on ``seq``."""
+
+    seq: int = Field(description="Host count of paired frames since start; continuous.")
+    device_seq: DeviceSeq
+    device_time_us: int = Field(description="Left insole board clock of the frame (u32, wraps).")
+    host_wall_ns: int = Field(description="Host wall clock (Unix ns) at inference.")
+    host_mono_ns: int = Field(description="Host monotonic clock (ns) at inference.")
+    predicted_for_mono_ns: int = Field(description="Host monotonic time the output is for.")
+    latency_ms: float = Field(description="From the frame's last byte in to publish.")
+    flags: list[str] = Field(description="Degradations, e.g. left_filled, rows_missing.")
+
+
+class Pose(FrameStamp):
+    keypoints: Annotated[list[Vec3], Field(min_length=19, max_length=19)] = Field(
+        description="19 x [x, y, z] metres; order and frame in info.keypoints / info.pose_frame."
+    )
+
+
+class Action(FrameStamp):
+    action: str | None = Field(description="Most likely action, or null when none is likely.")
+    confidence: float = Field(ge=0, le=1, description="Probability of `action`.")
+    probabilities: dict[str, float] = Field(description="Probability of every action by name.")
+
+
+class Progress(FrameStamp):
+    action: str | None = Field(description="The action this progress belongs to.")
+    progress: float | None = Field(description="0..1 through the current repetition.")
+    repetition: int = Field(description="Repetitions of `action` counted so far (-1: none).")
+
+
+class Pressure(FrameStamp):
+    """Optional (mqtt.pressure = true): downsampled counts for viewers."""
+
+    rows: int = Field(description="Rows per foot after downsampling.")
+    cols: int = Field(description="Columns per foot after downsampling.")
+    downsample: int = Field(description="Block size averaged into one value.")
+    left: bytes = Field(description="rows*cols uint16 LE, row-major (base64url in JSON).")
+    right: bytes = Field(description="Same layout as `left`.")
+
+
+class Status(_Payload):
+    state: Literal["online", "degraded", "offline"]
+    reasons: list[str] = Field(description="Why degraded or offline; empty when online.")
+    source: Literal["connected", "disconnected", "stopped"]
+    feet: dict[str, Literal["ok", "silent"]] = Field(description="left/right: ok or silent.")
+    warming: tuple[int, int] = Field(description="[frames in window, frames needed].")
+    host_wall_ns: int = Field(description="When this status was composed (Unix ns).")
+
+
+class Info(_Payload):
+    device_id: str
+    versions: dict[str, str] = Field(description="scotti, python, onnxruntime, aiomqtt, ...")
+    model: dict[str, Any] = Field(description="File, sha256, graph metadata and model card.")
+    keypoints: list[str]
+    actions: list[str]
+    pose_frame: str
+    frame_rate_hz: float
+    window: int
+    format: Literal["json", "msgpack"]
+    topics: dict[str, str]
+    settings: dict[str, Any] = Field(description="Effective settings, secrets left out.")
+    host_wall_ns: int
+
+
+class Latency(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    p50_ms: float | None
+    p90_ms: float | None
+    p99_ms: float | None
+    max_ms: float | None
+
+
+class Health(_Payload):
+    uptime_s: float
+    host_wall_ns: int
+    host_mono_ns: int
+    last_seq: int | None = Field(description="seq of the newest prediction, null before any.")
+    broker_reconnects: int
+    published: int = Field(description="Predictions published.")
+    dropped: int = Field(description="Predictions not published (queue full or stale).")
+    queue_depth: int
+    inference: Latency
+    end_to_end: Latency = Field(description="Frame's last byte in to publish.")
+    counters: dict[str, float] = Field(description="Pipeline counters (frames, gaps, ...).")
+
+
+TOPICS: Final[dict[str, type[_Payload]]] = {
+    "status": Status,
+    "info": Info,
+    "pose": Pose,
+    "action": Action,
+    "progress": Progress,
+    "health": Health,
+    "pressure": Pressure,
+}
+
+
+def encode(payload: BaseModel, fmt: Literal["json", "msgpack"]) -> bytes:
+    if fmt == "json":
+        return payload.model_dump_json().encode()
+    data: bytes = msgpack.packb(payload.model_dump(mode="python"), use_bin_type=True)
+    return data
+
+
+def decode(model: type[P], data: bytes, fmt: Literal["json", "msgpack"]) -> P:
+    if fmt == "json":
+        return model.model_validate_json(data)
+    return model.model_validate(msgpack.unpackb(data, raw=False, strict_map_key=False))
+
+
+# --- documentation generator --------------------------------------------------
+BEGIN: Final = "<!-- BEGIN GENERATED SCHEMAS (python -m scotti.daemon.schemas --write) -->"
+END: Final = "<!-- END GENERATED SCHEMAS -->"
+
+
+def json_schemas() -> dict[str, str]:
+    """Topic -> its JSON Schema as formatted text."""
+    return {t: json.dumps(m.model_json_schema(), indent=2) + "\n" for t, m in TOPICS.items()}
+
+
+def render_doc_section() -> str:
+    blocks = [BEGIN, ""]
+    for topic, text in json_schemas().items():
+        blocks += [f"### `{topic}`", "", "```json", text.rstrip("\n"), "```", ""]
+    blocks.append(END)
+    return "\n".join(blocks)
+
+
+def render_doc(current: str) -> str:
+    """``docs/mqtt.md`` with its generated section replaced (or appended)."""
+    head, sep, rest = current.partition(BEGIN)
+    if not sep:
+        return current.rstrip("\n") + "\n\n" + render_doc_section() + "\n"
+    _, sep_end, tail = rest.partition(END)
+    if not sep_end:
+        tail = ""
+    return head + render_doc_section() + tail
+
+
+def generated_files(docs: Path) -> dict[Path, str]:
+    """Every generated file and its expected content."""
+    files = {docs / "schemas" / f"{t}.schema.json": s for t, s in json_schemas().items()}
+    mqtt_md = docs / "mqtt.md"
+    current = mqtt_md.read_text(encoding="utf-8") if mqtt_md.exists() else "# MQTT API\n"
+    files[mqtt_md] = render_doc(current)
+    return files
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m scotti.daemon.schemas")
+    parser.add_argument("--docs", type=Path, default=Path("docs"), help="docs folder")
+    mode = parser.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--write", action="store_true", help="regenerate the files")
+    mode.add_argument("--check", action="store_true", help="fail if the files are stale")
+    args = parser.parse_args(argv)
+    stale = []
+    for path, text in generated_files(args.docs).items():
+        old = path.read_text(encoding="utf-8") if path.exists() else None
+        if old == text:
+            continue
+        stale.append(str(path))
+        if args.write:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text, encoding="utf-8")
+    if args.check and stale:
+        print(f"schemas: stale, run with --write: {', '.join(stale)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,327 @@
+"""The daemon's configuration: one validated model, loaded once at start.
+
+Every setting can come from four places; the first that sets it wins:
+command line > ``SCOTTI_*`` environment > TOML file (``--config``) > default.
+Environment names are ``SCOTTI_<SECTION>_<FIELD>`` (``SCOTTI_MQTT_BROKER``,
+``SCOTTI_MQTT_PASSWORD``, ``SCOTTI_MODEL_THREADS``) or ``SCOTTI_<FIELD>`` for
+top-level fields (``SCOTTI_LOG_LEVEL``).
+
+The broker password is a secret: it comes from ``SCOTTI_MQTT_PASSWORD`` or
+``mqtt.password_file``, never from the TOML file, and is held as a
+``SecretStr`` so that neither logs nor the retained ``info`` message show it.
+"""
+
+from __future__ import annotations
+
+import re
+import socket
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, ClassVar, Final, Literal
+from urllib.parse import urlsplit
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SecretStr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+)
+
+EX_CONFIG: Final = 78  # sysexits.h: configuration error
+DEFAULT_MODEL_NAME: Final = "scotti.onnx"  # preferred among the shipped step graphs
+_TOPIC_FORBIDDEN: Final = re.compile(r"[+#/\x00-\x1f\s]")
+
+
+class ConfigError(Exception):
+    """A setting that cannot be used; the message is one line naming it."""
+
+
+def sanitise_device_id(name: str) -> str:
+    """A host name made safe for one MQTT topic level (``pi@lab 2`` -> ``pi-lab-2``)."""
+    cleaned = re.sub(r"[^A-Za-z0-9_.-]+", "-", name.split(".")[0]).strip("-").lower()
+    return cleaned or "scotti"
+
+
+def _check_topic_level(value: str, what: str) -> str:
+    if not value:
+        msg = f"{what} must not be empty"
+        raise ValueError(msg)
+    if _TOPIC_FORBIDDEN.search(value):
+        msg = f"{what} {value!r} must not contain '+', '#', '/', spaces or control characters"
+        raise ValueError(msg)
+    return value
+
+
+Speed = float | Literal["max"]
+
+
+def parse_speed(text: str) -> Speed:
+    """``1``, ``8``, ``0.5`` or ``max`` (replay and simulated board rate)."""
+    return "max" if text.strip().lower() == "max" else float(text)
+
+
+class SourceSettings(BaseModel):
+    """Where the bytes come from: exactly one of port, replay, simulate."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    port: str | None = None  # serial device, e.g. /dev/scotti-receiver
+    replay: Path | None = None  # session file fed back through the live path
+    simulate: str | None = None  # scene name (sim/scenes/NAME.toml) or a scene TOML path
+    speed: Speed = 1.0  # replay / simulate rate: 1 = real time, N times, or max
+
+    @field_validator("speed")
+    @classmethod
+    def _positive_speed(cls, v: Speed) -> Speed:
+        if v != "max" and not v > 0:
+            msg = "speed must be > 0 or 'max'"
+            raise ValueError(msg)
+        return v
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> SourceSettings:
+        given = [n for n in ("port", "replay", "simulate") if getattr(self, n) is not None]
+        if not given:
+            msg = "no source: set --port (source.port), --replay or --simulate"
+            raise ValueError(msg)
+        if len(given) > 1:
+            msg = f"give only one source, got {' and '.join(given)}"
+            raise ValueError(msg)
+        if self.replay is not None and not self.replay.is_file():
+            msg = f"replay file not found: {self.replay}"
+            raise ValueError(msg)
+        return self
+
+    @property
+    def kind(self) -> Literal["port", "replay", "simulate"]:
+        return "port" if self.port else "replay" if self.replay else "simulate"
+
+
+class ModelSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    path: Path | None = None  # None: the model shipped in the installed package
+    threads: Annotated[int, Field(ge=1, le=64)] = 1  # onnxruntime intra-op threads
+
+    def resolved_path(self) -> Path:
+        """The model file to load; the shipped default when ``path`` is unset."""
+        if self.path is not None:
+            if not self.path.is_file():
+                msg = f"model.path: file not found: {self.path}"
+                raise ConfigError(msg)
+            return self.path
+        return default_model_path()
+
+
+class MqttSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    broker: str = "mqtt://localhost:1883"  # mqtt://host[:port] or mqtts://host[:port] (TLS)
+    username: str | None = None
+    password: SecretStr | None = None  # only from SCOTTI_MQTT_PASSWORD
+    password_file: Path | None = None  # file holding the password (first line)
+    client_id: str | None = None  # default: scotti-daemon-<device_id>
+    device_id: str = Field(default_factory=lambda: sanitise_device_id(socket.gethostname()))
+    topic_prefix: str = "scotti"
+    format: Literal["json", "msgpack"] = "json"
+    keepalive_s: Annotated[int, Field(ge=5, le=3600)] = 15
+    message_expiry_s: Annotated[int, Field(ge=1, le=3600)] = 2  # pose/action/progress
+    queue_size: Annotated[int, Field(ge=1, le=10_000)] = 32  # predictions waiting to publish
+    health_interval_s: Annotated[float, Field(gt=0, le=3600)] = 5.0
+    reconnect_max_s: Annotated[float, Field(gt=0, le=300)] = 5.0  # backoff ceiling
+    pressure: bool = False  # also publish downsampled pressure frames (the demo's view)
+    pressure_downsample: Annotated[int, Field(ge=1, le=8)] = 2
+
+    @field_validator("device_id")
+    @classmethod
+    def _device_id(cls, v: str) -> str:
+        return _check_topic_level(v, "device id")
+
+    @field_validator("topic_prefix")
+    @classmethod
+    def _prefix(cls, v: str) -> str:
+        # A prefix may have several levels ("site/a"), none of them empty or a wildcard.
+        for level in v.split("/"):
+            if not level or _TOPIC_FORBIDDEN.search(level):
+                msg = f"topic prefix {v!r}: levels must be non-empty, without '+', '#' or spaces"
+                raise ValueError(msg)
+        return v
+
+    @field_validator("broker")
+    @classmethod
+    def _broker(cls, v: str) -> str:
+        _split_broker(v)
+        return v
+
+    @model_validator(mode="after")
+    def _read_password_file(self) -> MqttSettings:
+        if self.password is None and self.password_file is not None:
+            try:
+                secret = self.password_file.read_text(encoding="utf-8").splitlines()
+            except OSError as exc:
+                msg = f"cannot read password_file {self.password_file}: {exc.strerror}"
+                raise ValueError(msg) from None
+            object.__setattr__(self, "password", SecretStr(secret[0] if secret else ""))
+        return self
+
+    @property
+    def host(self) -> str:
+        return _split_broker(self.broker)[0]
+
+    @property
+    def port(self) -> int:
+        return _split_broker(self.broker)[1]
+
+    @property
+    def tls(self) -> bool:
+        return _split_broker(self.broker)[2]
+
+    def topic(self, name: str) -> str:
+        return f"{self.topic_prefix}/{self.device_id}/{name}"
+
+
+def _split_broker(url: str) -> tuple[str, int, bool]:
+    parts = urlsplit(url if "://" in url else f"mqtt://{url}")
+    if parts.scheme not in ("mqtt", "mqtts"):
+        msg = f"broker {url!r}: scheme must be mqtt:// or mqtts://"
+        raise ValueError(msg)
+    if parts.username or parts.password:
+        msg = "broker URL must not carry credentials; use mqtt.username and SCOTTI_MQTT_PASSWORD"
+        raise ValueError(msg)
+    try:
+        port = parts.port
+    except ValueError:
+        msg = f"broker {url!r}: port must be 1..65535"
+        raise ValueError(msg) from None
+    if not parts.hostname:
+        msg = f"broker {url!r}: no host"
+        raise ValueError(msg)
+    tls = parts.scheme == "mqtts"
+    return parts.hostname, port or (8883 if tls else 1883), tls
+
+
+class Settings(BaseSettings):
+    """Everything the daemon reads at start. Sections mirror the TOML file."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="SCOTTI_",
+        env_nested_delimiter="_",
+        env_nested_max_split=1,
+        extra="forbid",
+        frozen=True,
+    )
+
+    config_file: ClassVar[Path | None] = None  # set on a subclass by load_settings
+
+    source: SourceSettings
+    model: ModelSettings = ModelSettings()
+    mqtt: MqttSettings = MqttSettings()
+    record: Path | None = None  # append the raw byte stream to this session file
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+    stop_timeout_s: Annotated[float, Field(gt=0, le=120)] = 5.0
+
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _lower(cls, v: object) -> object:
+        return v.lower() if isinstance(v, str) else v
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        return (init_settings, env_settings, _TomlSource(settings_cls))
+
+    def summary(self) -> dict[str, Any]:
+        """Settings as published in ``info``: paths and choices, never the secret."""
+        data = self.model_dump(mode="json", exclude={"mqtt": {"password", "password_file"}})
+        data["mqtt"]["password_set"] = self.mqtt.password is not None
+        return data
+
+
+class _TomlSource(PydanticBaseSettingsSource):
+    """The ``--config`` file; its path travels in the settings class's ``config_file``."""
+
+    def get_field_value(self, field: Any, field_name: str) -> tuple[Any, str, bool]:
+        return None, field_name, False  # unused: __call__ returns the whole file
+
+    def __call__(self) -> dict[str, Any]:
+        path = getattr(self.settings_cls, "config_file", None)
+        if path is None:
+            return {}
+        try:
+            with Path(path).open("rb") as f:
+                data = tomllib.load(f)
+        except OSError as exc:
+            msg = f"cannot read config file {path}: {exc.strerror}"
+            raise ConfigError(msg) from None
+        except tomllib.TOMLDecodeError as exc:
+            msg = f"config file {path}: {exc}"
+            raise ConfigError(msg) from None
+        if "password" in data.get("mqtt", {}):
+            msg = "mqtt.password: not allowed in the config file; use SCOTTI_MQTT_PASSWORD"
+            raise ConfigError(msg + " or mqtt.password_file")
+        return data
+
+
+def load_settings(cli: dict[str, Any], config_file: Path | None = None) -> Settings:
+    """Merge command line (nested dict, unset keys absent), env, file and defaults.
+
+    Raises ``ConfigError`` with one line naming the bad setting.
+    """
+    cli = {k: dict(v) if isinstance(v, dict) else v for k, v in cli.items()}
+    if any(k in cli.get("source", {}) for k in ("port", "replay", "simulate")):
+        # A source given on the command line replaces the one from env or file.
+        for k in ("port", "replay", "simulate"):
+            cli["source"].setdefault(k, None)
+    cli.setdefault("source", {})  # so a missing source reads "no source", not "Field required"
+    cls: type[Settings] = Settings
+    if config_file is not None:
+        cls = type("Settings", (Settings,), {"config_file": config_file})
+    try:
+        return cls(**cli)
+    except ValidationError as exc:
+        raise ConfigError(_one_line(exc)) from None
+
+
+def _one_line(exc: ValidationError) -> str:
+    parts = []
+    for err in exc.errors(include_url=False):
+        loc = ".".join(str(p) for p in err["loc"])
+        message = str(err["msg"]).removeprefix("Value error, ")
+        parts.append(f"{loc}: {message}" if loc else message)
+    return "; ".join(parts)
+
+
+def default_model_path() -> Path:
+    """The step graph shipped in the installed package's ``models/`` folder."""
+    folder = Path(str(resources.files("scotti.models")))
+    steps = sorted(
+        p
+        for p in folder.glob("*.onnx")
+        if not p.name.endswith(".window.onnx") and ".int8." not in p.name
+    )
+    preferred = folder / DEFAULT_MODEL_NAME
+    if preferred in steps:
+        return preferred
+    if len(steps) == 1:
+        return steps[0]
+    if not steps:
+        msg = f"model: no model shipped in {folder}; pass --model PATH.onnx"
+    else:
+        names = ", ".join(p.name for p in steps)
+        msg = f"model: several models in {folder} ({names}); pass --model PATH.onnx"
+    raise ConfigError(msg)

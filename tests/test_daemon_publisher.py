@@ -1,0 +1,192 @@
+"""Publisher against a real mosquitto: retained state, v5 properties, queue, reconnects."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Awaitable, Callable
+from typing import Literal
+
+import msgpack
+import pytest
+from pydantic import BaseModel
+from scotti.daemon.local_broker import Mosquitto
+from scotti.daemon.publisher import FrameBatch, Publisher
+from scotti.daemon.schemas import DeviceSeq, Info, Progress, Status
+from scotti.daemon.settings import MqttSettings
+
+from tests.support.broker import Received, collect
+
+pytestmark = pytest.mark.mosquitto
+
+
+def settings(broker: Mosquitto, **kw: object) -> MqttSettings:
+    return MqttSettings(
+        broker=broker.url,
+        device_id="dev1",
+        reconnect_max_s=0.5,
+        **kw,  # type: ignore[arg-type]
+    )
+
+
+def info() -> Info:
+    return Info(
+        device_id="dev1",
+        versions={"scotti": "0"},
+        model={},
+        keypoints=[],
+        actions=[],
+        pose_frame="test",
+        frame_rate_hz=16.0,
+        window=40,
+        format="json",
+        topics={},
+        settings={},
+        host_wall_ns=0,
+    )
+
+
+def status(state: Literal["online", "degraded", "offline"]) -> Status:
+    return Status(
+        state=state, reasons=[], source="connected", feet={}, warming=(0, 40), host_wall_ns=1
+    )
+
+
+def batch(seq: int) -> FrameBatch:
+    def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
+        p = Progress(
+            seq=seq,
+            device_seq=DeviceSeq(left=seq, right=seq),
+            device_time_us=0,
+            host_wall_ns=0,
+            host_mono_ns=0,
+            predicted_for_mono_ns=0,
+            latency_ms=latency_ms,
+            flags=[],
+            action="squat",
+            progress=0.5,
+            repetition=1,
+        )
+        return [("progress", p)]
+
+    now = time.monotonic_ns()
+    return FrameBatch(seq=seq, last_byte_mono_ns=now, made_mono_ns=now, render=render)
+
+
+def running(
+    make: Callable[[], Publisher],
+    body: Callable[[Publisher], Awaitable[None]],
+    timeout: float = 20,
+) -> Publisher:
+    """Run a publisher (made inside the loop, as aiomqtt requires) while ``body`` runs."""
+    return asyncio.run(_running(make, body, timeout))
+
+
+async def _running(
+    make: Callable[[], Publisher], body: Callable[[Publisher], Awaitable[None]], within: float
+) -> Publisher:
+    pub = make()
+    stop = asyncio.Event()
+    task = asyncio.create_task(pub.run(stop))
+    try:
+        await asyncio.wait_for(body(pub), within)
+    finally:
+        stop.set()
+        await asyncio.wait_for(task, 10)
+    return pub
+
+
+async def until(cond: Callable[[], bool], within: float = 10) -> None:
+    deadline = time.monotonic() + within
+    while not cond():
+        assert time.monotonic() < deadline, "condition not met in time"
+        await asyncio.sleep(0.02)
+
+
+def seqs(msgs: list[Received]) -> list[int]:
+    return [Progress.model_validate_json(m.payload).seq for m in msgs]
+
+
+def test_publishes_retained_state_and_frames_with_v5_properties(mosquitto: Mosquitto) -> None:
+    with collect(mosquitto, "scotti/dev1/#") as got:
+
+        async def body(pub: Publisher) -> None:
+            pub.set_status(status("online"))
+            await until(lambda: pub.state == "connected")
+            for seq in range(5):
+                pub.submit(batch(seq))
+            await until(lambda: pub.stats.published == 5)
+
+        running(lambda: Publisher(settings(mosquitto), info(), will=status("offline")), body)
+        got.wait_for(lambda m: len([x for x in m if x.topic.endswith("progress")]) == 5, 5)
+    frames = got.snapshot("progress")
+    assert seqs(frames) == [0, 1, 2, 3, 4]
+    assert all(m.content_type == "application/json" and m.expiry == 2 for m in frames)
+    assert not any(m.retain for m in frames)
+    assert 0 <= Progress.model_validate_json(frames[0].payload).latency_ms < 1000
+    (st,) = got.snapshot("status")
+    assert Status.model_validate_json(st.payload).state == "online"
+    assert Info.model_validate_json(got.snapshot("info")[0].payload).device_id == "dev1"
+
+
+def test_retained_state_is_there_for_a_late_subscriber(mosquitto: Mosquitto) -> None:
+    async def body(pub: Publisher) -> None:
+        pub.set_status(status("degraded"))
+        await until(lambda: pub.state == "connected")
+        await asyncio.sleep(0.3)
+
+    mqtt = settings(mosquitto, format="msgpack")
+    running(lambda: Publisher(mqtt, info(), will=status("offline")), body)
+    with collect(mosquitto, "scotti/dev1/#") as got:
+        got.wait_for(lambda m: len(m) >= 2, 5, "retained status and info")
+    st = got.snapshot("status")[0]
+    assert st.retain
+    assert st.content_type == "application/msgpack"
+    assert msgpack.unpackb(st.payload)["state"] == "degraded"
+
+
+def test_queue_drops_the_oldest_and_counts() -> None:
+    async def fill() -> Publisher:  # not run: nothing leaves the queue
+        mqtt = MqttSettings(broker="mqtt://127.0.0.1:1", device_id="d", queue_size=4)
+        pub = Publisher(mqtt, info(), will=status("offline"))
+        for seq in range(10):
+            pub.submit(batch(seq))
+        return pub
+
+    pub = asyncio.run(fill())
+    assert pub.queue_depth == 4
+    assert pub.stats.dropped_full == 6
+    assert [b.seq for b in pub._queue] == [6, 7, 8, 9]
+
+
+def test_starts_with_broker_down_and_recovers_after_restart(mosquitto: Mosquitto) -> None:
+    mosquitto.stop()
+
+    async def body(pub: Publisher) -> None:
+        pub.set_status(status("online"))
+        for seq in range(20):  # nobody to send to: queued, oldest dropped
+            pub.submit(batch(seq))
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.5)
+        assert pub.state == "disconnected"
+        assert pub.stats.dropped_full == 12
+        mosquitto.start()
+        await until(lambda: pub.state == "connected")
+        await until(lambda: pub.stats.published == 8)
+        with_restart = pub.stats.connects
+        mosquitto.stop()  # lose the broker mid-stream
+        for seq in range(20, 30):
+            pub.submit(batch(seq))
+            await asyncio.sleep(0.02)
+        await until(lambda: pub.state == "disconnected")
+        mosquitto.start()
+        await until(lambda: pub.stats.connects == with_restart + 1)
+        await until(lambda: pub.queue_depth == 0)
+
+    mqtt = settings(mosquitto, queue_size=8)
+    pub = running(lambda: Publisher(mqtt, info(), will=status("offline")), body, timeout=40)
+    assert pub.stats.reconnects >= 1
+    assert pub.stats.published + pub.stats.dropped == 30
+    # After the last reconnect the retained state was published again.
+    with collect(mosquitto, "scotti/dev1/#") as got:
+        got.wait_for(lambda m: {x.topic.rsplit("/", 1)[1] for x in m} >= {"status", "info"}, 5)

@@ -1,0 +1,141 @@
+"""Settings: precedence CLI > env > file > defaults, one-line errors, the secret stays secret."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from scotti.daemon.settings import ConfigError, load_settings, parse_speed, sanitise_device_id
+
+PORT = {"source": {"port": "/dev/ttyACM0"}}
+
+
+@pytest.fixture(autouse=True)
+def clean_env(monkeypatch: pytest.MonkeyPatch) -> None:
+    import os
+
+    for key in list(os.environ):
+        if key.startswith("SCOTTI_"):
+            monkeypatch.delenv(key)
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "scotti-daemon.toml"
+    path.write_text(text)
+    return path
+
+
+def test_defaults() -> None:
+    s = load_settings(PORT)
+    assert s.mqtt.host == "localhost"
+    assert s.mqtt.port == 1883
+    assert s.mqtt.topic_prefix == "scotti"
+    assert s.mqtt.format == "json"
+    assert s.mqtt.device_id
+    assert s.source.kind == "port"
+    assert s.mqtt.topic("pose") == f"scotti/{s.mqtt.device_id}/pose"
+
+
+def test_precedence_cli_over_env_over_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cfg = write(
+        tmp_path,
+        '[source]\nport = "/dev/file"\n[mqtt]\nbroker = "mqtt://file:1"\n'
+        'topic_prefix = "fromfile"\ndevice_id = "filedev"\n[model]\nthreads = 3\n',
+    )
+    monkeypatch.setenv("SCOTTI_MQTT_BROKER", "mqtt://env:2")
+    monkeypatch.setenv("SCOTTI_MQTT_DEVICE_ID", "envdev")
+    monkeypatch.setenv("SCOTTI_LOG_LEVEL", "DEBUG")
+    s = load_settings({"mqtt": {"device_id": "clidev"}}, cfg)
+    assert s.mqtt.device_id == "clidev"  # CLI
+    assert (s.mqtt.host, s.mqtt.port) == ("env", 2)  # env over file
+    assert s.mqtt.topic_prefix == "fromfile"  # file over default
+    assert s.model.threads == 3
+    assert s.source.port == "/dev/file"
+    assert s.log_level == "debug"
+
+
+def test_source_on_cli_replaces_the_file_source(tmp_path: Path) -> None:
+    session = tmp_path / "s.scotti"
+    session.write_bytes(b"")
+    cfg = write(tmp_path, '[source]\nport = "/dev/file"\n')
+    s = load_settings({"source": {"replay": session, "speed": parse_speed("max")}}, cfg)
+    assert s.source.kind == "replay"
+    assert s.source.port is None
+    assert s.source.speed == "max"
+
+
+@pytest.mark.parametrize(
+    ("cli", "expected"),
+    [
+        ({"mqtt": {"broker": "mqtt://h:70000"}}, "mqtt.broker: broker 'mqtt://h:70000': port"),
+        ({"mqtt": {"device_id": "a/b"}}, "mqtt.device_id: device id 'a/b' must not contain"),
+        ({"mqtt": {"device_id": "x+"}}, "mqtt.device_id"),
+        ({"mqtt": {"device_id": ""}}, "mqtt.device_id: device id must not be empty"),
+        ({"mqtt": {"topic_prefix": "a/#"}}, "mqtt.topic_prefix"),
+        ({"mqtt": {"format": "xml"}}, "mqtt.format: Input should be 'json' or 'msgpack'"),
+        ({"model": {"threads": 0}}, "model.threads: Input should be greater than or equal to 1"),
+        ({"mqtt": {"broker": "http://h"}}, "mqtt.broker: broker 'http://h': scheme must be"),
+    ],
+)
+def test_bad_setting_names_itself_in_one_line(
+    cli: dict[str, dict[str, object]], expected: str
+) -> None:
+    merged = {**PORT, **cli}
+    with pytest.raises(ConfigError) as info:
+        load_settings(merged)
+    assert str(info.value).startswith(expected)
+    assert "\n" not in str(info.value)
+
+
+def test_no_source_and_two_sources() -> None:
+    with pytest.raises(ConfigError, match=r"^source: no source"):
+        load_settings({})
+    with pytest.raises(ConfigError, match="only one source"):
+        load_settings({"source": {"port": "/dev/x", "simulate": "demo"}})
+
+
+def test_bad_env_value_is_named(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SCOTTI_MQTT_KEEPALIVE_S", "many")
+    with pytest.raises(ConfigError, match=r"^mqtt.keepalive_s: Input should be a valid integer"):
+        load_settings(PORT)
+
+
+def test_bad_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="cannot read config file"):
+        load_settings(PORT, tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match=r"config file .*: Expected"):
+        load_settings(PORT, write(tmp_path, "[mqtt\n"))
+    with pytest.raises(ConfigError, match=r"^mqtt.brokr: Extra inputs are not permitted"):
+        load_settings(PORT, write(tmp_path, '[mqtt]\nbrokr = "x"\n'))
+
+
+def test_password_from_env_or_file_never_from_config(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with pytest.raises(ConfigError, match=r"^mqtt\.password: not allowed in the config file"):
+        load_settings(PORT, write(tmp_path, '[mqtt]\npassword = "hunter2"\n'))
+    pw = tmp_path / "pw"
+    pw.write_text("s3cret-from-file\n")
+    s = load_settings({**PORT, "mqtt": {"password_file": pw}})
+    assert s.mqtt.password is not None
+    assert s.mqtt.password.get_secret_value() == "s3cret-from-file"
+    monkeypatch.setenv("SCOTTI_MQTT_PASSWORD", "s3cret-from-env")
+    s = load_settings(PORT)
+    assert s.mqtt.password is not None
+    assert s.mqtt.password.get_secret_value() == "s3cret-from-env"
+    assert "s3cret" not in repr(s)
+    assert "s3cret" not in str(s.summary())
+    assert s.summary()["mqtt"]["password_set"] is True
+
+
+def test_device_id_from_host_name_is_sanitised() -> None:
+    assert sanitise_device_id("Pi@Lab 2.local") == "pi-lab-2"
+    assert sanitise_device_id("+++") == "scotti"
+
+
+def test_missing_replay_file_and_missing_model(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="replay file not found"):
+        load_settings({"source": {"replay": tmp_path / "nope"}})
+    s = load_settings({**PORT, "model": {"path": tmp_path / "nope.onnx"}})
+    with pytest.raises(ConfigError, match=r"^model.path: file not found"):
+        s.model.resolved_path()
