@@ -1,0 +1,80 @@
+"""The receiver board's wire protocol (PROTOCOL.md) and the session file format.
+
+Sans-I/O: bytes in, packets out; numpy and msgpack only.
+"""
+
+from scotti.firmware_protocol.errors import (
+    BadCobsError,
+    BadCrcError,
+    BadVersionError,
+    DecodeError,
+    MalformedError,
+    PacketValueError,
+    ProtocolError,
+    SessionError,
+    TooLongError,
+    UnknownTypeError,
+)
+from scotti.firmware_protocol.framing import (
+    DecoderCounters,
+    StreamDecoder,
+    decode_all,
+    encode_packet,
+)
+from scotti.firmware_protocol.packets import (
+    MAX_PACKET_LEN,
+    VERSION,
+    BoardStatus,
+    Foot,
+    FrameRows,
+    InsoleStatus,
+    Packet,
+    parse_packet,
+)
+from scotti.firmware_protocol.session import (
+    LabelRecord,
+    PacketRecord,
+    Session,
+    SessionHeader,
+    SessionReader,
+    SessionWriter,
+    iter_records,
+    read_session,
+)
+from scotti.firmware_protocol.wrap import Unwrapper, clock_delta_us, seq_delta
+
+__all__ = [
+    "MAX_PACKET_LEN",
+    "VERSION",
+    "BadCobsError",
+    "BadCrcError",
+    "BadVersionError",
+    "BoardStatus",
+    "DecodeError",
+    "DecoderCounters",
+    "Foot",
+    "FrameRows",
+    "InsoleStatus",
+    "LabelRecord",
+    "MalformedError",
+    "Packet",
+    "PacketRecord",
+    "PacketValueError",
+    "ProtocolError",
+    "Session",
+    "SessionError",
+    "SessionHeader",
+    "SessionReader",
+    "SessionWriter",
+    "StreamDecoder",
+    "TooLongError",
+    "UnknownTypeError",
+    "Unwrapper",
+    "clock_delta_us",
+    "decode_all",
+    "encode_packet",
+    "iter_records",
+    "parse_packet",
+    "read_session",
+    "seq_delta",
+]

@@ -1,0 +1,158 @@
+"""Packets on the wire: COBS-encoded, each followed by one 0x00 delimiter.
+
+``StreamDecoder`` takes bytes in whatever chunks the serial port delivers and
+returns packets and ``DecodeError`` values. It never raises on input: after
+garbage it is back in step at the next delimiter, and it never holds more
+than one maximal encoded packet in memory.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Final
+
+from scotti.firmware_protocol import cobs
+from scotti.firmware_protocol.errors import DecodeError, TooLongError
+from scotti.firmware_protocol.packets import MAX_PACKET_LEN, Packet, parse_packet
+
+DELIMITER: Final = 0x00  # ends every COBS-encoded packet on the wire
+MAX_ENCODED_LEN: Final = cobs.max_encoded_len(MAX_PACKET_LEN)  # longest legal run (2057 bytes)
+
+
+def encode_packet(packet: Packet) -> bytes:
+    """The bytes the board sends for ``packet``: COBS(packet) + 0x00."""
+    return cobs.encode(packet.to_bytes()) + b"\x00"
+
+
+@dataclass
+class DecoderCounters:
+    """What a ``StreamDecoder`` has seen since it was made (all only grow)."""
+
+    packets: int = 0  # packets decoded and returned
+    bytes_in: int = 0  # every byte fed in
+    bytes_discarded: int = 0  # bytes (delimiters included) that did not become a packet
+    bad_cobs: int = 0  # runs between delimiters that are not valid COBS
+    too_long: int = 0  # runs longer than MAX_ENCODED_LEN, or packets over MAX_PACKET_LEN
+    bad_crc: int = 0  # packets whose CRC-32 did not match
+    bad_version: int = 0  # packets of another protocol version
+    unknown_type: int = 0  # packets of a type this host does not know (skipped)
+    malformed: int = 0  # packets of a known type whose body breaks the spec
+
+    @property
+    def errors(self) -> int:
+        """Every packet or run that was dropped, whatever the reason."""
+        return (
+            self.bad_cobs
+            + self.too_long
+            + self.bad_crc
+            + self.bad_version
+            + self.unknown_type
+            + self.malformed
+        )
+
+    @property
+    def bad_framing(self) -> int:
+        """Alias of ``bad_cobs`` (the name INTERFACES.md first used)."""
+        return self.bad_cobs
+
+    @property
+    def oversize(self) -> int:
+        """Alias of ``too_long`` (the name INTERFACES.md first used)."""
+        return self.too_long
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class StreamDecoder:
+    """Bytes in, ``Packet`` or ``DecodeError`` values out (sans-I/O, never raises).
+
+    A run of bytes longer than the longest legal encoded packet is dropped
+    (counted once as ``too_long``) and everything up to the next delimiter
+    is skipped without being stored.
+    """
+
+    def __init__(self, max_packet_len: int = MAX_PACKET_LEN) -> None:
+        self.max_packet_len = max_packet_len
+        self.max_encoded_len = cobs.max_encoded_len(max_packet_len)
+        self.counters = DecoderCounters()
+        self._buffer = bytearray()  # bytes since the last delimiter, at most max_encoded_len
+        self._skipping = False  # inside an over-long run: drop until the next delimiter
+
+    @property
+    def pending(self) -> int:
+        """Bytes held while waiting for the next delimiter."""
+        return len(self._buffer)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Packet | DecodeError]:
+        """Take the next bytes of the stream; return what they completed, in order."""
+        chunk = bytes(data)
+        counters = self.counters
+        counters.bytes_in += len(chunk)
+        out: list[Packet | DecodeError] = []
+        start = 0
+        while True:
+            end = chunk.find(DELIMITER, start)
+            if end < 0:
+                self._keep(chunk[start:], out)
+                return out
+            if self._skipping:
+                counters.bytes_discarded += end - start + 1
+                self._skipping = False
+            else:
+                if self._buffer:
+                    self._buffer += chunk[start:end]
+                    frame = bytes(self._buffer)
+                    self._buffer.clear()
+                else:
+                    frame = chunk[start:end]
+                if len(frame) > self.max_encoded_len:
+                    out.append(self._too_long(len(frame) + 1))
+                elif frame:  # an empty run (0x00 0x00) is idle padding, not an error
+                    out.append(self._decode(frame))
+            start = end + 1
+
+    def reset(self) -> None:
+        """Forget a partial packet (the port was reopened); its bytes count as discarded."""
+        self.counters.bytes_discarded += len(self._buffer)
+        self._buffer.clear()
+        self._skipping = False
+
+    def _keep(self, tail: bytes, out: list[Packet | DecodeError]) -> None:
+        if self._skipping:
+            self.counters.bytes_discarded += len(tail)
+            return
+        if len(self._buffer) + len(tail) > self.max_encoded_len:
+            out.append(self._too_long(len(self._buffer) + len(tail)))
+            self._buffer.clear()
+            self._skipping = True
+            return
+        self._buffer += tail
+
+    def _too_long(self, discarded: int) -> DecodeError:
+        self.counters.too_long += 1
+        self.counters.bytes_discarded += discarded
+        msg = f"more than {self.max_encoded_len} bytes without a delimiter"
+        return TooLongError(msg)
+
+    def _decode(self, frame: bytes) -> Packet | DecodeError:
+        try:
+            packet = cobs.decode(frame)
+            if len(packet) > self.max_packet_len:
+                msg = f"packet of {len(packet)} bytes exceeds {self.max_packet_len}"
+                raise TooLongError(msg)
+            result = parse_packet(packet)
+        except DecodeError as exc:
+            counters = self.counters
+            setattr(counters, exc.reason, getattr(counters, exc.reason) + 1)
+            counters.bytes_discarded += len(frame) + 1
+            return exc
+        self.counters.packets += 1
+        return result
+
+
+def decode_all(data: bytes) -> tuple[list[Packet], DecoderCounters]:
+    """Decode a whole byte string at once; returns the packets and the counters."""
+    decoder = StreamDecoder()
+    items = decoder.feed(data)
+    return [item for item in items if not isinstance(item, DecodeError)], decoder.counters

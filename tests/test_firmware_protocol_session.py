@@ -1,0 +1,229 @@
+"""Session files: round trip, a cut at every byte, corruption, a killed writer."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+from scotti.firmware_protocol.errors import SessionError
+from scotti.firmware_protocol.session import (
+    MAGIC,
+    LabelRecord,
+    PacketRecord,
+    SessionHeader,
+    SessionReader,
+    SessionWriter,
+    iter_records,
+    read_session,
+)
+from scotti.models import contract
+
+HEADER = SessionHeader(
+    source="simulated", device="test-rig", created_unix=1.7e9, scene={"name": "squats", "seed": 3}
+)
+
+
+def label(seq: int, action: int = 0) -> LabelRecord:
+    keypoints = np.arange(57, dtype=np.float32).reshape(19, 3) / 10 + seq
+    progress = math.nan if action < 0 else 0.25
+    return LabelRecord(seq, 1000 * seq, keypoints, action, progress, rep=-1 if action < 0 else 2)
+
+
+def write_small(path: Path) -> list[PacketRecord | LabelRecord]:
+    records: list[PacketRecord | LabelRecord] = [
+        PacketRecord(10, b"\x01\x02\x00"),
+        label(0),
+        PacketRecord(20, bytes(range(256))),
+        label(1, action=-1),
+        PacketRecord(30, b""),
+    ]
+    with SessionWriter(path, HEADER) as writer:
+        for record in records:
+            writer.write(record)
+    return records
+
+
+def test_constants_agree_with_the_model_contract() -> None:
+    assert (HEADER.rows, HEADER.cols, HEADER.sample_bits) == (
+        contract.FRAME_ROWS,
+        contract.FRAME_COLS,
+        contract.SAMPLE_BITS,
+    )
+    assert label(0).keypoints.shape == (contract.NUM_KEYPOINTS, 3)
+
+
+def test_round_trip(tmp_path: Path) -> None:
+    path = tmp_path / "s.scot"
+    records = write_small(path)
+    session = read_session(path)
+    assert session.header == HEADER
+    assert session.packets == [r for r in records if isinstance(r, PacketRecord)]
+    assert session.labels == [r for r in records if isinstance(r, LabelRecord)]
+    assert session.labels[0].keypoints.dtype == np.float32
+    assert math.isnan(session.labels[1].progress)
+    assert (session.truncated, session.bad_records) == (False, 0)
+    assert list(iter_records(path)) == [HEADER, *records]
+
+
+def test_file_layout_is_magic_then_length_prefixed_msgpack(tmp_path: Path) -> None:
+    path = tmp_path / "s.scot"
+    write_small(path)
+    raw = path.read_bytes()
+    assert raw.startswith(MAGIC)
+    length = int.from_bytes(raw[8:12], "little")
+    header = msgpack.unpackb(raw[12 : 12 + length])
+    assert header["kind"] == "header"
+    assert header["format_version"] == 1
+    assert header["scene"] == {"name": "squats", "seed": 3}
+    length2 = int.from_bytes(raw[12 + length : 16 + length], "little")
+    first = msgpack.unpackb(raw[16 + length : 16 + length + length2])
+    assert first == {"kind": "packet", "t_ns": 10, "data": b"\x01\x02\x00"}
+
+
+def record_ends(raw: bytes) -> list[int]:
+    """Offsets at which each whole record (header first) ends."""
+    ends, offset = [], len(MAGIC)
+    while offset < len(raw):
+        offset += 4 + int.from_bytes(raw[offset : offset + 4], "little")
+        ends.append(offset)
+    return ends
+
+
+def test_cut_at_every_byte_reads_every_whole_record(tmp_path: Path) -> None:
+    full = tmp_path / "full.scot"
+    records = write_small(full)
+    raw = full.read_bytes()
+    ends = record_ends(raw)
+    cut = tmp_path / "cut.scot"
+    for size in range(len(raw)):
+        cut.write_bytes(raw[:size])
+        if size < ends[0]:
+            with pytest.raises(SessionError, match=r"cut short before its header|not a session"):
+                read_session(cut)
+            continue
+        session = read_session(cut)
+        whole = sum(1 for end in ends[1:] if end <= size)
+        expected = records[:whole]
+        assert session.packets == [r for r in expected if isinstance(r, PacketRecord)]
+        assert session.labels == [r for r in expected if isinstance(r, LabelRecord)]
+        assert session.truncated == (size not in ends), size
+
+
+@pytest.mark.parametrize(
+    ("content", "words"),
+    [
+        (b"", "not a session file"),
+        (b"hello world, not a session", "not a session file"),
+        (MAGIC[:5], "cut short before its header"),
+        (MAGIC + b"\xff\xff\xff\xff" + b"x" * 100, "corrupt: record of 4294967295 bytes"),
+        (MAGIC + b"\x00\x00\x00\x00", "corrupt: record of 0 bytes"),
+    ],
+)
+def test_bad_files_give_one_line_errors(tmp_path: Path, content: bytes, words: str) -> None:
+    path = tmp_path / "bad.scot"
+    path.write_bytes(content)
+    with pytest.raises(SessionError, match=words) as caught:
+        read_session(path)
+    assert "\n" not in str(caught.value)
+
+
+def raw_record(record: object) -> bytes:
+    body = msgpack.packb(record)
+    return len(body).to_bytes(4, "little") + body
+
+
+def test_missing_header_record(tmp_path: Path) -> None:
+    path = tmp_path / "noheader.scot"
+    path.write_bytes(MAGIC + raw_record({"kind": "packet", "t_ns": 1, "data": b""}))
+    with pytest.raises(SessionError, match="no header record"):
+        read_session(path)
+
+
+def test_newer_format_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "new.scot"
+    path.write_bytes(MAGIC + raw_record({**HEADER.to_record(), "format_version": 2}))
+    with pytest.raises(SessionError, match="format_version 2"):
+        read_session(path)
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(SessionError, match="cannot open"):
+        read_session(tmp_path / "nope.scot")
+
+
+def test_bad_and_unknown_records_are_skipped_and_counted(tmp_path: Path) -> None:
+    path = tmp_path / "odd.scot"
+    path.write_bytes(
+        MAGIC
+        + raw_record(HEADER.to_record())
+        + raw_record({"kind": "event", "what": "from a newer writer"})
+        + raw_record({"kind": "packet", "t_ns": "soon"})
+        + b"\x03\x00\x00\x00\xc1\xc1\xc1"  # a length-correct record that is not msgpack
+        + raw_record([1, 2, 3])
+        + raw_record({"kind": "label", "seq": 1, "t_ns": 0, "keypoints": b"short"})
+        + raw_record({"kind": "packet", "t_ns": 5, "data": b"ok"})
+    )
+    session = read_session(path)
+    assert session.packets == [PacketRecord(5, b"ok")]
+    assert (session.bad_records, session.unknown_records) == (4, 1)
+    assert not session.truncated
+
+
+def test_header_validates_source() -> None:
+    with pytest.raises(SessionError, match="source"):
+        SessionHeader(source="dreamed")  # type: ignore[arg-type]
+
+
+def test_writer_refuses_writes_after_close_and_bad_paths(tmp_path: Path) -> None:
+    writer = SessionWriter(tmp_path / "a.scot", HEADER, fsync_interval_s=0.0)
+    writer.write_packet(1, b"x")
+    writer.close()
+    writer.close()
+    with pytest.raises(SessionError, match="closed"):
+        writer.write_packet(2, b"y")
+    with pytest.raises(SessionError, match="cannot create"):
+        SessionWriter(tmp_path / "missing-dir" / "a.scot", HEADER)
+
+
+def test_reader_streams_with_counters(tmp_path: Path) -> None:
+    path = tmp_path / "s.scot"
+    write_small(path)
+    path.write_bytes(path.read_bytes()[:-3])
+    with SessionReader(path) as reader:
+        kinds = [type(r).__name__ for r in reader]
+    assert kinds == ["PacketRecord", "LabelRecord", "PacketRecord", "LabelRecord"]
+    assert reader.truncated
+
+
+_KILLED_WRITER = """
+import sys, time
+from scotti.firmware_protocol.session import SessionHeader, SessionWriter
+writer = SessionWriter(sys.argv[1], SessionHeader(source="recorded"))
+for i in range(10**9):
+    writer.write_packet(i, bytes(1000))
+    if i == 200:
+        print("ready", flush=True)
+"""
+
+
+def test_writer_killed_by_sigkill_leaves_a_readable_file(tmp_path: Path) -> None:
+    path = tmp_path / "killed.scot"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _KILLED_WRITER, str(path)], stdout=subprocess.PIPE
+    )
+    assert proc.stdout is not None
+    assert proc.stdout.readline() == b"ready\n"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=10)
+    proc.stdout.close()
+    session = read_session(path)
+    assert len(session.packets) > 200
+    assert [p.t_ns for p in session.packets] == list(range(len(session.packets)))
+    assert session.bad_records == 0
