@@ -3,6 +3,7 @@
 Sans-I/O: bytes in, packets out; numpy and msgpack only.
 """
 
+from scotti.firmware_protocol.assembly import AssemblerCounters, FootFrame, FrameAssembler
 from scotti.firmware_protocol.errors import (
     BadCobsError,
     BadCrcError,
@@ -29,6 +30,7 @@ from scotti.firmware_protocol.packets import (
     FrameRows,
     InsoleStatus,
     Packet,
+    frame_blocks,
     parse_packet,
 )
 from scotti.firmware_protocol.session import (
@@ -46,6 +48,7 @@ from scotti.firmware_protocol.wrap import Unwrapper, clock_delta_us, seq_delta
 __all__ = [
     "MAX_PACKET_LEN",
     "VERSION",
+    "AssemblerCounters",
     "BadCobsError",
     "BadCrcError",
     "BadVersionError",
@@ -53,6 +56,8 @@ __all__ = [
     "DecodeError",
     "DecoderCounters",
     "Foot",
+    "FootFrame",
+    "FrameAssembler",
     "FrameRows",
     "InsoleStatus",
     "LabelRecord",
@@ -73,6 +78,7 @@ __all__ = [
     "clock_delta_us",
     "decode_all",
     "encode_packet",
+    "frame_blocks",
     "iter_records",
     "parse_packet",
     "read_session",
