@@ -1,0 +1,402 @@
+"""One checkpoint -> the two ONNX graphs the daemon runs, a model card, and proof.
+
+NAME.onnx is the streaming step (one new frame + the cached embeddings of the
+previous T-1 frames -> pose, action logits, progress and the new frame's
+embedding); NAME.window.onnx takes B whole windows. Both come from the same
+weights via the dynamo exporter (opset 20), carry the contract metadata, and
+are checked against torch (``scotti.export.parity``) before the card is
+written. Optional int8 copies quantize MatMul/Gemm only (``quantize.py``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import hashlib
+import json
+import logging
+import os
+import platform
+import tempfile
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+from typing import Any
+
+import onnx
+import torch
+from scotti.export.errors import ExportError
+from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
+from scotti.export.parity import (
+    FP32,
+    STEP_INPUTS,
+    STEP_OUTPUTS,
+    WINDOW_INPUTS,
+    WINDOW_OUTPUTS,
+    Report,
+    Tolerance,
+    drift,
+    format_report,
+    prove,
+)
+from scotti.export.quantize import quantize_int8
+from scotti.models import contract
+from torch import nn
+
+OPSET = 20
+
+
+class StepGraph(nn.Module):
+    """The streaming step: what the daemon runs once per new frame."""
+
+    def __init__(self, model: Scotti) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(
+        self, frame: torch.Tensor, past_embeddings: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        emb = self.model.embed_frames(frame)  # (B, E), the newest frame
+        window = torch.cat([past_embeddings, emb[:, None]], dim=1)  # (B, T, E), oldest first
+        pose, action_logits, progress = self.model.forward_embeddings(window)
+        return pose, action_logits, progress, emb
+
+
+class WindowGraph(nn.Module):
+    """B whole windows of raw frames, for batch evaluation."""
+
+    def __init__(self, model: Scotti) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        pose, action_logits, progress = self.model(frames)  # (B, T, H, 2W) -> heads
+        return pose, action_logits, progress
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """What ``torch.save`` wrote: config + weights, and what the card reports."""
+
+    model: Scotti
+    training_data: Any = None
+    metrics: Any = None
+    epoch: int | None = None
+
+
+@dataclass(frozen=True)
+class GraphPaths:
+    """The files of one export, named after NAME.onnx (the step graph)."""
+
+    step: Path
+    window: Path
+    card_json: Path
+    card_md: Path
+    int8_step: Path
+    int8_window: Path
+
+    @classmethod
+    def for_output(cls, out: Path) -> GraphPaths:
+        if out.suffix != ".onnx":
+            msg = f"output must end in .onnx: {out}"
+            raise ExportError(msg)
+        base = out.with_suffix("")
+        return cls(
+            step=out,
+            window=base.with_suffix(".window.onnx"),
+            card_json=base.with_suffix(".card.json"),
+            card_md=base.with_suffix(".card.md"),
+            int8_step=base.with_suffix(".int8.onnx"),
+            int8_window=base.with_suffix(".int8.window.onnx"),
+        )
+
+
+@dataclass
+class ExportResult:
+    paths: GraphPaths
+    card: dict[str, Any]
+    parity: dict[str, dict[str, float]]  # check -> output -> max abs difference
+    int8_drift: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+def load_checkpoint(path: Path) -> Checkpoint:
+    """Read a training checkpoint; any fault is one ``ExportError`` line."""
+    if not path.is_file():
+        msg = f"checkpoint not found: {path}"
+        raise ExportError(msg)
+    try:
+        raw = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for a bad file
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        msg = f"cannot read checkpoint {path}: {first}"
+        raise ExportError(msg) from None
+    if not isinstance(raw, dict) or "config" not in raw or "model" not in raw:
+        msg = f"{path} is not a SCOTTI checkpoint (needs the keys 'config' and 'model')"
+        raise ExportError(msg)
+    try:
+        cfg = ScottiConfig.from_dict(dict(raw["config"]))
+    except (ModelConfigError, TypeError, ValueError) as exc:
+        msg = f"{path}: bad config: {exc}"
+        raise ExportError(msg) from None
+    model = Scotti(cfg)
+    _load_weights(model, raw["model"], path)
+    epoch = raw.get("epoch")
+    return Checkpoint(
+        model=model.eval(),
+        training_data=raw.get("training_data"),
+        metrics=raw.get("metrics"),
+        epoch=int(epoch) if isinstance(epoch, int) else None,
+    )
+
+
+def _load_weights(model: Scotti, state: Any, path: Path) -> None:
+    """Strict load with a one-line summary instead of torch's many-line error."""
+    if not isinstance(state, dict):
+        msg = f"{path}: 'model' is not a state_dict"
+        raise ExportError(msg)
+    expected = model.state_dict()
+    missing = sorted(set(expected) - set(state))
+    unexpected = sorted(set(state) - set(expected))
+    wrong = sorted(
+        k
+        for k in set(expected) & set(state)
+        if not isinstance(state[k], torch.Tensor) or state[k].shape != expected[k].shape
+    )
+    if missing or unexpected or wrong:
+        parts = [
+            f"{label} {len(names)} ({', '.join(names[:3])}{', ...' if len(names) > 3 else ''})"
+            for label, names in (
+                ("missing", missing),
+                ("unexpected", unexpected),
+                ("wrong shape", wrong),
+            )
+            if names
+        ]
+        msg = f"{path}: weights do not fit the config: {'; '.join(parts)}"
+        raise ExportError(msg)
+    model.load_state_dict(state)
+
+
+@contextlib.contextmanager
+def _quiet_exporter() -> Iterator[None]:
+    """Silence the exporter's own deprecation chatter (tests run with warnings as errors)."""
+    registration = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = registration.level
+    registration.setLevel(logging.ERROR)  # "torchvision is not installed" lines
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=FutureWarning)
+            warnings.filterwarnings("ignore", category=DeprecationWarning)
+            warnings.filterwarnings("ignore", message=".*axis name.*will not be used.*")
+            yield
+    finally:
+        registration.setLevel(level)
+
+
+def export_graph(
+    module: nn.Module,
+    example: tuple[torch.Tensor, ...],
+    path: Path,
+    input_names: tuple[str, ...],
+    output_names: tuple[str, ...],
+) -> None:
+    """Dynamo export with a dynamic batch axis on every input, weights inside the file."""
+    batch = torch.export.Dim("batch")
+    dynamic = {name: {0: batch} for name in input_names}
+    with _quiet_exporter(), torch.no_grad():
+        try:
+            program = torch.onnx.export(
+                module.eval(),
+                example,
+                dynamo=True,
+                opset_version=OPSET,
+                input_names=list(input_names),
+                output_names=list(output_names),
+                dynamic_shapes=dynamic,
+                external_data=False,
+                verbose=False,
+            )
+        except Exception as exc:  # the exporter's errors are long; keep the first line
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            msg = f"ONNX export of {path.name} failed: {first}"
+            raise ExportError(msg) from None
+    if program is None:
+        msg = f"ONNX export of {path.name} returned nothing"
+        raise ExportError(msg)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    program.save(str(path), external_data=False)
+
+
+def write_metadata(path: Path, graph: str, cfg: ScottiConfig, card: dict[str, Any]) -> None:
+    """Set the contract's metadata_props (contract.META_*) on a saved graph."""
+    proto = onnx.load(str(path))
+    values = {
+        contract.META_CONTRACT_VERSION: str(contract.CONTRACT_VERSION),
+        contract.META_GRAPH: graph,
+        contract.META_WINDOW: str(cfg.window),
+        contract.META_EMBED_DIM: str(cfg.embed_dim),
+        contract.META_FRAME_ROWS: str(cfg.rows),
+        contract.META_FRAME_COLS: str(cfg.cols),
+        contract.META_KEYPOINTS: json.dumps(list(contract.KEYPOINTS)),
+        contract.META_ACTIONS: json.dumps(list(contract.ACTIONS)),
+        contract.META_CARD: json.dumps(card, sort_keys=True),
+    }
+    del proto.metadata_props[:]
+    for key, value in values.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    proto.producer_name = "scotti.export"
+    onnx.save(proto, str(path))
+
+
+def tool_versions() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for dist in ("torch", "onnx", "onnxruntime", "onnxscript", "numpy", "scotti"):
+        try:
+            versions[dist] = importlib_metadata.version(dist)
+        except importlib_metadata.PackageNotFoundError:
+            versions[dist] = "absent"
+    return versions
+
+
+def base_card(ckpt: Checkpoint, name: str, precision: str) -> dict[str, Any]:
+    """The card embedded in every graph (no file hashes: a file cannot hash itself)."""
+    cfg, top = ckpt.model.cfg, contract.MAX_COUNT
+    return {
+        "name": name,
+        "model": "SCOTTI (Han et al.): per-frame CNN + transformer, 3 heads",
+        "contract_version": contract.CONTRACT_VERSION,
+        "precision": precision,
+        "config": cfg.to_dict(),
+        "parameters": ckpt.model.num_parameters(),
+        "normalisation": f"log1p(clamp(counts, 0, {top})) / log1p({top})",
+        "timing": "frames t-T..t-1 predict time t",
+        "training_data": ckpt.training_data,
+        "metrics": ckpt.metrics,
+        "epoch": ckpt.epoch,
+        "exported_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "tools": tool_versions(),
+    }
+
+
+def file_entry(path: Path) -> dict[str, Any]:
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    return {"file": path.name, "bytes": path.stat().st_size, "sha256": digest}
+
+
+def export_model(
+    ckpt: Checkpoint, out: Path, *, int8: bool = False, threads: int = 1, tol: Tolerance = FP32
+) -> ExportResult:
+    """Export, prove and card one model; files appear under ``out``'s names only if proven."""
+    paths = GraphPaths.for_output(out)
+    model, cfg = ckpt.model.eval(), ckpt.model.cfg
+    name = out.with_suffix("").name
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{name}.", dir=out.parent) as tmp:
+        staged = GraphPaths.for_output(Path(tmp) / out.name)
+        gen = torch.Generator().manual_seed(0)
+        top = float(contract.MAX_COUNT)
+        frame = torch.rand(2, *cfg.frame_shape, generator=gen) * top  # (B, H, 2W)
+        past = torch.randn(2, cfg.window - 1, cfg.embed_dim, generator=gen)  # (B, T-1, E)
+        frames = torch.rand(2, cfg.window, *cfg.frame_shape, generator=gen) * top  # (B, T, H, 2W)
+        export_graph(StepGraph(model), (frame, past), staged.step, STEP_INPUTS, STEP_OUTPUTS)
+        export_graph(WindowGraph(model), (frames,), staged.window, WINDOW_INPUTS, WINDOW_OUTPUTS)
+        card = base_card(ckpt, name, "fp32")
+        write_metadata(staged.step, "step", cfg, card)
+        write_metadata(staged.window, "window", cfg, card)
+        parity = prove(model, staged.step, staged.window, threads, tol)
+        files = {"step": file_entry(staged.step), "window": file_entry(staged.window)}
+        int8_drift: Report = {}
+        if int8:
+            int8_card = {**card, "precision": "int8 dynamic (MatMul/Gemm weights), Conv fp32"}
+            for src, dst, graph in (
+                (staged.step, staged.int8_step, "step"),
+                (staged.window, staged.int8_window, "window"),
+            ):
+                quantize_int8(src, dst)
+                write_metadata(dst, graph, cfg, int8_card)
+            int8_drift = drift(
+                cfg, (staged.step, staged.window), (staged.int8_step, staged.int8_window), threads
+            )
+            files["int8_step"] = file_entry(staged.int8_step)
+            files["int8_window"] = file_entry(staged.int8_window)
+        full_card = {
+            **card,
+            "files": files,
+            "parity": {"tolerance": {"atol": tol.atol, "rtol": tol.rtol}, "max_abs_diff": parity},
+            "int8_drift_max_abs": int8_drift or None,
+        }
+        staged.card_json.write_text(json.dumps(full_card, indent=2, sort_keys=True) + "\n")
+        staged.card_md.write_text(card_markdown(full_card))
+        for kind in ("step", "window", "card_json", "card_md", "int8_step", "int8_window"):
+            src = getattr(staged, kind)
+            if src.exists():
+                os.replace(src, getattr(paths, kind))
+    return ExportResult(paths=paths, card=full_card, parity=parity, int8_drift=int8_drift)
+
+
+def export_checkpoint(
+    checkpoint: Path, out: Path, *, int8: bool = False, threads: int = 1
+) -> ExportResult:
+    return export_model(load_checkpoint(checkpoint), out, int8=int8, threads=threads)
+
+
+def card_markdown(card: dict[str, Any]) -> str:
+    """The card for people: what the model is, what it was trained on, how it was proven."""
+    cfg = card["config"]
+    lines = [
+        f"# Model card: {card['name']}",
+        "",
+        f"{card['model']}. Contract version {card['contract_version']}; "
+        f"precision {card['precision']}; {card['parameters']:,} parameters; "
+        f"exported {card['exported_utc']}.",
+        "",
+        f"Input: raw taxel counts, window T = {cfg['window']} frames of "
+        f"{cfg['rows']} x {2 * cfg['cols']} (left | right). Normalisation inside the graph: "
+        f"`{card['normalisation']}`. Timing: {card['timing']}.",
+        "",
+        "## Configuration",
+        "",
+        "| key | value |",
+        "|---|---|",
+        *(f"| {k} | {v} |" for k, v in cfg.items()),
+        "",
+        "## Training data",
+        "",
+        _block(card.get("training_data")),
+        "",
+        "## Metrics",
+        "",
+        _block(card.get("metrics")) + (f" (epoch {card['epoch']})" if card.get("epoch") else ""),
+        "",
+        "## Files",
+        "",
+        "| graph | file | bytes | sha256 |",
+        "|---|---|---|---|",
+        *(
+            f"| {k} | {v['file']} | {v['bytes']:,} | `{v['sha256']}` |"
+            for k, v in card["files"].items()
+        ),
+        "",
+        "## Proof (onnxruntime against torch, max abs difference)",
+        "",
+        f"Tolerance: atol {card['parity']['tolerance']['atol']:g}, "
+        f"rtol {card['parity']['tolerance']['rtol']:g}; hard inputs included.",
+        "",
+        *(f"- {line}" for line in format_report(card["parity"]["max_abs_diff"])),
+    ]
+    if card.get("int8_drift_max_abs"):
+        lines += ["", "## int8 drift against fp32 (measured, not bounded)", ""]
+        lines += [f"- {line}" for line in format_report(card["int8_drift_max_abs"])]
+    lines += ["", "## Tools", "", ", ".join(f"{k} {v}" for k, v in card["tools"].items()), ""]
+    return "\n".join(lines)
+
+
+def _block(value: Any) -> str:
+    if value is None:
+        return "Not recorded in the checkpoint."
+    if isinstance(value, str):
+        return value
+    return "```json\n" + json.dumps(value, indent=2, sort_keys=True, default=str) + "\n```"
