@@ -169,7 +169,8 @@ def json_schemas() -> dict[str, str]:
 def render_doc_section() -> str:
     blocks = [BEGIN, ""]
     for topic, text in json_schemas().items():
-        blocks += [f"### `{topic}`", "", "```json", text.rstrip("\n"), "```", ""]
+        blocks += [f"### `{topic}`", "", "<details><summary>JSON Schema</summary>", ""]
+        blocks += ["```json", text.rstrip("\n"), "```", "", "</details>", ""]
     blocks.append(END)
     return "\n".join(blocks)
 

@@ -139,3 +139,20 @@ def test_missing_replay_file_and_missing_model(tmp_path: Path) -> None:
     s = load_settings({**PORT, "model": {"path": tmp_path / "nope.onnx"}})
     with pytest.raises(ConfigError, match=r"^model.path: file not found"):
         s.model.resolved_path()
+
+
+def test_example_config_loads_and_shows_every_setting() -> None:
+    from scotti.daemon.settings import ModelSettings, MqttSettings, Settings, SourceSettings
+
+    example = Path(__file__).parent.parent / "systemd" / "scotti-daemon.toml"
+    s = load_settings({}, example)
+    assert s.source.port == "/dev/scotti-receiver"
+    text = example.read_text()
+    sections = {"": Settings, "source": SourceSettings, "model": ModelSettings}
+    sections["mqtt"] = MqttSettings
+    for section, model in sections.items():
+        names = [n for n, f in model.model_fields.items() if f.annotation is not None]
+        for name in names:
+            if name in sections or name == "password":  # a secret: never in the file
+                continue
+            assert f"\n{name} = " in text or f"\n# {name} = " in text, f"{section}.{name}"

@@ -1,0 +1,86 @@
+"""Payload schemas: both encodings round-trip, bad payloads fail, the docs match the models."""
+
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+
+import msgpack
+import pytest
+from pydantic import ValidationError
+
+from scotti.daemon import schemas
+from scotti.daemon.schemas import Action, DeviceSeq, Pose, Pressure, Status, decode, encode
+
+DOCS = Path(__file__).parent.parent / "docs"
+STAMP = {
+    "seq": 7,
+    "device_seq": DeviceSeq(left=65535, right=3),
+    "device_time_us": 4_000_000_000,
+    "host_wall_ns": 1_700_000_000_000_000_000,
+    "host_mono_ns": 123_456_789,
+    "predicted_for_mono_ns": 185_956_789,
+    "latency_ms": 3.5,
+    "flags": ["left_filled"],
+}
+
+
+def pose() -> Pose:
+    return Pose(**STAMP, keypoints=[[0.1 * i, 0.0, 1.0] for i in range(19)])
+
+
+@pytest.mark.parametrize("fmt", ["json", "msgpack"])
+def test_round_trip_both_formats(fmt: str) -> None:
+    assert fmt in ("json", "msgpack")
+    for payload in (
+        pose(),
+        Action(**STAMP, action="squat", confidence=0.9, probabilities={"squat": 0.9}),
+        Pressure(**STAMP, rows=2, cols=1, downsample=16, left=b"\x01\x00\xff\x0f", right=b"\0" * 4),
+    ):
+        data = encode(payload, fmt)  # type: ignore[arg-type]
+        assert decode(type(payload), data, fmt) == payload  # type: ignore[arg-type]
+
+
+def test_json_is_plain_json_and_msgpack_has_binary_pressure() -> None:
+    p = Pressure(**STAMP, rows=1, cols=2, downsample=16, left=b"\xfb\xff\x01\x00", right=b"")
+    doc = json.loads(encode(p, "json"))
+    assert doc["schema_version"] == 1
+    assert doc["device_seq"] == {"left": 65535, "right": 3}
+    assert base64.urlsafe_b64decode(doc["left"]) == b"\xfb\xff\x01\x00"
+    assert msgpack.unpackb(encode(p, "msgpack"))["left"] == b"\xfb\xff\x01\x00"
+
+
+def test_bad_payloads_are_rejected() -> None:
+    with pytest.raises(ValidationError):
+        Pose(**STAMP, keypoints=[[0.0, 0.0, 0.0]] * 18)  # 18 keypoints
+    with pytest.raises(ValidationError):
+        Action(**STAMP, action="squat", confidence=1.5, probabilities={})
+    with pytest.raises(ValidationError):
+        Status.model_validate({"state": "sleepy", "reasons": [], "source": "connected"})
+    with pytest.raises(ValidationError):
+        decode(Pose, b'{"schema_version": 2}', "json")
+
+
+def test_committed_docs_equal_the_generated_ones() -> None:
+    for path, text in schemas.generated_files(DOCS).items():
+        assert path.read_text(encoding="utf-8") == text, (
+            f"{path} is stale: python -m scotti.daemon.schemas --write"
+        )
+
+
+def test_doc_generator_replaces_only_its_section() -> None:
+    doc = "# Title\n\nprose\n\n" + schemas.BEGIN + "\nold\n" + schemas.END + "\n\nafter\n"
+    out = schemas.render_doc(doc)
+    assert out.startswith("# Title\n\nprose\n\n")
+    assert out.endswith("\n\nafter\n")
+    assert "old" not in out
+    assert '"title": "Pose"' in out
+    assert schemas.render_doc(out) == out
+
+
+def test_check_mode_reports_stale_files(tmp_path: Path) -> None:
+    assert schemas.main(["--docs", str(tmp_path), "--check"]) == 1
+    assert schemas.main(["--docs", str(tmp_path), "--write"]) == 0
+    assert schemas.main(["--docs", str(tmp_path), "--check"]) == 0
+    assert (tmp_path / "schemas" / "pose.schema.json").exists()
