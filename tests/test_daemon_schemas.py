@@ -5,16 +5,16 @@ from __future__ import annotations
 import base64
 import json
 from pathlib import Path
+from typing import Any
 
 import msgpack
 import pytest
 from pydantic import ValidationError
-
 from scotti.daemon import schemas
 from scotti.daemon.schemas import Action, DeviceSeq, Pose, Pressure, Status, decode, encode
 
 DOCS = Path(__file__).parent.parent / "docs"
-STAMP = {
+STAMP: dict[str, Any] = {
     "seq": 7,
     "device_seq": DeviceSeq(left=65535, right=3),
     "device_time_us": 4_000_000_000,
