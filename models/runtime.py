@@ -1,0 +1,379 @@
+"""The onnxruntime wrapper the daemon runs: load, check against the contract, infer.
+
+A SCOTTI export is two graphs from one set of weights (INTERFACES.md):
+``NAME.onnx``, the streaming step (one new frame + the cached embeddings of
+the previous T-1 frames -> pose, action logits, progress, the new frame's
+embedding), and ``NAME.window.onnx`` (B windows of T frames -> the heads).
+``ScottiRuntime`` loads either one and refuses, with a one-line
+``ModelContractError``, any file whose metadata or inputs and outputs do not
+fit ``contract.py``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import onnxruntime as ort
+from scotti.models import contract as c
+from scotti.models.errors import ModelContractError, ModelError, ModelInputError
+
+F32 = npt.NDArray[np.float32]
+_FLOAT = "tensor(float)"
+_REQUIRED_META = (
+    c.META_CONTRACT_VERSION,
+    c.META_GRAPH,
+    c.META_WINDOW,
+    c.META_EMBED_DIM,
+    c.META_FRAME_ROWS,
+    c.META_FRAME_COLS,
+    c.META_KEYPOINTS,
+    c.META_ACTIONS,
+)
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One streaming step: the prediction for the frame after the window."""
+
+    pose: F32  # (19, 3) metres, pose frame
+    action_logits: F32  # (8,)
+    action_probs: F32  # (8,) softmax of the logits
+    progress: float  # 0..1 through the current repetition
+    embedding: F32  # (E,) the new frame's embedding, for the cache
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """Predictions for B windows (window graph)."""
+
+    pose: F32  # (B, 19, 3)
+    action_logits: F32  # (B, 8)
+    action_probs: F32  # (B, 8)
+    progress: F32  # (B,)
+
+
+def softmax(logits: npt.ArrayLike, axis: int = -1) -> F32:
+    """Softmax that cannot overflow: the largest logit is subtracted first."""
+    x = np.asarray(logits, dtype=np.float32)
+    e = np.exp(x - x.max(axis=axis, keepdims=True))
+    return np.asarray(e / e.sum(axis=axis, keepdims=True), dtype=np.float32)
+
+
+class ScottiRuntime:
+    """One SCOTTI graph (step or window) in an onnxruntime CPU session."""
+
+    def __init__(self, path: str | Path, threads: int = 1) -> None:
+        self._path = Path(path)
+        if threads < 1:
+            msg = f"threads must be at least 1, got {threads}"
+            raise ModelError(msg)
+        self._threads = threads
+        self._sha256 = _sha256_of(self._path)
+        self._session = _open_session(self._path, threads)
+        meta = dict(self._session.get_modelmeta().custom_metadata_map)
+        try:
+            self._graph, self._window, self._embed_dim, self._card = _check_metadata(meta)
+            _check_io(self._session, self._graph, self._window, self._embed_dim)
+        except ModelContractError as exc:
+            msg = f"{self._path.name}: {exc}"
+            raise ModelContractError(msg) from None
+        self._outputs = [c.OUTPUT_POSE, c.OUTPUT_ACTION_LOGITS, c.OUTPUT_PROGRESS]
+        if self._graph == "step":
+            self._outputs.append(c.STEP_OUTPUT_EMBEDDING)
+        self._frame_shape = (c.FRAME_ROWS, 2 * c.FRAME_COLS)
+
+    # --- what was loaded -----------------------------------------------------
+
+    @property
+    def path(self) -> Path:
+        return self._path
+
+    @property
+    def sha256(self) -> str:
+        """Hex digest of the file as loaded (the daemon reports it in ``info``)."""
+        return self._sha256
+
+    @property
+    def graph(self) -> str:
+        """``"step"`` or ``"window"``."""
+        return self._graph
+
+    @property
+    def window(self) -> int:
+        """T, frames per window."""
+        return self._window
+
+    @property
+    def embed_dim(self) -> int:
+        """E, width of one frame embedding."""
+        return self._embed_dim
+
+    @property
+    def threads(self) -> int:
+        return self._threads
+
+    @property
+    def card(self) -> dict[str, Any]:
+        """The model card from metadata ``scotti.card`` ({} if the export has none)."""
+        return dict(self._card)
+
+    @property
+    def frame_shape(self) -> tuple[int, int]:
+        """(H, 2W): one input frame, left insole then right, raw counts."""
+        return self._frame_shape
+
+    # --- inference ---------------------------------------------------------------
+
+    def step(self, frame: npt.ArrayLike, past: npt.ArrayLike) -> StepResult:
+        """One new frame (H, 2W) + the previous T-1 embeddings (T-1, E), oldest first."""
+        if self._graph != "step":
+            msg = f"{self._path.name} is a window graph; step() needs the step graph"
+            raise ModelError(msg)
+        f = _as_f32(frame, self._frame_shape, "frame")
+        p = _as_f32(past, (self._window - 1, self._embed_dim), "past embeddings")
+        pose, logits, progress, embedding = self._session.run(
+            self._outputs, {c.STEP_INPUT_FRAME: f[None], c.STEP_INPUT_PAST: p[None]}
+        )
+        return StepResult(
+            pose=pose[0],
+            action_logits=logits[0],
+            action_probs=softmax(logits[0]),
+            progress=float(progress[0]),
+            embedding=embedding[0],
+        )
+
+    def run_windows(self, frames: npt.ArrayLike, batch_size: int = 32) -> WindowResult:
+        """B windows (B, T, H, 2W) of raw counts -> the heads for each; window graph only."""
+        if self._graph != "window":
+            msg = (
+                f"{self._path.name} is a step graph; run_windows() needs the window graph "
+                f"{window_graph_for(self._path).name}"
+            )
+            raise ModelError(msg)
+        x = np.asarray(frames, dtype=np.float32)
+        expected = (self._window, *self._frame_shape)
+        if x.ndim != 4 or x.shape[1:] != expected:
+            msg = f"frames must be (B, {', '.join(map(str, expected))}), got {x.shape}"
+            raise ModelInputError(msg)
+        chunks = [
+            self._session.run(self._outputs, {c.WINDOW_INPUT_FRAMES: x[i : i + batch_size]})
+            for i in range(0, len(x), max(batch_size, 1))
+        ]
+        if not chunks:
+            logits = np.zeros((0, c.NUM_ACTIONS), np.float32)
+            return WindowResult(
+                np.zeros((0, c.NUM_KEYPOINTS, 3), np.float32),
+                logits,
+                logits.copy(),
+                np.zeros(0, np.float32),
+            )
+        pose, logits, progress = (np.concatenate(parts) for parts in zip(*chunks, strict=True))
+        return WindowResult(pose, logits, softmax(logits), progress)
+
+    # --- files -------------------------------------------------------------------
+
+    @staticmethod
+    def window_graph_for(step_path: str | Path) -> Path:
+        """NAME.onnx -> NAME.window.onnx (and NAME.int8.onnx -> NAME.int8.window.onnx)."""
+        return window_graph_for(step_path)
+
+    def __repr__(self) -> str:
+        return f"ScottiRuntime({str(self._path)!r}, graph={self._graph}, T={self._window})"
+
+
+def window_graph_for(step_path: str | Path) -> Path:
+    """Where the exporter puts the window graph of the step graph ``step_path``."""
+    p = Path(step_path)
+    stem = p.name[: -len(".onnx")] if p.name.endswith(".onnx") else p.name
+    return p.with_name(f"{stem}.window.onnx")
+
+
+def load_pair(step_path: str | Path, threads: int = 1) -> tuple[ScottiRuntime, ScottiRuntime]:
+    """The step graph and its window graph, checked to come from the same export."""
+    step = ScottiRuntime(step_path, threads)
+    window_path = window_graph_for(step_path)
+    if not window_path.exists():
+        msg = f"no window graph {window_path.name} next to {step.path.name}"
+        raise ModelError(msg)
+    window = ScottiRuntime(window_path, threads)
+    if step.graph != "step" or window.graph != "window":
+        msg = f"{step.path.name} must be a step graph and {window_path.name} a window graph"
+        raise ModelContractError(msg)
+    # Same shape and, where the cards say, the same model config (the cards may
+    # differ in when each graph was written).
+    if (step.window, step.embed_dim) != (window.window, window.embed_dim) or step.card.get(
+        "config"
+    ) != window.card.get("config"):
+        msg = f"{window_path.name} and {step.path.name} come from different exports"
+        raise ModelContractError(msg)
+    return step, window
+
+
+# --- loading and checking ------------------------------------------------------
+
+
+def _sha256_of(path: Path) -> str:
+    try:
+        with path.open("rb") as f:
+            return hashlib.file_digest(f, "sha256").hexdigest()
+    except FileNotFoundError:
+        msg = f"model file {path} does not exist"
+        raise ModelError(msg) from None
+    except OSError as exc:
+        msg = f"cannot read model file {path}: {exc.strerror or exc}"
+        raise ModelError(msg) from None
+
+
+def _open_session(path: Path, threads: int) -> ort.InferenceSession:
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    options.log_severity_level = 3  # errors only: warnings would go to the daemon's stderr
+    if threads > 1:
+        # Spinning workers burn the cores the serial reader and a second session need:
+        # two chained sessions with spinning doubled the step time on a small host.
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    try:
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own unexported exception types
+        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        msg = f"{path} is not a loadable ONNX model ({reason})"
+        raise ModelError(msg) from None
+
+
+def _check_metadata(meta: dict[str, str]) -> tuple[str, int, int, dict[str, Any]]:
+    """(graph, T, E, card) from the metadata, or ModelContractError naming the misfit."""
+    if not any(key.startswith("scotti.") for key in meta):
+        msg = "model carries no scotti.* metadata: not a SCOTTI export"
+        raise ModelContractError(msg)
+    for key in _REQUIRED_META:
+        if key not in meta:
+            msg = f"model metadata lacks {key}"
+            raise ModelContractError(msg)
+    version = meta[c.META_CONTRACT_VERSION]
+    if version != str(c.CONTRACT_VERSION):
+        msg = f"model has contract version {version}, this runtime needs {c.CONTRACT_VERSION}"
+        raise ModelContractError(msg)
+    graph = meta[c.META_GRAPH]
+    if graph not in ("step", "window"):
+        msg = f"model graph kind is {graph!r}, the contract knows 'step' and 'window'"
+        raise ModelContractError(msg)
+    window = _meta_int(meta, c.META_WINDOW)
+    if window != c.WINDOW:
+        msg = f"model has window T={window}, contract needs {c.WINDOW}"
+        raise ModelContractError(msg)
+    rows, cols = _meta_int(meta, c.META_FRAME_ROWS), _meta_int(meta, c.META_FRAME_COLS)
+    if (rows, cols) != (c.FRAME_ROWS, c.FRAME_COLS):
+        msg = (
+            f"model frame is {rows}x{cols} taxels per foot, "
+            f"contract needs {c.FRAME_ROWS}x{c.FRAME_COLS}"
+        )
+        raise ModelContractError(msg)
+    _check_names(meta, c.META_KEYPOINTS, "keypoint", c.KEYPOINTS)
+    _check_names(meta, c.META_ACTIONS, "action", c.ACTIONS)
+    embed_dim = _meta_int(meta, c.META_EMBED_DIM)
+    card = _meta_card(meta)
+    return graph, window, embed_dim, card
+
+
+def _meta_int(meta: dict[str, str], key: str) -> int:
+    try:
+        value = int(meta[key])
+    except ValueError:
+        value = 0
+    if value < 1:
+        msg = f"model metadata {key} is {meta[key]!r}, not a positive integer"
+        raise ModelContractError(msg)
+    return value
+
+
+def _check_names(meta: dict[str, str], key: str, what: str, expected: tuple[str, ...]) -> None:
+    try:
+        names = json.loads(meta[key])
+    except json.JSONDecodeError:
+        names = None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        msg = f"model metadata {key} is not a JSON list of names"
+        raise ModelContractError(msg)
+    if len(names) != len(expected):
+        msg = f"model has {len(names)} {what}s, contract needs {len(expected)}"
+        raise ModelContractError(msg)
+    for i, (got, want) in enumerate(zip(names, expected, strict=True)):
+        if got != want:
+            msg = f"model {what} {i} is {got!r}, contract needs {want!r}"
+            raise ModelContractError(msg)
+
+
+def _meta_card(meta: dict[str, str]) -> dict[str, Any]:
+    if c.META_CARD not in meta:
+        return {}
+    try:
+        card = json.loads(meta[c.META_CARD])
+    except json.JSONDecodeError:
+        card = None
+    if not isinstance(card, dict):
+        msg = f"model metadata {c.META_CARD} is not a JSON object"
+        raise ModelContractError(msg)
+    return card
+
+
+def _expected_io(
+    graph: str, window: int, embed_dim: int
+) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+    """Input and output shapes without the batch dimension."""
+    frame: tuple[int, ...] = (c.FRAME_ROWS, 2 * c.FRAME_COLS)
+    outputs = {
+        c.OUTPUT_POSE: (c.NUM_KEYPOINTS, 3),
+        c.OUTPUT_ACTION_LOGITS: (c.NUM_ACTIONS,),
+        c.OUTPUT_PROGRESS: (),
+    }
+    if graph == "window":
+        return {c.WINDOW_INPUT_FRAMES: (window, *frame)}, outputs
+    inputs = {c.STEP_INPUT_FRAME: frame, c.STEP_INPUT_PAST: (window - 1, embed_dim)}
+    return inputs, {**outputs, c.STEP_OUTPUT_EMBEDDING: (embed_dim,)}
+
+
+def _check_io(session: ort.InferenceSession, graph: str, window: int, embed_dim: int) -> None:
+    want_in, want_out = _expected_io(graph, window, embed_dim)
+    have_in = {arg.name: arg for arg in session.get_inputs()}
+    have_out = {arg.name: arg for arg in session.get_outputs()}
+    if set(have_in) != set(want_in):
+        msg = f"model inputs are {sorted(have_in)}, a {graph} graph needs {sorted(want_in)}"
+        raise ModelContractError(msg)
+    for name in want_out:
+        if name not in have_out:
+            msg = f"model lacks output {name!r} that a {graph} graph needs"
+            raise ModelContractError(msg)
+    for kind, have, want in (("input", have_in, want_in), ("output", have_out, want_out)):
+        for name, shape in want.items():
+            _check_arg(kind, name, have[name].type, list(have[name].shape), shape)
+
+
+def _check_arg(kind: str, name: str, dtype: str, dims: list[Any], want: tuple[int, ...]) -> None:
+    """Batch dimension free; any other fixed size must be the contract's (symbols pass)."""
+    if dtype != _FLOAT:
+        msg = f"model {kind} {name!r} is {dtype}, contract needs {_FLOAT}"
+        raise ModelContractError(msg)
+    fits = len(dims) == len(want) + 1 and all(
+        not isinstance(d, int) or d == w for d, w in zip(dims[1:], want, strict=True)
+    )
+    if not fits:
+        shown = ", ".join(str(d) for d in dims)
+        needed = ", ".join(["B", *map(str, want)])
+        msg = f"model {kind} {name!r} has shape ({shown}), contract needs ({needed})"
+        raise ModelContractError(msg)
+
+
+def _as_f32(x: npt.ArrayLike, shape: tuple[int, ...], what: str) -> F32:
+    a = np.ascontiguousarray(x, dtype=np.float32)
+    if a.shape != shape:
+        msg = f"{what} must be {shape}, got {a.shape}"
+        raise ModelInputError(msg)
+    return a

@@ -1,0 +1,118 @@
+"""Streaming inference: feed frames one at a time, keep the last T-1 embeddings.
+
+Each frame goes through the per-frame CNN once (inside the step graph); its
+embedding is cached, like an LLM's past keys and values, so that one step
+costs one CNN pass plus the transformer over T tokens. The first T-1 frames
+only fill the cache: until T frames have been seen the window is "warming"
+and ``push`` returns None.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from scotti.models.errors import ModelError, ModelInputError
+from scotti.models.runtime import ScottiRuntime, StepResult
+
+
+class EmbeddingCache:
+    """The last ``size`` embeddings, oldest first, as a contiguous view; no reallocation.
+
+    A ring buffer written twice: slot i and slot i + size always hold the same
+    embedding, so ``buffer[head : head + size]`` is the window in order
+    without a copy. Before ``size`` pushes the oldest rows are zeros.
+    """
+
+    def __init__(self, size: int, dim: int) -> None:
+        if size < 0 or dim < 1:
+            msg = f"an embedding cache needs size >= 0 and dim >= 1, got {size} and {dim}"
+            raise ModelInputError(msg)
+        self._size = size
+        self._dim = dim
+        self._buffer = np.zeros((2 * size, dim), dtype=np.float32)
+        self._head = 0  # row of the oldest embedding in the view
+        self._count = 0
+
+    @property
+    def size(self) -> int:
+        return self._size
+
+    @property
+    def count(self) -> int:
+        """Embeddings held, at most ``size``."""
+        return min(self._count, self._size)
+
+    def past(self) -> npt.NDArray[np.float32]:
+        """(size, dim) view, oldest first; valid until the next push."""
+        view = self._buffer[self._head : self._head + self._size]
+        view.flags.writeable = False
+        return view
+
+    def push(self, embedding: npt.ArrayLike) -> None:
+        """Append the newest embedding (dim,), dropping the oldest."""
+        e = np.asarray(embedding, dtype=np.float32)
+        if e.shape != (self._dim,):
+            msg = f"embedding must be ({self._dim},), got {e.shape}"
+            raise ModelInputError(msg)
+        self._count += 1
+        if self._size == 0:
+            return
+        # The oldest row leaves the view; its two slots take the newest embedding.
+        self._buffer[self._head] = e
+        self._buffer[self._head + self._size] = e
+        self._head = (self._head + 1) % self._size
+
+    def reset(self) -> None:
+        self._buffer.fill(0.0)
+        self._head = 0
+        self._count = 0
+
+
+class StreamingWindow:
+    """Frames in, one prediction per frame once T frames have been seen."""
+
+    def __init__(self, runtime: ScottiRuntime) -> None:
+        if runtime.graph != "step":
+            msg = f"{runtime.path.name} is a {runtime.graph} graph; streaming needs the step graph"
+            raise ModelError(msg)
+        self._runtime = runtime
+        self._cache = EmbeddingCache(runtime.window - 1, runtime.embed_dim)
+        self._seen = 0
+
+    @property
+    def runtime(self) -> ScottiRuntime:
+        return self._runtime
+
+    @property
+    def needed(self) -> int:
+        """T: frames the window must hold before it predicts."""
+        return self._runtime.window
+
+    @property
+    def frames_seen(self) -> int:
+        """Frames pushed since the start or the last reset."""
+        return self._seen
+
+    @property
+    def frames_in_window(self) -> int:
+        return min(self._seen, self.needed)
+
+    @property
+    def warming(self) -> bool:
+        """True until T frames have been seen (the daemon reports "warming")."""
+        return self._seen < self.needed
+
+    def push(self, frame: npt.ArrayLike) -> StepResult | None:
+        """One frame (H, 2W) of raw counts; a prediction once the window is full.
+
+        A frame of the wrong shape raises ModelInputError and leaves the window as it was.
+        """
+        result = self._runtime.step(frame, self._cache.past())
+        self._cache.push(result.embedding)
+        self._seen += 1
+        return None if self.warming else result
+
+    def reset(self) -> None:
+        """Forget every frame (after a long gap): the window warms up again."""
+        self._cache.reset()
+        self._seen = 0
