@@ -129,8 +129,8 @@ def load_checkpoint(path: Path) -> Checkpoint:
     try:
         raw = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a bad file
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        msg = f"cannot read checkpoint {path}: {first}"
+        kind = type(exc).__name__
+        msg = f"cannot read checkpoint {path}: corrupt, truncated or not a torch.save file ({kind})"
         raise ExportError(msg) from None
     if not isinstance(raw, dict) or "config" not in raw or "model" not in raw:
         msg = f"{path} is not a SCOTTI checkpoint (needs the keys 'config' and 'model')"
