@@ -243,7 +243,9 @@ def _open_session(path: Path, threads: int) -> ort.InferenceSession:
     try:
         return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own unexported exception types
-        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        # "[ONNXRuntimeError] : 7 : INVALID_PROTOBUF : Load model from P failed:Protobuf ..."
+        lines = str(exc).strip().splitlines() or [type(exc).__name__]
+        reason = lines[-1].rpartition("failed:")[2].strip() or lines[-1]
         msg = f"{path} is not a loadable ONNX model ({reason})"
         raise ModelError(msg) from None
 
