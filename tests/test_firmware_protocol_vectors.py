@@ -125,3 +125,16 @@ def test_generator_command_checks_the_files(tmp_path: Path) -> None:
     assert sorted(p.stem for p in tmp_path.glob("*.hex")) == sorted(NAMES)
     (tmp_path / "board_status.hex").write_text("# stale\n")
     assert vectors_gen.main(["--dir", str(tmp_path), "--check"]) == 1
+
+
+def test_protocol_md_states_the_numbers_the_code_uses() -> None:
+    from scotti.firmware_protocol.framing import MAX_ENCODED_LEN, encode_packet
+    from scotti.firmware_protocol.packets import BOARD_STATUS_BODY_LEN, MAX_PACKET_LEN
+
+    text = (vectors_gen.VECTORS_DIR.parent / "PROTOCOL.md").read_text()
+    assert f"MAX_PACKET_LEN = {MAX_PACKET_LEN}" in text
+    assert f"MAX_ENCODED_LEN = {MAX_ENCODED_LEN}" in text
+    assert f"Body: exactly {BOARD_STATUS_BODY_LEN} bytes" in text
+    assert encode_packet(vectors_gen.tiny_frame()).hex(" ") in text
+    for path in FILES:
+        assert f"`{path.name}`" in text
