@@ -1,0 +1,84 @@
+"""Step-ups onto a step in front of the person, and back down.
+
+One repetition: the leading foot steps up onto the step, the other follows
+beside it (standing on the step), the leading foot steps back down to where
+it stood, the other follows. Leading legs alternate. Feet on the step stand
+at the step's height, which ``Segment.ground_z`` reports as the surface under
+them; the pelvis follows the standing feet and rises by the step height.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scotti.models.contract import ACTIONS
+from scotti.sim.actions.base import TOE_OUT, ActionSpec, Context, Place, Segment, finalize, neutral
+from scotti.sim.actions.curves import bump
+from scotti.sim.actions.footsteps import FLAT, TOE, Plant, foot_track, support_path
+from scotti.sim.skeleton import LEFT, RIGHT
+
+START_S = 0.3
+STEP_UP_S = 4.2  # one repetition at tempo 1
+STEP_AHEAD = 0.20  # x height: ankle on the step ahead of the ankle on the floor
+SETTLE_S = 0.4
+# Phase of each swing within a repetition: (start, end) as shares of its duration.
+SWINGS = ((0.0, 0.17), (0.22, 0.39), (0.52, 0.69), (0.74, 0.91))
+
+
+def step_up(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
+    body = ctx.body
+    reps = spec.reps or max(1, round((spec.duration_s or 0.0) * spec.tempo / STEP_UP_S))
+    durations = ctx.rep_durations(STEP_UP_S, spec.tempo, reps)
+    height = spec.step_height_m
+    ahead = STEP_AHEAD * body.height
+    lateral = [0.5 * body.hip_spacing, -0.5 * body.hip_spacing]
+    yaws = [place.heading + TOE_OUT, place.heading - TOE_OUT]
+    home = [Plant(0.0, 0.0, place.xy(0.0, lateral[s]), yaws[s]) for s in (LEFT, RIGHT)]
+    plants: list[list[Plant]] = [[home[LEFT]], [home[RIGHT]]]
+    first = int(ctx.rng.integers(2))
+    t0 = START_S
+    for k, d in enumerate(durations):
+        lead = (first + k) % 2
+        order = (lead, 1 - lead, lead, 1 - lead)
+        for i, (side, (a, b)) in enumerate(zip(order, SWINGS, strict=True)):
+            on_step = i < 2
+            before = plants[side][-1]
+            plants[side][-1] = Plant(
+                before.t_on, t0 + a * d, before.xy, before.yaw, before.floor_z, before.strike,
+                before.strike_pitch, before.strike_s, FLAT, 0.0, 0.0,
+                before.lift_before, before.swing_pitch,
+            )  # fmt: skip
+            target = place.xy(ahead, lateral[side]) if on_step else home[side].xy
+            plants[side].append(
+                Plant(
+                    t0 + b * d,
+                    np.inf,
+                    target,
+                    yaws[side],
+                    floor_z=height if on_step else 0.0,
+                    strike=FLAT if on_step else TOE,
+                    strike_pitch=0.0 if on_step else -0.2,
+                    strike_s=0.0 if on_step else 0.08 * d,
+                    lift_before=0.06,
+                )
+            )
+        t0 += d
+    end_s = t0 + SETTLE_S
+    t = ctx.times(end_s)
+    feet = (foot_track(body, LEFT, plants[LEFT], t), foot_track(body, RIGHT, plants[RIGHT], t))
+    p = neutral(body, place, len(t))
+    # Lean into each step up.
+    lean = np.zeros(len(t))
+    t0 = START_S
+    for d in durations:
+        lean += 0.15 * bump((t - t0) / (0.45 * d))
+        t0 += d
+    p = p.replace(
+        pelvis=support_path(body, feet, max(1, round(0.5 * ctx.rate_hz))),
+        ankle=np.stack([feet[LEFT].ankle, feet[RIGHT].ankle], axis=1),
+        foot_yaw=np.stack([feet[LEFT].yaw, feet[RIGHT].yaw], axis=1),
+        foot_pitch=np.stack([feet[LEFT].pitch, feet[RIGHT].pitch], axis=1),
+        lean=lean,
+    )
+    action = np.full(len(t), ACTIONS.index("step_up"), dtype=np.int64)
+    ground = np.stack([f.ground_z for f in feet], axis=1)
+    return Segment(finalize(body, p), action, place, ground)

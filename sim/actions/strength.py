@@ -1,0 +1,142 @@
+"""Squat and lunge: the hips travel a keyframed path, the legs follow by IK.
+
+Squat: feet stay flat where they stand; the mid-hip goes down and back by an
+amount set by ``depth`` (1 = thighs a little past parallel), the trunk leans
+forwards and the arms rise in front for balance. Lunge: one foot steps
+forwards, the hips sink between the feet with the rear heel up, rise, and
+the foot steps back; legs alternate repetition by repetition.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scotti.models.contract import ACTIONS
+from scotti.sim.actions.base import TOE_OUT, ActionSpec, Context, Place, Segment, finalize, neutral
+from scotti.sim.actions.curves import hermite
+from scotti.sim.actions.footsteps import FLAT, HEEL, Plant, foot_track
+from scotti.sim.skeleton import LEFT, RIGHT, Array, Body, ankle_on_pivot, axes, foot_points
+
+START_S = 0.3
+SQUAT_S = 3.0  # one squat at tempo 1: down, short hold, up, pause
+SQUAT_DROP = 0.26  # x height: mid-hip drop at depth 1
+SQUAT_BACK = 0.13  # x height: mid-hip moves back at depth 1
+LUNGE_S = 3.8
+LUNGE_LENGTH = 0.45  # x height: step of the lunge
+LUNGE_DROP = 0.25  # x height at depth 1
+
+
+def reps_for(spec: ActionSpec, rep_s: float) -> int:
+    if spec.reps is not None:
+        return spec.reps
+    return max(1, round((spec.duration_s or 0.0) * spec.tempo / rep_s))
+
+
+def _depths(ctx: Context, spec: ActionSpec, reps: int) -> Array:
+    depth = ctx.subject.depth if spec.depth is None else spec.depth
+    return np.asarray(depth * np.clip(ctx.jitter(0.05, reps), 0.85, 1.15), dtype=np.float64)
+
+
+def squat(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
+    body = ctx.body
+    reps = reps_for(spec, SQUAT_S)
+    durations = ctx.rep_durations(SQUAT_S, spec.tempo, reps)
+    depths = _depths(ctx, spec, reps)
+    # Keyframes of (back, drop, lean, arms) per repetition, zero velocity at each.
+    knot_t, knot_y = [0.0, START_S], [np.zeros(4), np.zeros(4)]
+    t0 = START_S
+    for d, depth in zip(durations, depths, strict=True):
+        bottom = np.array(
+            [SQUAT_BACK * depth, SQUAT_DROP * depth, 0.6 * depth, 1.3 * depth]
+        ) * np.array([body.height, body.height, 1.0, 1.0])
+        knot_t += [t0 + 0.42 * d, t0 + 0.47 * d, t0 + 0.87 * d, t0 + d]
+        knot_y += [bottom, bottom, np.zeros(4), np.zeros(4)]
+        t0 += d
+    t = ctx.times(t0)
+    back, drop, lean, arms = hermite(t, knot_t, np.array(knot_y)).T
+    p = neutral(body, place, len(t))
+    f, _ = axes(place.heading)
+    pelvis = p.pelvis - back[:, None] * f - drop[:, None] * np.array([0.0, 0.0, 1.0])
+    p = p.replace(
+        pelvis=pelvis,
+        lean=lean,
+        shoulder_flex=np.stack([arms, arms], axis=1),
+        elbow_flex=p.elbow_flex + 0.2 * arms[:, None],
+    )
+    action = np.full(len(t), ACTIONS.index("squat"), dtype=np.int64)
+    return Segment(finalize(body, p), action, place, np.zeros((len(t), 2)))
+
+
+def lunge(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
+    body = ctx.body
+    reps = reps_for(spec, LUNGE_S)
+    durations = ctx.rep_durations(LUNGE_S, spec.tempo, reps)
+    depths = _depths(ctx, spec, reps)
+    length = spec.step_length_m or LUNGE_LENGTH * body.height
+    first = int(ctx.rng.integers(2))
+    lateral = [0.5 * body.hip_spacing, -0.5 * body.hip_spacing]
+    yaws = [place.heading + TOE_OUT, place.heading - TOE_OUT]
+    plants: list[list[Plant]] = [
+        [Plant(0.0, 0.0, place.xy(0.0, lateral[s]), yaws[s])] for s in (LEFT, RIGHT)
+    ]
+    # Keyframes of (forward, drop, rear-heel lift) and which foot is behind.
+    knot_t, knot_y = [0.0, START_S], [np.zeros(3), np.zeros(3)]
+    rear_windows: list[tuple[float, float, int]] = []
+    t0 = START_S
+    for k, (d, depth) in enumerate(zip(durations, depths, strict=True)):
+        front = (first + k) % 2
+        side_asym = 1.0 + (0.5 if front == RIGHT else -0.5) * ctx.subject.asymmetry
+        step = length * side_asym
+        out_on, back_off, back_on = t0 + 0.2 * d, t0 + 0.75 * d, t0 + 0.93 * d
+        home = plants[front][-1]
+        plants[front][-1] = _until(home, t0)
+        plants[front].append(
+            Plant(out_on, back_off, place.xy(step, lateral[front]), yaws[front], 0.0,
+                  HEEL, 0.25, 0.05 * d, lift_before=0.06)
+        )  # fmt: skip
+        plants[front].append(Plant(back_on, np.inf, home.xy, home.yaw, lift_before=0.06))
+        drop = LUNGE_DROP * depth * body.height
+        knot_t += [out_on, t0 + 0.45 * d, t0 + 0.5 * d, back_off, back_on, t0 + d]
+        knot_y += [
+            np.array([0.3 * step, 0.02, 0.4]),
+            np.array([0.45 * step, drop, 0.9]),
+            np.array([0.45 * step, drop, 0.9]),
+            np.array([0.3 * step, 0.02, 0.4]),
+            np.zeros(3),
+            np.zeros(3),
+        ]
+        rear_windows.append((t0, t0 + d, 1 - front))
+        t0 += d
+    t = ctx.times(t0)
+    forward, drop, heel = hermite(t, knot_t, np.array(knot_y)).T
+    feet = [foot_track(body, s, plants[s], t) for s in (LEFT, RIGHT)]
+    ankle = np.stack([feet[LEFT].ankle, feet[RIGHT].ankle], axis=1)
+    pitch = np.stack([feet[LEFT].pitch, feet[RIGHT].pitch], axis=1)
+    for start, end, side in rear_windows:
+        on = (t >= start) & (t < end)
+        ankle[on, side], pitch[on, side] = _heel_up(
+            body, side, ankle[on, side], yaws[side], heel[on]
+        )
+    p = neutral(body, place, len(t))
+    f, _ = axes(place.heading)
+    p = p.replace(
+        pelvis=p.pelvis + forward[:, None] * f - drop[:, None] * np.array([0.0, 0.0, 1.0]),
+        ankle=ankle,
+        foot_pitch=pitch,
+        foot_yaw=np.stack([feet[LEFT].yaw, feet[RIGHT].yaw], axis=1),
+        lean=0.08 * heel,
+        shoulder_flex=np.full((len(t), 2), 0.1),
+    )
+    action = np.full(len(t), ACTIONS.index("lunge"), dtype=np.int64)
+    return Segment(finalize(body, p), action, place, np.zeros((len(t), 2)))
+
+
+def _until(plant: Plant, t_off: float) -> Plant:
+    return Plant(plant.t_on, t_off, plant.xy, plant.yaw, plant.floor_z, FLAT)
+
+
+def _heel_up(body: Body, side: int, ankle: Array, yaw: float, lift: Array) -> tuple[Array, Array]:
+    """Raise the heel of a flat foot by turning it about its big toe (``lift`` radians)."""
+    n = len(ankle)
+    yaws = np.full(n, yaw)
+    toe = foot_points(body, side, ankle, yaws, np.zeros(n))[:, 1]
+    return ankle_on_pivot(body, side, toe, 1, yaws, -lift), -lift

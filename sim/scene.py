@@ -1,0 +1,279 @@
+"""Scene files: who moves, what they do and which effects the sensors suffer.
+
+A scene is a TOML file validated by pydantic; every mistake becomes one line
+that names the file, the line and the field, e.g.
+``scene.toml line 12: script[2].reps: Input should be greater than 0``::
+
+    seed = 7            # everything random in the scene derives from it
+    rate = 16.0         # frames per second of the session
+    [subject]
+    height_m = 1.75
+    mass_kg = 70.0
+    style_seed = 3      # the person's movement style
+    [[script]]
+    action = "squat"    # one of ACTIONS
+    reps = 5            # or duration_s
+    stand_s = 1.5       # quiet stand after it (NO_ACTION)
+    [[effects]]
+    name = "noise"      # see scotti.sim.effects.registry
+    std_counts = 4
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import model_validator as _model_validator
+from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
+from scotti.sim import SimError
+from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
+from scotti.sim.motion import Motion, Subject
+from scotti.sim.skeleton import Body, center_of_mass, pose_keypoints
+
+LEAD_IN_S = 1.0  # quiet stand before the first action
+
+
+class SceneError(SimError):
+    """A scene file that cannot be read or does not validate (one line)."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SubjectModel(_Strict):
+    height_m: float = Field(ge=1.2, le=2.2)
+    mass_kg: float = Field(ge=30.0, le=200.0)
+    foot_length_m: float | None = Field(default=None, ge=0.15, le=0.35)
+    style_seed: int = 0
+
+    def subject(self) -> Subject:
+        return Subject(self.height_m, self.mass_kg, self.style_seed, self.foot_length_m)
+
+
+class ScriptEntry(_Strict):
+    action: Literal[ACTIONS]  # type: ignore[valid-type]
+    reps: int | None = Field(default=None, gt=0, le=500)
+    duration_s: float | None = Field(default=None, gt=0.0, le=3600.0)
+    tempo: float = Field(default=1.0, ge=0.3, le=3.0)
+    depth: float | None = Field(default=None, ge=0.0, le=1.0)
+    step_length_m: float | None = Field(default=None, gt=0.0, le=1.5)
+    step_height_m: float = Field(default=0.2, ge=0.05, le=0.5)
+    direction: Literal["left", "right"] = "left"
+    stand_s: float = Field(default=1.5, ge=0.0, le=600.0)
+
+    @_model_validator(mode="after")
+    def _reps_or_duration(self) -> ScriptEntry:
+        if (self.reps is None) == (self.duration_s is None):
+            msg = "give exactly one of reps and duration_s"
+            raise ValueError(msg)
+        return self
+
+    def spec(self) -> ActionSpec:
+        return ActionSpec(
+            action=self.action,
+            reps=self.reps,
+            duration_s=self.duration_s,
+            tempo=self.tempo,
+            depth=self.depth,
+            step_length_m=self.step_length_m,
+            step_height_m=self.step_height_m,
+            direction=self.direction,
+        )
+
+
+class Scene(_Strict):
+    """A validated scene; ``effects`` stay raw tables until the effect registry checks them."""
+
+    name: str = "scene"
+    description: str = ""
+    seed: int = 0
+    rate: float = Field(default=FRAME_RATE_HZ, gt=0.0, le=1000.0)
+    subject: SubjectModel
+    script: list[ScriptEntry] = Field(min_length=1)
+    effects: list[dict[str, Any]] = Field(default_factory=list)
+
+    @field_validator("effects")
+    @classmethod
+    def _effects_named(cls, effects: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        for effect in effects:
+            if not isinstance(effect.get("name"), str):
+                msg = "every effect needs a name"
+                raise ValueError(msg)
+        return effects
+
+    @classmethod
+    def from_toml_text(cls, text: str, name: str = "scene.toml") -> Scene:
+        """Parse and validate; ``name`` is what error messages call the file."""
+        try:
+            raw = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError(_describe_toml(exc, name)) from None
+        raw.setdefault("name", Path(name).stem)
+        try:
+            scene = cls.model_validate(raw)
+        except ValidationError as exc:
+            raise SceneError(_describe(exc, text, name)) from None
+        scene.check_effects(text, name)
+        return scene
+
+    def check_effects(self, text: str = "", name: str = "scene.toml") -> None:
+        """Validate the effect tables against the effect registry (when it exists)."""
+        try:
+            from scotti.sim.effects.registry import parse_effects
+        except ImportError:  # the registry is optional for motion-only use
+            return
+        try:
+            parse_effects(self.effects)
+        except SimError as exc:
+            index = _failing_effect(self.effects)
+            line = _locate(text, ("effects", index)) if index is not None else None
+            where = f"{name} line {line}" if line else name
+            msg = f"{where}: effects[{index}]: {exc}" if index is not None else f"{where}: {exc}"
+            raise SceneError(msg) from None
+
+    def subject_model(self) -> Subject:
+        return self.subject.subject()
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file; ``SceneError`` with one line on any mistake."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        msg = f"{p}: cannot read scene ({exc.__class__.__name__}: {exc})"
+        raise SceneError(msg) from None
+    return Scene.from_toml_text(text, p.name)
+
+
+def build_motion(scene: Scene, oversample: int = 1) -> Motion:
+    """Run the script: lead-in stand, then each action followed by its stand."""
+    if oversample < 1:
+        msg = f"oversample must be a positive integer, got {oversample}"
+        raise SceneError(msg)
+    subject = scene.subject_model()
+    body = Body.from_height(subject.height_m, subject.foot_length)
+    rate = scene.rate * oversample
+    rng = np.random.default_rng(np.random.SeedSequence([scene.seed, subject.style_seed]))
+    ctx = Context(body, subject, rate, rng)
+    place = Place(0.0, 0.0, 0.0)
+    segments: list[Segment] = [stand(ctx, place, LEAD_IN_S)]
+    for entry in scene.script:
+        segment = RECIPES[entry.action](ctx, entry.spec(), place)
+        place = segment.end
+        segments.append(segment)
+        if entry.stand_s > 0:
+            segments.append(stand(ctx, place, entry.stand_s))
+    return motion_from_segments(body, subject, rate, segments)
+
+
+def motion_from_segments(
+    body: Body, subject: Subject, rate_hz: float, segments: list[Segment]
+) -> Motion:
+    """Join segments and run the forward kinematics."""
+    from scotti.sim.skeleton import PoseParams
+
+    params = PoseParams.concatenate([s.params for s in segments])
+    world = pose_keypoints(body, params)
+    return Motion(
+        rate_hz=rate_hz,
+        world=world,
+        com=center_of_mass(body, world),
+        heading=params.heading.copy(),
+        action=np.concatenate([s.action for s in segments]),
+        subject=subject,
+        ground_z=np.concatenate([s.ground_z for s in segments]),
+    )
+
+
+# --- errors with line numbers --------------------------------------------------
+
+
+def _describe(exc: ValidationError, text: str, name: str) -> str:
+    """The first validation error as ``name line N: field.path: message``."""
+    error = exc.errors()[0]
+    loc = tuple(error["loc"])
+    path = _dotted(loc)
+    line = _locate(text, loc)
+    where = f"{name} line {line}" if line else name
+    return f"{where}: {path}: {error['msg']}" if path else f"{where}: {error['msg']}"
+
+
+def _describe_toml(exc: tomllib.TOMLDecodeError, name: str) -> str:
+    """tomllib's message ``... (at line 3, column 5)`` as ``name line 3: ...``."""
+    text = str(exc)
+    found = re.search(r"\s*\(at line (\d+), column \d+\)", text)
+    if found is None:
+        return f"{name}: {text}"
+    return f"{name} line {found.group(1)}: {text[: found.start()]}{text[found.end() :]}"
+
+
+def _dotted(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+_HEADER = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_.\-\"' ]+?)\s*\]\]?\s*(#.*)?$")
+_KEY = re.compile(r"^\s*([A-Za-z0-9_\-\"']+)\s*=")
+
+
+def _locate(text: str, loc: tuple[Any, ...]) -> int | None:
+    """1-based line of the key ``loc`` points at (or of its table), None if not found.
+
+    tomllib keeps no positions, so this walks the text: table headers
+    ``[a]``, array-of-tables headers ``[[a]]`` (counted) and ``key =`` lines.
+    """
+    parts = [p for p in loc if isinstance(p, str | int)]
+    table: tuple[Any, ...] = ()
+    counts: dict[str, int] = {}
+    best: int | None = None
+    best_depth = -1
+    for number, line in enumerate(text.splitlines(), start=1):
+        header = _HEADER.match(line)
+        if header and not _KEY.match(line):
+            key = header.group(2).strip().strip("\"'")
+            if header.group(1) == "[[":
+                counts[key] = counts.get(key, -1) + 1
+                table = (key, counts[key])
+            else:
+                table = (key,)
+            depth = _match_depth(parts, table)
+            if depth > best_depth:
+                best, best_depth = number, depth
+            continue
+        key_match = _KEY.match(line)
+        if key_match:
+            full = (*table, key_match.group(1).strip("\"'"))
+            depth = _match_depth(parts, full)
+            if depth > best_depth:
+                best, best_depth = number, depth
+    return best if best_depth > 0 else None
+
+
+def _match_depth(loc: list[Any], path: tuple[Any, ...]) -> int:
+    """How many leading parts of ``path`` equal ``loc``; -1 when ``path`` goes astray."""
+    if len(path) > len(loc) or list(loc[: len(path)]) != list(path):
+        return -1
+    return len(path)
+
+
+def _failing_effect(effects: list[dict[str, Any]]) -> int | None:
+    from scotti.sim.effects.registry import parse_effect
+
+    for index, raw in enumerate(effects):
+        try:
+            parse_effect(raw, index)
+        except SimError:
+            return index
+    return None
