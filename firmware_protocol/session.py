@@ -180,7 +180,11 @@ Record: TypeAlias = SessionHeader | PacketRecord | LabelRecord
 
 
 def _pack(record: dict[str, Any]) -> bytes:
-    body = msgpack.packb(record, use_bin_type=True)
+    try:
+        body = msgpack.packb(record, use_bin_type=True)
+    except (TypeError, ValueError, OverflowError) as exc:
+        msg = f"cannot store a {record.get('kind')} record in a session file: {exc}"
+        raise SessionError(msg) from None
     return len(body).to_bytes(LEN_BYTES, "little") + body
 
 
@@ -211,8 +215,13 @@ class SessionWriter:
         except OSError as exc:
             msg = f"cannot create session file {self.path}: {exc.strerror}"
             raise SessionError(msg) from None
-        self._file.write(MAGIC)
-        self._write(header.to_record())
+        try:
+            self._file.write(MAGIC)
+            self._write(header.to_record())
+        except BaseException:
+            self._file.close()
+            self._file = None
+            raise
 
     def write_packet(self, t_ns: int, data: bytes) -> None:
         self._write(PacketRecord(t_ns, bytes(data)).to_record())
@@ -257,13 +266,18 @@ class SessionWriter:
         if self._file is None:
             msg = f"session file {self.path} is closed"
             raise SessionError(msg)
-        self._file.write(_pack(record))  # length and body in one write
+        data = _pack(record)
+        try:
+            self._file.write(data)  # length and body in one write
+            if self._flush_each:
+                self._file.flush()
+            interval = self._fsync_interval_s
+            if interval is not None and time.monotonic() - self._last_fsync >= interval:
+                self.fsync()
+        except OSError as exc:
+            msg = f"cannot write session file {self.path}: {exc.strerror}"
+            raise SessionError(msg) from None
         self.records += 1
-        if self._flush_each:
-            self._file.flush()
-        interval = self._fsync_interval_s
-        if interval is not None and time.monotonic() - self._last_fsync >= interval:
-            self.fsync()
 
 
 class SessionReader:

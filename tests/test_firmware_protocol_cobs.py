@@ -46,7 +46,7 @@ def test_rejects_bad_frames(frame: bytes) -> None:
         cobs.decode(frame)
 
 
-@settings(max_examples=200)
+@settings(max_examples=200, deadline=None)
 @given(st.binary(max_size=1200))
 def test_round_trip_has_no_zero_and_bounded_overhead(data: bytes) -> None:
     encoded = cobs.encode(data)

@@ -227,3 +227,11 @@ def test_writer_killed_by_sigkill_leaves_a_readable_file(tmp_path: Path) -> None
     assert len(session.packets) > 200
     assert [p.t_ns for p in session.packets] == list(range(len(session.packets)))
     assert session.bad_records == 0
+
+
+def test_unstorable_values_are_a_session_error(tmp_path: Path) -> None:
+    with pytest.raises(SessionError, match="cannot store a header record"):
+        SessionWriter(tmp_path / "a.scot", SessionHeader(source="simulated", scene={"x": object()}))
+    with SessionWriter(tmp_path / "b.scot", HEADER) as writer, pytest.raises(SessionError):
+        writer.write_packet(2**70, b"")
+    assert read_session(tmp_path / "b.scot").packets == []

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from scotti.firmware_protocol.wrap import Unwrapper, clock_delta_us, seq_delta
 
@@ -26,6 +26,7 @@ def test_clock_delta_across_the_71_minute_wrap() -> None:
     assert round((2**32) / 1e6 / 60, 1) == 71.6
 
 
+@settings(deadline=None)
 @given(st.integers(0, 65535), st.integers(-32768, 32767))
 def test_seq_delta_inverts_modular_addition(old: int, step: int) -> None:
     assert seq_delta((old + step) % 65536, old) == step
