@@ -1,0 +1,337 @@
+"""Labelled session files -> training arrays on a sequence grid, and windows over them.
+
+A session is decoded exactly as the daemon decodes it (StreamDecoder, then
+FrameAssembler), left and right foot frames are joined by their shared
+sequence number, and labels are attached per sequence number. Sequence
+numbers wrap at 2**16; they are unwrapped into one int64 timeline.
+
+Missing data: the frame grid has one slot per sequence number, so a window
+of T slots is always T/16 s long. A slot whose foot frame never came, or came
+with rows missing, keeps zeros where data is missing and is marked invalid
+(per foot, in ``valid``). ``WindowDataset`` drops, by default, every window
+with an invalid input frame: the daemon fills a silent foot by holding its
+last frame, which a zero-filled training frame would not imitate, and the
+simulator's losses are rare enough that dropping costs little. A gap of more
+than ``MAX_GAP`` sequence numbers (a board reset, a long outage) starts a new
+segment instead of a run of empty slots; windows never cross segments.
+
+Decoded sessions are cached as ``.npz`` (keyed by path, size and mtime), so
+repeated training runs do not decode again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scotti.export.errors import ExportError
+from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
+from scotti.firmware_protocol.errors import SessionError
+from scotti.firmware_protocol.framing import StreamDecoder
+from scotti.firmware_protocol.packets import Foot, FrameRows
+from scotti.firmware_protocol.session import read_session
+from scotti.models import contract
+
+log = logging.getLogger(__name__)
+
+# Bump when the decoded arrays change meaning: old cache files are then ignored.
+CACHE_VERSION = 1
+# A gap longer than this many sequence numbers starts a new segment.
+MAX_GAP = contract.WINDOW
+SEQ_MODULUS = 1 << 16
+
+
+class TrainingDataError(ExportError):
+    """A session or a split that cannot be used for training (one-line message)."""
+
+
+@dataclass(frozen=True)
+class SessionArrays:
+    """One session on its sequence grid: N slots, one per (unwrapped) sequence number."""
+
+    path: str
+    subject: str
+    frames: np.ndarray  # (N, H, 2W) uint16 counts, left foot columns 0..W-1, right W..2W-1
+    valid: np.ndarray  # (N, 2) bool: that foot's frame arrived with all rows (left, right)
+    seq: np.ndarray  # (N,) int64 unwrapped sequence number, +1 per slot within a segment
+    segment: np.ndarray  # (N,) int32, increases at gaps longer than MAX_GAP
+    has_label: np.ndarray  # (N,) bool
+    keypoints: np.ndarray  # (N, 19, 3) float32 metres, NaN without a label
+    action: np.ndarray  # (N,) int64 index into ACTIONS, NO_ACTION for a stand or no label
+    progress: np.ndarray  # (N,) float32 in [0, 1], NaN without an action
+    counters: dict[str, int] = field(default_factory=dict)  # what was bad, how often
+
+    def __len__(self) -> int:
+        return int(self.frames.shape[0])
+
+    @property
+    def frame_ok(self) -> np.ndarray:
+        """(N,) bool: both feet arrived whole."""
+        return np.asarray(self.valid.all(axis=1))
+
+    def slice(self, start: int, stop: int) -> SessionArrays:
+        """Slots [start, stop) as a session of their own (a time split)."""
+        s = np.s_[start:stop]
+        return replace(
+            self,
+            frames=self.frames[s],
+            valid=self.valid[s],
+            seq=self.seq[s],
+            segment=self.segment[s],
+            has_label=self.has_label[s],
+            keypoints=self.keypoints[s],
+            action=self.action[s],
+            progress=self.progress[s],
+        )
+
+
+def unwrap_seq(raw: Sequence[int] | np.ndarray, reference: int | None = None) -> np.ndarray:
+    """Wrapping u16 sequence numbers, in arrival order -> int64 timeline.
+
+    Each number is placed at the signed wrap-aware distance from its
+    predecessor (the first from ``reference``, an unwrapped value, if given).
+    """
+    r = np.asarray(raw, dtype=np.int64)
+    if r.size == 0:
+        return r
+    steps = (np.diff(r) + SEQ_MODULUS // 2) % SEQ_MODULUS - SEQ_MODULUS // 2
+    first = int(r[0])
+    if reference is not None:
+        delta = (first - reference + SEQ_MODULUS // 2) % SEQ_MODULUS - SEQ_MODULUS // 2
+        first = reference + delta
+    return first + np.concatenate([[0], np.cumsum(steps)])
+
+
+def subject_of(subject: dict[str, Any] | None, path: Path) -> str:
+    """The subject id: the header's ``subject`` dict ("id" or "name"), else the file stem."""
+    if isinstance(subject, dict):
+        for key in ("id", "name", "subject_id"):
+            value = subject.get(key)
+            if isinstance(value, str | int) and str(value):
+                return str(value)
+    return path.stem
+
+
+def decode_session(path: Path) -> SessionArrays:
+    """Decode one labelled session file into arrays (no cache)."""
+    try:
+        session = read_session(path)
+    except (SessionError, OSError) as exc:
+        msg = f"{path}: {exc}"
+        raise TrainingDataError(msg) from None
+    rows, cols = session.header.rows, session.header.cols
+    counters: dict[str, int] = {
+        "bad_records": session.bad_records + session.unknown_records,
+        "truncated": int(session.truncated),
+        "decode_errors": 0,
+        "wrong_geometry": 0,
+        "duplicate_frames": 0,
+        "incomplete_frames": 0,
+    }
+    decoder = StreamDecoder()
+    assembler = FrameAssembler()
+    feet: dict[int, list[FootFrame]] = {int(Foot.LEFT): [], int(Foot.RIGHT): []}
+
+    def collect(done: Iterable[FootFrame]) -> None:
+        for ff in done:
+            if ff.counts.shape != (rows, cols):
+                counters["wrong_geometry"] += 1
+                continue
+            feet[int(ff.foot)].append(ff)
+
+    for record in session.packets:
+        for item in decoder.feed(record.data):
+            if isinstance(item, FrameRows):
+                collect(assembler.push(item, record.t_ns))
+            elif isinstance(item, Exception):
+                counters["decode_errors"] += 1
+    collect(assembler.flush())
+
+    labels = sorted(session.labels, key=lambda lab: lab.t_ns)
+    return _to_grid(
+        path=path,
+        subject=subject_of(session.header.subject, path),
+        rows=rows,
+        cols=cols,
+        feet=feet,
+        labels=labels,
+        counters=counters,
+    )
+
+
+def _to_grid(
+    *,
+    path: Path,
+    subject: str,
+    rows: int,
+    cols: int,
+    feet: dict[int, list[FootFrame]],
+    labels: Sequence[Any],
+    counters: dict[str, int],
+) -> SessionArrays:
+    # One timeline for both feet and the labels: the left foot's first frame
+    # (or whatever came first) is the reference the others are unwrapped near.
+    reference: int | None = None
+    unwrapped: dict[int, np.ndarray] = {}
+    for foot in (int(Foot.LEFT), int(Foot.RIGHT)):
+        u = unwrap_seq([ff.seq for ff in feet[foot]], reference)
+        unwrapped[foot] = u
+        if reference is None and u.size:
+            reference = int(u[0])
+    label_seq = unwrap_seq([lab.seq for lab in labels], reference)
+    every = np.concatenate([*unwrapped.values(), label_seq])
+    if every.size == 0:
+        msg = f"{path}: no foot frames and no labels in the session"
+        raise TrainingDataError(msg)
+
+    # The grid: consecutive sequence numbers, with gaps > MAX_GAP cut into segments.
+    present = np.unique(every)
+    breaks = np.flatnonzero(np.diff(present) > MAX_GAP) + 1
+    pieces = np.split(present, breaks)
+    seq = np.concatenate([np.arange(p[0], p[-1] + 1, dtype=np.int64) for p in pieces])
+    segment = np.concatenate(
+        [np.full(p[-1] - p[0] + 1, i, dtype=np.int32) for i, p in enumerate(pieces)]
+    )
+    n = seq.size
+
+    frames = np.zeros((n, rows, 2 * cols), dtype=np.uint16)
+    valid = np.zeros((n, 2), dtype=bool)
+    seen = np.zeros((n, 2), dtype=bool)
+    for foot in (int(Foot.LEFT), int(Foot.RIGHT)):
+        slots = np.searchsorted(seq, unwrapped[foot])
+        c0 = foot * cols
+        for ff, slot in zip(feet[foot], slots, strict=True):
+            if seen[slot, foot]:
+                counters["duplicate_frames"] += 1  # a reset or a repeat: keep the first
+                continue
+            seen[slot, foot] = True
+            frames[slot, :, c0 : c0 + cols] = ff.counts
+            complete = bool(ff.complete) and not bool(np.any(ff.rows_missing))
+            if complete:
+                valid[slot, foot] = True
+            else:
+                frames[slot, np.asarray(ff.rows_missing, dtype=bool), c0 : c0 + cols] = 0
+                counters["incomplete_frames"] += 1
+    counters["missing_left"] = int(n - seen[:, 0].sum())
+    counters["missing_right"] = int(n - seen[:, 1].sum())
+
+    has_label = np.zeros(n, dtype=bool)
+    keypoints = np.full((n, contract.NUM_KEYPOINTS, 3), np.nan, dtype=np.float32)
+    action = np.full(n, contract.NO_ACTION, dtype=np.int64)
+    progress = np.full(n, np.nan, dtype=np.float32)
+    bad_labels = 0
+    for lab, slot in zip(labels, np.searchsorted(seq, label_seq), strict=True):
+        kp = np.asarray(_label_keypoints(lab), dtype=np.float32)
+        act = int(lab.action)
+        if kp.shape != (contract.NUM_KEYPOINTS, 3) or not -1 <= act < contract.NUM_ACTIONS:
+            bad_labels += 1
+            continue
+        has_label[slot] = True
+        keypoints[slot] = kp
+        action[slot] = act
+        progress[slot] = float(lab.progress) if act != contract.NO_ACTION else np.nan
+    counters["bad_labels"] = bad_labels
+    counters["unlabelled_slots"] = int(n - has_label.sum())
+    return SessionArrays(
+        path=str(path),
+        subject=subject,
+        frames=frames,
+        valid=valid,
+        seq=seq,
+        segment=segment,
+        has_label=has_label,
+        keypoints=keypoints,
+        action=action,
+        progress=progress,
+        counters=counters,
+    )
+
+
+def _label_keypoints(label: Any) -> np.ndarray:
+    kp = label.keypoints
+    if isinstance(kp, bytes | bytearray | memoryview):
+        return np.frombuffer(kp, dtype="<f4").reshape(-1, 3)
+    return np.asarray(kp, dtype=np.float32).reshape(-1, 3)
+
+
+# --- Cache -----------------------------------------------------------------
+
+_ARRAYS = ("frames", "valid", "seq", "segment", "has_label", "keypoints", "action", "progress")
+
+
+def _cache_path(path: Path, cache_dir: Path) -> Path:
+    st = path.stat()
+    key = f"{CACHE_VERSION}|{path.resolve()}|{st.st_size}|{st.st_mtime_ns}"
+    digest = hashlib.sha1(key.encode(), usedforsecurity=False).hexdigest()[:16]
+    return cache_dir / f"{path.stem}.{digest}.npz"
+
+
+def load_session(path: Path | str, cache_dir: Path | str | None = None) -> SessionArrays:
+    """Decode a session, or read it from ``cache_dir`` when it was decoded before."""
+    path = Path(path)
+    if not path.is_file():
+        msg = f"{path}: no such session file"
+        raise TrainingDataError(msg)
+    if cache_dir is None:
+        return decode_session(path)
+    cache_dir = Path(cache_dir)
+    cached = _cache_path(path, cache_dir)
+    if cached.is_file():
+        try:
+            with np.load(cached, allow_pickle=False) as z:
+                meta = json.loads(str(z["meta"]))
+                loaded = {name: z[name] for name in _ARRAYS}
+            return SessionArrays(
+                path=str(path), subject=meta["subject"], counters=meta["counters"], **loaded
+            )
+        except (OSError, ValueError, KeyError) as exc:
+            log.warning("ignoring unreadable cache %s: %s", cached, exc)
+    arrays = decode_session(path)
+    _write_cache(arrays, cached)
+    return arrays
+
+
+def _write_cache(arrays: SessionArrays, cached: Path) -> None:
+    cached.parent.mkdir(parents=True, exist_ok=True)
+    meta = json.dumps({"subject": arrays.subject, "counters": arrays.counters})
+    fd, tmp = tempfile.mkstemp(dir=cached.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez_compressed(f, meta=np.array(meta), **{n: getattr(arrays, n) for n in _ARRAYS})
+        os.replace(tmp, cached)  # atomic: a killed run never leaves half a cache file
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def find_sessions(paths: Iterable[Path | str]) -> list[Path]:
+    """Files given, plus every session file (by its magic) found under directories."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found.extend(f for f in sorted(p.rglob("*")) if f.is_file() and _is_session(f))
+        elif p.is_file():
+            found.append(p)
+        else:
+            msg = f"{p}: no such file or directory"
+            raise TrainingDataError(msg)
+    if not found:
+        msg = "no session files found in " + ", ".join(map(str, paths))
+        raise TrainingDataError(msg)
+    return found
+
+
+def _is_session(path: Path) -> bool:
+    try:
+        with path.open("rb") as f:
+            return f.read(8) == b"SCOTSESS"
+    except OSError:
+        return False

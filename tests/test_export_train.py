@@ -1,0 +1,158 @@
+"""Training: chunked = naive, a tiny model overfits, resume is exact, the CLI end to end."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+import torch
+from scotti.cli.main import main
+from scotti.export.data import load_session
+from scotti.export.evaluate import chunked_outputs, evaluate
+from scotti.export.model import Scotti, ScottiConfig
+from scotti.export.train import Trainer, TrainOptions, batch_tensors, plan_epoch, unfold_frames
+from scotti.export.windows import WindowDataset
+
+from tests.support.export_sessions import write_session
+
+pytestmark = pytest.mark.torch
+
+TINY: dict[str, Any] = {
+    "window": 8,
+    "embed_dim": 16,
+    "layers": 1,
+    "heads": 2,
+    "head_hidden": 16,
+    "conv_channels": [4, 4],
+    "dropout": 0.0,
+}
+
+
+@pytest.fixture(scope="module")
+def sessions_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("train_sessions")
+    write_session(d / "a.scotti", 110, subject="a", first_seq=65500)
+    write_session(d / "b.scotti", 60, subject="b", drop_foot=[(20, 0)])
+    return d
+
+
+@pytest.fixture(autouse=True)
+def _one_thread() -> None:
+    torch.set_num_threads(1)
+
+
+def tiny_model(seed: int = 0, **changes: object) -> Scotti:
+    torch.manual_seed(seed)
+    return Scotti(ScottiConfig.from_dict({**TINY, **changes}))
+
+
+def dataset(sessions_dir: Path, name: str = "a.scotti") -> WindowDataset:
+    return WindowDataset([load_session(sessions_dir / name)], window=TINY["window"])
+
+
+@pytest.mark.parametrize("stride", [1, 3])
+def test_chunked_embedding_equals_naive_windows(sessions_dir: Path, stride: int) -> None:
+    ds = dataset(sessions_dir)
+    model = tiny_model(embed_dim=32, heads=4).eval()
+    opts = TrainOptions(batch=12, chunk=5, stride=stride, max_shift=2)
+    batch = plan_epoch(ds, opts, epoch=0)[0]
+    frames, targets = batch_tensors(ds, batch)
+    with torch.no_grad():
+        chunked = chunked_outputs(model, frames, model.cfg.window, stride)
+        naive = model(torch.cat([unfold_frames(f, model.cfg.window, stride) for f in frames]))
+    assert chunked.pose.shape[0] == targets.action.shape[0] >= opts.batch
+    for a, b in zip(chunked, naive, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.slow
+def test_a_tiny_model_overfits_a_tiny_data_set(sessions_dir: Path) -> None:
+    session = load_session(sessions_dir / "a.scotti").slice(0, 56)  # 48 windows
+    ds = WindowDataset([session], window=TINY["window"])
+    model = tiny_model(embed_dim=32, head_hidden=32, conv_channels=[8, 8])
+    opts = TrainOptions(epochs=200, batch=48, chunk=8, stride=1, lr=1e-2, max_shift=0)
+    trainer = Trainer(model, ds, None, replace_progress(opts))
+    assert trainer.fit() == "done"
+    losses = [r["train_loss"] for r in trainer.state.history]
+    assert losses[-1] < 0.3 * losses[0], losses[::20]
+    # Predicting the mean pose scores about 140 mm here: the model learnt the frames.
+    assert evaluate(model, ds, stride=1)["mpjpe_mm"] < 80.0
+
+
+def replace_progress(opts: TrainOptions) -> TrainOptions:
+    from dataclasses import replace
+
+    return replace(opts, progress_bar=False)
+
+
+def test_resume_continues_exactly_like_an_uninterrupted_run(
+    sessions_dir: Path, tmp_path: Path
+) -> None:
+    ds = dataset(sessions_dir)
+    # Dropout on, so the restored torch RNG matters too.
+    opts = replace_progress(TrainOptions(epochs=2, batch=16, chunk=4, stride=2, lr=1e-3))
+    whole = Trainer(tiny_model(dropout=0.2), ds, None, opts)
+    whole.fit()
+
+    first = Trainer(tiny_model(dropout=0.2), ds, None, opts, run_dir=tmp_path)
+    stop_at = len(plan_epoch(ds, opts, 0)) + 2  # mid-way through the second epoch
+    assert first.fit(max_steps=stop_at) == "stopped"
+    ckpt = torch.load(tmp_path / "last.pt", weights_only=True)
+    assert (ckpt["epoch"], ckpt["step_in_epoch"]) == (1, 2)
+
+    resumed = Trainer(tiny_model(seed=99, dropout=0.2), ds, None, opts)
+    resumed.restore(ckpt)
+    assert resumed.fit() == "done"
+    assert first.step_losses == whole.step_losses[:stop_at]
+    assert resumed.step_losses == whole.step_losses[stop_at:]
+    assert resumed.state.history[-1]["train_loss"] == whole.state.history[-1]["train_loss"]
+    for name, value in whole.model.state_dict().items():
+        assert torch.equal(value, resumed.model.state_dict()[name]), name
+
+
+@pytest.mark.slow
+def test_cli_trains_resumes_and_exports(
+    sessions_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "runs" / "tiny"
+    common = [str(sessions_dir), "-o", str(run), "--config", json.dumps(TINY)]
+    common += ["--batch", "8", "--chunk", "4", "--stride", "2", "--test-subjects", "b"]
+    assert main(["train", *common, "--epochs", "1"]) == 0
+    assert main(["train", *common, "--epochs", "2", "--resume"]) == 0
+    ckpt = torch.load(run / "last.pt", weights_only=True)
+    assert ckpt["epoch"] == 2
+    assert ckpt["config"]["window"] == TINY["window"]
+    data = ckpt["training_data"]
+    assert data["split"]["test_subjects"] == ["b"]
+    assert len(data["files"]) == 2
+    assert data["problems"]["missing_left"] == 1
+    val = ckpt["metrics"]["val"]
+    assert val["windows"] > 0
+    assert np.isfinite(val["mpjpe_mm"])
+    assert 0 <= val["app"] <= 1
+    history = (run / "history.jsonl").read_text().splitlines()
+    assert [json.loads(line)["epoch"] for line in history] == [1, 2]
+    assert (run / "best.pt").is_file()
+    assert list((tmp_path / "runs" / ".session-cache").glob("*.npz"))
+
+    if importlib.util.find_spec("scotti.export.export_cli") is None:
+        pytest.skip("export_cli is not built yet")
+    out = tmp_path / "models" / "tiny.onnx"
+    assert main(["export", str(run / "last.pt"), "-o", str(out)]) == 0
+    assert out.is_file()
+
+
+def test_cli_mistakes_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["train", str(tmp_path / "nothing"), "-o", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("scotti train:")
+    assert "nothing" in err
+    assert "\n" not in err
+    assert main(["train", str(tmp_path), "-o", str(tmp_path / "r"), "--config", "huge"]) == 2
+    assert "preset" in capsys.readouterr().err
