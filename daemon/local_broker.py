@@ -47,8 +47,10 @@ class Mosquitto:
             raise BrokerError(msg)
         self.exe = exe
         self.host = "127.0.0.1"
+        self.credentials = password  # (user, password) clients must give, or None
         self.port = port or free_port()
         self._dir = Path(tempfile.mkdtemp(prefix="scotti-mosquitto-"))
+        self._dir.chmod(0o755)  # mosquitto started as root reads it as user "mosquitto"
         self.log_path = self._dir / "mosquitto.log"
         self.conf = self._write_conf(password)
         self._proc: subprocess.Popen[bytes] | None = None
@@ -74,6 +76,7 @@ class Mosquitto:
             pwfile = self._dir / "passwd"
             pwfile.write_text(f"{password[0]}:{password[1]}\n")
             subprocess.run(["mosquitto_passwd", "-U", str(pwfile)], check=True)
+            pwfile.chmod(0o644)  # a throwaway test password; mosquitto must read it
             lines += ["allow_anonymous false", f"password_file {pwfile}"]
         conf = self._dir / "mosquitto.conf"
         conf.write_text("\n".join(lines) + "\n")

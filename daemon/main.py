@@ -1,10 +1,120 @@
-"""``scotti-daemon``: the live service (filled in by the daemon issue)."""
+"""``scotti-daemon``: command line, settings, model check, then the service.
+
+Exit status: 0 after a graceful stop (or the end of a replay); 78 (EX_CONFIG)
+for a bad setting or a model that does not fit the contract, with one line on
+stderr and no traceback; 1 when the service fails while running.
+"""
 
 from __future__ import annotations
 
+import argparse
+import asyncio
+import logging
 import sys
+from pathlib import Path
+from typing import Any
+
+from scotti.daemon.settings import EX_CONFIG, ConfigError, Settings, load_settings
+
+PROG = "scotti-daemon"
 
 
-def main() -> int:
-    print("scotti-daemon: not built yet; see README.md", file=sys.stderr)
-    return 2
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description="Insole stream -> pose, action and progress over MQTT. Every option can "
+        "also be set in the --config TOML file or as SCOTTI_* environment variables "
+        "(command line > environment > file > defaults).",
+    )
+    src = p.add_argument_group("source (exactly one)")
+    src.add_argument("--port", help="receiver serial device, e.g. /dev/ttyACM0")
+    src.add_argument("--replay", type=Path, metavar="FILE", help="replay a session file")
+    src.add_argument("--simulate", metavar="SCENE", help="simulated board playing a scene")
+    src.add_argument("--speed", metavar="1|N|max", help="replay/simulate rate (default 1)")
+    p.add_argument("--model", type=Path, metavar="PATH", help="ONNX step graph (default: shipped)")
+    p.add_argument("--threads", metavar="N", help="onnxruntime threads (default 1)")
+    p.add_argument("--broker", metavar="URL", help="mqtt://host[:port] (default localhost:1883)")
+    p.add_argument("--device-id", metavar="ID", help="topic level for this device (host name)")
+    p.add_argument("--topic-prefix", metavar="PREFIX", help="topic prefix (default scotti)")
+    p.add_argument("--format", metavar="json|msgpack", help="payload encoding (default json)")
+    p.add_argument("--pressure", action="store_true", default=None, help="publish pressure")
+    p.add_argument("--record", type=Path, metavar="FILE", help="append raw bytes to a session")
+    p.add_argument("--log-level", metavar="LEVEL", help="debug, info, warning, error")
+    p.add_argument("--config", type=Path, metavar="FILE", help="TOML config file")
+    return p
+
+
+# argparse destination -> (section, field) in Settings; None section = top level.
+_CLI_FIELDS: dict[str, tuple[str | None, str]] = {
+    "port": ("source", "port"),
+    "replay": ("source", "replay"),
+    "simulate": ("source", "simulate"),
+    "speed": ("source", "speed"),
+    "model": ("model", "path"),
+    "threads": ("model", "threads"),
+    "broker": ("mqtt", "broker"),
+    "device_id": ("mqtt", "device_id"),
+    "topic_prefix": ("mqtt", "topic_prefix"),
+    "format": ("mqtt", "format"),
+    "pressure": ("mqtt", "pressure"),
+    "record": (None, "record"),
+    "log_level": (None, "log_level"),
+}
+
+
+def cli_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The options given on the command line, nested like ``Settings``."""
+    out: dict[str, Any] = {}
+    for dest, (section, name) in _CLI_FIELDS.items():
+        value = getattr(args, dest)
+        if value is None:
+            continue
+        if section is None:
+            out[name] = value
+        else:
+            out.setdefault(section, {})[name] = value
+    return out
+
+
+def configure_logging(level: str) -> None:
+    fmt = "%(levelname)s %(name)s: %(message)s"
+    if sys.stderr.isatty():  # journald stamps its own time
+        fmt = "%(asctime)s " + fmt
+    logging.basicConfig(level=level.upper(), format=fmt, stream=sys.stderr, force=True)
+    if level != "debug":
+        logging.getLogger("scotti.daemon.mqtt").setLevel(logging.WARNING)
+
+
+def _fail(kind: str, message: str) -> int:
+    print(f"{PROG}: {kind}: {message}", file=sys.stderr)
+    return EX_CONFIG
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        settings: Settings = load_settings(cli_overrides(args), args.config)
+        model_path = settings.model.resolved_path()
+    except ConfigError as exc:
+        return _fail("config error", str(exc))
+    configure_logging(settings.log_level)
+
+    # Imported here: onnxruntime takes a moment, and a config error should not wait.
+    from scotti.daemon.app import Daemon
+    from scotti.models.errors import ModelError
+    from scotti.models.runtime import ScottiRuntime
+
+    try:
+        runtime = ScottiRuntime(model_path, threads=settings.model.threads)
+    except ModelError as exc:
+        return _fail("model error", str(exc))
+    if runtime.graph != "step":
+        return _fail("model error", f"{model_path.name} is a {runtime.graph} graph; give the step")
+    try:
+        return asyncio.run(Daemon(settings, runtime).run())
+    except KeyboardInterrupt:  # a second Ctrl-C during the graceful stop
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -20,13 +20,14 @@ import logging
 import ssl
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Final, Literal
 
 import aiomqtt
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from pydantic import BaseModel
+from scotti.daemon.counters import LatencyRing
 from scotti.daemon.schemas import CONTENT_TYPES, Health, Info, Status, encode
 from scotti.daemon.settings import MqttSettings
 
@@ -55,6 +56,7 @@ class PublisherStats:
     dropped_error: int = 0  # lost in a publish that failed
     connects: int = 0
     last_seq: int | None = None
+    latency_ms: LatencyRing = field(default_factory=LatencyRing)  # last byte -> publish
 
     @property
     def dropped(self) -> int:
@@ -76,6 +78,7 @@ class Publisher:
         self.stats = PublisherStats()
         self.state: BrokerState = "connecting"
         self.on_state_change: Callable[[BrokerState, str], None] = lambda _s, _r: None
+        self.on_drained: Callable[[], None] = lambda: None  # at stop, queue empty
         self._fmt = settings.format
         self._info = info
         self._status: Status | None = None
@@ -131,7 +134,7 @@ class Publisher:
 
     # --- the connection loop ---------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
-        """Publish until ``stop``; then drain the queue and the final status, disconnect."""
+        """Publish until ``stop``; then drain the queue, call ``on_drained``, disconnect."""
         backoff = BACKOFF_START_S
         while True:
             try:
@@ -161,6 +164,8 @@ class Publisher:
                 await self._publish_batch(self._queue.popleft())
                 await self._flush_retained()  # status changes overtake a long backlog
             if stop.is_set():
+                self.on_drained()  # the last health and status, after the last frame
+                await self._flush_retained()
                 return
             await _wait_any(self._wake, stop)
 
@@ -189,6 +194,7 @@ class Publisher:
             raise
         self.stats.published += 1
         self.stats.last_seq = batch.seq
+        self.stats.latency_ms.add(latency_ms)
 
     async def _publish(
         self, topic: str, payload: BaseModel, retained: bool, props: Properties | None = None

@@ -122,14 +122,20 @@ class Health(_Payload):
     uptime_s: float
     host_wall_ns: int
     host_mono_ns: int
-    last_seq: int | None = Field(description="seq of the newest prediction, null before any.")
-    broker_reconnects: int
+    last_seq: int | None = Field(description="seq of the newest published prediction.")
+    frames_in: dict[str, int] = Field(description="Foot frames assembled, left and right.")
+    bad_packets: int = Field(description="Packets the decoder rejected (CRC, framing, ...).")
+    gaps: int = Field(description="Gaps in the frame sequence seen by pairing.")
+    predictions: int
     published: int = Field(description="Predictions published.")
-    dropped: int = Field(description="Predictions not published (queue full or stale).")
-    queue_depth: int
-    inference: Latency
+    dropped: int = Field(description="Predictions not published (queue full, stale, error).")
+    dropped_frames: int = Field(description="Frames inference could not keep up with.")
+    source_reconnects: int
+    broker_reconnects: int
+    queue_depth: int = Field(description="Predictions waiting for the broker now.")
+    inference: Latency = Field(description="Model step time.")
     end_to_end: Latency = Field(description="Frame's last byte in to publish.")
-    counters: dict[str, float] = Field(description="Pipeline counters (frames, gaps, ...).")
+    pipeline: dict[str, Any] = Field(description="Every pipeline counter (Counters.snapshot).")
 
 
 TOPICS: Final[dict[str, type[_Payload]]] = {

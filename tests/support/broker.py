@@ -1,13 +1,20 @@
-"""Helpers for tests that talk to a real broker: collect what a topic filter receives."""
+"""Helpers for tests that talk to a real broker: collect messages, run the daemon."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import aiomqtt
 from scotti.daemon.local_broker import Mosquitto
@@ -57,8 +64,13 @@ class Collector:
     async def _run(self) -> None:
         while not self._stop.is_set():
             try:
+                user, password = self.broker.credentials or (None, None)
                 async with aiomqtt.Client(
-                    self.broker.host, self.broker.port, protocol=aiomqtt.ProtocolVersion.V5
+                    self.broker.host,
+                    self.broker.port,
+                    username=user,
+                    password=password,
+                    protocol=aiomqtt.ProtocolVersion.V5,
                 ) as client:
                     await client.subscribe(self.topic_filter, qos=1)
                     self._subscribed.set()
@@ -106,3 +118,49 @@ def collect(broker: Mosquitto, topic_filter: str = "#") -> Iterator[Collector]:
     finally:
         collector.close()
         thread.join(10)
+
+
+@dataclass
+class DaemonProcess:
+    """``scotti-daemon`` run as a subprocess, its stderr kept in a file."""
+
+    proc: subprocess.Popen[bytes]
+    log_path: Path
+
+    @property
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def wait(self, timeout: float) -> int:
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(5)
+            msg = f"scotti-daemon still running after {timeout} s; log:\n{self.log[-3000:]}"
+            raise AssertionError(msg) from None
+
+    def stop(self) -> int:
+        """SIGTERM, as systemd stops it; returns the exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        return self.wait(15)
+
+
+def start_daemon(
+    args: list[str], log_path: Path, env: dict[str, str] | None = None
+) -> DaemonProcess:
+    """Start ``scotti-daemon ARGS`` with SCOTTI_* from the parent cleared (plus ``env``)."""
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
+    clean.pop("NOTIFY_SOCKET", None)
+    exe = Path(sys.executable).with_name("scotti-daemon")
+    with log_path.open("wb") as log:
+        proc = subprocess.Popen(
+            [str(exe), *args], stdout=log, stderr=subprocess.STDOUT, env={**clean, **(env or {})}
+        )
+    return DaemonProcess(proc, log_path)
+
+
+def payloads(msgs: list[Received], name: str) -> list[dict[str, Any]]:
+    """JSON payloads of the messages on topics ending in ``/name``, in arrival order."""
+    return [json.loads(m.payload) for m in msgs if m.topic.endswith("/" + name)]

@@ -1,0 +1,203 @@
+"""Building the MQTT payloads (``schemas``) from what the daemon knows.
+
+Kept apart from ``schemas`` so that the public models depend on nothing of
+the pipeline, and apart from ``app`` so that the life cycle reads short.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel
+from scotti.daemon.schemas import (
+    Action,
+    DeviceSeq,
+    Health,
+    Info,
+    Latency,
+    Pose,
+    Pressure,
+    Progress,
+    Status,
+)
+from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_RATE_HZ, KEYPOINTS, NO_ACTION
+
+if TYPE_CHECKING:
+    from scotti.daemon.pipeline import PipelineState, Prediction
+    from scotti.daemon.publisher import Publisher
+    from scotti.daemon.settings import Settings
+    from scotti.models.runtime import ScottiRuntime
+
+POSE_FRAME = "metres; origin on the floor under the mid-hip, z up, x forward, y to the left"
+TOPIC_NAMES = ("status", "info", "pose", "action", "progress", "health", "pressure")
+
+
+def frame_payloads(
+    p: Prediction, latency_ms: float, pressure_downsample: int = 0
+) -> list[tuple[str, BaseModel]]:
+    """pose, action, progress (and pressure) of one prediction, same stamp."""
+    stamp: dict[str, Any] = {
+        "seq": p.seq,
+        "device_seq": DeviceSeq(left=p.left_seq, right=p.right_seq),
+        "device_time_us": p.device_clock_us,
+        "host_wall_ns": p.host_wall_ns,
+        "host_mono_ns": p.host_mono_ns,
+        "predicted_for_mono_ns": p.predicted_for_mono_ns,
+        "latency_ms": round(latency_ms, 3),
+        "flags": list(p.flags),
+    }
+    probs = [float(x) for x in p.action_probs]
+    action = ACTIONS[p.action] if p.action != NO_ACTION else None
+    confidence = probs[p.action] if action is not None else 0.0
+    progress = None if action is None or not np.isfinite(p.progress) else float(p.progress)
+    out: list[tuple[str, BaseModel]] = [
+        ("pose", Pose(**stamp, keypoints=np.asarray(p.pose, dtype=np.float64).tolist())),
+        (
+            "action",
+            Action(
+                **stamp,
+                action=action,
+                confidence=confidence,
+                probabilities=dict(zip(ACTIONS, probs, strict=True)),
+            ),
+        ),
+        (
+            "progress",
+            Progress(**stamp, action=action, progress=progress, repetition=p.repetition),
+        ),
+    ]
+    counts = getattr(p, "counts", None)
+    if pressure_downsample and counts is not None:
+        out.append(("pressure", pressure(stamp, np.asarray(counts), pressure_downsample)))
+    return out
+
+
+def downsample(counts: np.ndarray, k: int) -> np.ndarray:
+    """Mean over k x k blocks (edges padded by repetition), as uint16."""
+    if k == 1:
+        return counts.astype(np.uint16)
+    rows, cols = counts.shape
+    padded = np.pad(counts, ((0, -rows % k), (0, -cols % k)), mode="edge").astype(np.float32)
+    r, c = padded.shape
+    blocks = padded.reshape(r // k, k, c // k, k).mean(axis=(1, 3))
+    return np.asarray(np.rint(blocks), dtype=np.uint16)
+
+
+def pressure(stamp: Mapping[str, Any], counts: np.ndarray, k: int) -> Pressure:
+    """``counts`` is the model input (H, 2W): left insole then right."""
+    left = downsample(counts[:, :FRAME_COLS], k)
+    right = downsample(counts[:, FRAME_COLS:], k)
+    return Pressure(
+        **stamp,
+        rows=left.shape[0],
+        cols=left.shape[1],
+        downsample=k,
+        left=left.astype("<u2").tobytes(),
+        right=right.astype("<u2").tobytes(),
+    )
+
+
+def status(
+    state: Literal["online", "degraded", "offline"],
+    reasons: list[str],
+    pipeline: PipelineState | None,
+) -> Status:
+    if pipeline is None:
+        source: Literal["connected", "disconnected", "stopped"] = (
+            "stopped" if state == "offline" else "disconnected"
+        )
+        return Status(
+            state=state,
+            reasons=reasons,
+            source=source,
+            feet={},
+            warming=(0, 0),
+            host_wall_ns=time.time_ns(),
+        )
+    return Status(
+        state=state,
+        reasons=reasons,
+        source="stopped" if state == "offline" else pipeline.source,
+        feet=dict(pipeline.feet),  # type: ignore[arg-type]
+        warming=tuple(pipeline.warming),  # type: ignore[arg-type]
+        host_wall_ns=time.time_ns(),
+    )
+
+
+def info(settings: Settings, runtime: ScottiRuntime, versions: dict[str, str]) -> Info:
+    mqtt = settings.mqtt
+    return Info(
+        device_id=mqtt.device_id,
+        versions=versions,
+        model={
+            "file": runtime.path.name,
+            "sha256": runtime.sha256,
+            "graph": runtime.graph,
+            "window": runtime.window,
+            "embed_dim": runtime.embed_dim,
+            "threads": runtime.threads,
+            "card": runtime.card,
+        },
+        keypoints=list(KEYPOINTS),
+        actions=list(ACTIONS),
+        pose_frame=POSE_FRAME,
+        frame_rate_hz=FRAME_RATE_HZ,
+        window=runtime.window,
+        format=mqtt.format,
+        topics={name: mqtt.topic(name) for name in TOPIC_NAMES},
+        settings=settings.summary(),
+        host_wall_ns=time.time_ns(),
+    )
+
+
+def _latency(summary: Mapping[str, Any] | None) -> Latency:
+    """A ``LatencyRing.summary()`` as published: nulls until something was measured."""
+    if not summary or not summary.get("n"):
+        return Latency(p50_ms=None, p90_ms=None, p99_ms=None, max_ms=None)
+    return Latency(
+        p50_ms=float(summary["p50"]),
+        p90_ms=float(summary["p90"]),
+        p99_ms=float(summary["p99"]),
+        max_ms=float(summary["max"]),
+    )
+
+
+def _total(value: Any) -> int:
+    if isinstance(value, Mapping):
+        return sum(int(v) for v in value.values() if isinstance(v, int | float))
+    return int(value or 0)
+
+
+def health(snapshot: Mapping[str, Any], publisher: Publisher, uptime_s: float) -> Health:
+    """``snapshot`` is ``Counters.snapshot()``; the publisher adds what it counted."""
+    stats = publisher.stats
+    latency = snapshot.get("latency_ms", {})
+    return Health(
+        uptime_s=round(uptime_s, 3),
+        host_wall_ns=time.time_ns(),
+        host_mono_ns=time.monotonic_ns(),
+        last_seq=stats.last_seq,
+        frames_in={k: int(v) for k, v in snapshot.get("frames_in", {}).items()},
+        bad_packets=_total(snapshot.get("bad_packets")),
+        gaps=_total(snapshot.get("gaps")),
+        predictions=_total(snapshot.get("predictions")),
+        published=stats.published,
+        dropped=stats.dropped,
+        dropped_frames=_total(snapshot.get("dropped_frames")),
+        source_reconnects=_total(snapshot.get("reconnects")),
+        broker_reconnects=stats.reconnects,
+        queue_depth=publisher.queue_depth,
+        inference=_latency(latency.get("inference")),
+        end_to_end=_latency(stats.latency_ms.summary()),
+        pipeline={
+            **snapshot,
+            "publish": {
+                "dropped_queue_full": stats.dropped_full,
+                "dropped_stale": stats.dropped_stale,
+                "dropped_error": stats.dropped_error,
+            },
+        },
+    )
