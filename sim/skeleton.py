@@ -251,7 +251,7 @@ def end_of_chain(root: Array, middle: Array, target: Array, lower: float) -> Arr
     return np.asarray(middle + lower * d / norm, dtype=np.float64)
 
 
-def leg_reach_z(body: Body, hip_xy: Array, ankle: Array, slack: float = 0.995) -> Array:
+def leg_reach_z(body: Body, hip_xy: Array, ankle: Array, slack: float = 0.999) -> Array:
     """Highest hip z (N,) from which the leg still reaches ``ankle`` (N, 3)."""
     horizontal = np.linalg.norm(hip_xy - ankle[:, :2], axis=-1)
     reach = slack * body.leg

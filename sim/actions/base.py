@@ -24,7 +24,7 @@ TOE_OUT = 0.08
 # Elbows hang slightly bent.
 ELBOW_REST = 0.15
 # Softness (metres) of the reach limit on the pelvis height.
-REACH_SOFTNESS = 0.008
+REACH_SOFTNESS = 0.004
 
 
 @dataclass(frozen=True)

@@ -127,7 +127,12 @@ def support_path(body: Body, feet: tuple[FootTrack, FootTrack], smooth_frames: i
     weight[weight.sum(axis=1) == 0] = 1.0  # both in the air: their middle
     points = np.stack([f.ankle for f in feet], axis=1)  # (N, 2, 3)
     points[..., 2] = np.stack([f.ground_z for f in feet], axis=1)
-    centre = (weight[..., None] * points).sum(axis=1) / weight.sum(axis=1, keepdims=True)
-    centre = box_smooth(centre, smooth_frames)
+    raw = (weight[..., None] * points).sum(axis=1) / weight.sum(axis=1, keepdims=True)
+    centre = box_smooth(raw, smooth_frames)
+    # The centred filter starts moving before the first step and settles after
+    # the last; pull both ends back onto the stand so segments join exactly.
+    ramp = np.arange(len(raw)) / max(smooth_frames, 1)
+    centre += (raw[0] - centre[0]) * (1.0 - ease(ramp))[:, None]
+    centre += (raw[-1] - centre[-1]) * (1.0 - ease(ramp[::-1]))[:, None]
     centre[:, 2] += body.stand_hip_z
     return np.asarray(centre, dtype=np.float64)

@@ -36,7 +36,7 @@ def jump(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     reps = spec.reps or max(1, round((spec.duration_s or 0.0) * spec.tempo / 1.0))
     depth = subject.depth if spec.depth is None else spec.depth
     base = neutral(body, place, 1)
-    stand_z = float(finalize(body, base).pelvis[0, 2])
+    stand_z = float(base.pelvis[0, 2])
     # Take-off height: legs nearly straight above feet standing on their toes.
     toe = foot_points(body, LEFT, base.ankle[:, LEFT], base.foot_yaw[:, LEFT], np.zeros(1))[:, 1]
     on_toes = ankle_on_pivot(body, LEFT, toe, 1, base.foot_yaw[:, LEFT], np.array([-TAKEOFF_PITCH]))
@@ -97,7 +97,7 @@ def jump(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
         ankle[flying, side, 2] = hip_z[flying] - REACH * body.leg
     crouched = np.clip((stand_z - hip_z) / crouch, 0.0, 1.0)
     arms = np.where(flying, 1.2, -0.6 * crouched)
-    arms = box_smooth(arms, max(1, round(0.12 * ctx.rate_hz)))
+    arms = box_smooth(arms, max(1, round(0.25 * ctx.rate_hz)))
     p = p.replace(
         pelvis=np.c_[p.pelvis[:, :2], hip_z],
         ankle=ankle,

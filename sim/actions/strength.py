@@ -124,7 +124,7 @@ def lunge(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
         foot_pitch=pitch,
         foot_yaw=np.stack([feet[LEFT].yaw, feet[RIGHT].yaw], axis=1),
         lean=0.08 * heel,
-        shoulder_flex=np.full((len(t), 2), 0.1),
+        shoulder_flex=np.repeat(0.12 * heel[:, None], 2, axis=1),
     )
     action = np.full(len(t), ACTIONS.index("lunge"), dtype=np.int64)
     return Segment(finalize(body, p), action, place, np.zeros((len(t), 2)))

@@ -1,0 +1,213 @@
+"""Action recipes: feet on the floor, squat depth, gait timing, flight, step height, labels."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from scotti.models.contract import ACTIONS, KP, NO_ACTION
+from scotti.sim.actions import RECIPES, ActionSpec, Context, Place
+from scotti.sim.actions.base import finalize, neutral
+from scotti.sim.actions.strength import SQUAT_DROP
+from scotti.sim.motion import Motion, Subject, labels
+from scotti.sim.scene import Scene, build_motion, motion_from_segments
+from scotti.sim.skeleton import Body, pose_keypoints
+
+FOOT_POINTS = [f"{s}_{p}" for s in ("left", "right") for p in ("heel", "big_toe", "small_toe")]
+HEIGHT = 1.75
+
+
+def _motion(action: str, rate: float = 16.0, seed: int = 0, **spec: object) -> Motion:
+    subject = Subject(HEIGHT, 70.0, style_seed=7)
+    body = Body.from_height(HEIGHT, subject.foot_length)
+    ctx = Context(body, subject, rate, np.random.default_rng(seed))
+    params = {"reps": 4, **spec}
+    segment = RECIPES[action](ctx, ActionSpec(action, **params), Place(0.0, 0.0, 0.0))  # type: ignore[arg-type]
+    return motion_from_segments(body, subject, rate, [segment])
+
+
+def _feet_z(m: Motion) -> np.ndarray:
+    return m.world[:, [KP[n] for n in FOOT_POINTS], 2]
+
+
+def _mid_hip(m: Motion) -> np.ndarray:
+    return np.asarray(0.5 * (m.world[:, KP["left_hip"]] + m.world[:, KP["right_hip"]]))
+
+
+def _contact(m: Motion, side: str) -> np.ndarray:
+    z = m.world[:, [KP[f"{side}_heel"], KP[f"{side}_big_toe"], KP[f"{side}_small_toe"]], 2]
+    return np.asarray(z.min(axis=1) < 0.005)
+
+
+@pytest.mark.parametrize("action", ACTIONS)
+def test_every_action_keeps_feet_above_floor_and_moves_smoothly(action: str) -> None:
+    m = _motion(action, rate=64.0)
+    assert (_feet_z(m) >= -1e-3).all()
+    assert np.isfinite(m.world).all()
+    assert np.isfinite(m.com).all()
+    # No teleporting: no keypoint faster than a sprinting foot (8 m/s).
+    speed = np.linalg.norm(np.diff(m.world, axis=0), axis=-1) * m.rate_hz
+    assert speed.max() < 8.0
+    # Starts and ends in the neutral stand (how segments join without a jump).
+    body = Body.from_height(HEIGHT, m.subject.foot_length)
+    start = pose_keypoints(body, finalize(body, neutral(body, Place(0.0, 0.0, 0.0), 1)))[0]
+    assert np.abs(m.world[0] - start).max() < 2e-3
+    end = m.world[-1] - (_mid_hip(m)[-1] - _mid_hip(m)[0]) * np.array([1.0, 1.0, 0.0])
+    assert np.abs(end - start).max() < 2e-3
+
+
+@pytest.mark.parametrize("depth", [0.3, 0.9])
+def test_squat_lowers_the_hips_by_depth_with_feet_fixed(depth: float) -> None:
+    m = _motion("squat", depth=depth, reps=3)
+    hip_z = _mid_hip(m)[:, 2]
+    drop = hip_z[0] - hip_z.min()
+    # The recipe drops the hips SQUAT_DROP x height at depth 1 (+-15 % per repetition).
+    assert drop == pytest.approx(SQUAT_DROP * HEIGHT * depth, rel=0.2)
+    feet = m.world[:, [KP[n] for n in FOOT_POINTS]]
+    assert np.ptp(feet, axis=0).max() < 1e-3  # feet stay where they are, heels down
+    assert np.abs(feet[..., 2]).max() < 1e-3
+
+
+def test_deeper_squat_goes_lower() -> None:
+    shallow = _mid_hip(_motion("squat", depth=0.3))[:, 2].min()
+    deep = _mid_hip(_motion("squat", depth=0.9))[:, 2].min()
+    assert deep < shallow - 0.15
+
+
+def test_walking_cadence_and_stance_fraction() -> None:
+    m = _motion("walking", reps=16)
+    subject = m.subject
+    strikes = []
+    stance_shares = []
+    for side in ("left", "right"):
+        contact = _contact(m, side)
+        onsets = np.flatnonzero(contact[1:] & ~contact[:-1]) + 1
+        strikes += onsets.tolist()
+        # Steady state: whole gait cycles between this foot's heel strikes.
+        for a, b in itertools.pairwise(onsets[1:-1]):
+            stance_shares.append(contact[a:b].mean())
+    strikes.sort()
+    intervals = np.diff(strikes[1:-1]) / m.rate_hz  # steady steps, seconds
+    cadence = 60.0 / intervals.mean()
+    assert 100.0 * 0.9 < cadence < 120.0 * 1.1
+    assert cadence == pytest.approx(subject.cadence_spm, rel=0.1)
+    assert np.mean(stance_shares) == pytest.approx(0.6, abs=0.07)
+
+
+def test_faster_tempo_walks_with_a_higher_cadence() -> None:
+    slow = _motion("walking", reps=10, tempo=0.9)
+    fast = _motion("walking", reps=10, tempo=1.2)
+    assert len(fast) < len(slow)
+
+
+def test_jump_has_a_flight_phase_with_both_feet_off_the_floor() -> None:
+    m = _motion("jump", reps=3, rate=32.0)
+    airborne = np.asarray((_feet_z(m) > 0.02).all(axis=1))
+    # Three separate flights, each a run of airborne frames.
+    starts = np.flatnonzero(airborne[1:] & ~airborne[:-1])
+    assert len(starts) == 3
+    assert airborne.sum() / m.rate_hz > 3 * 0.2
+    assert _mid_hip(m)[:, 2].max() > _mid_hip(m)[0, 2] + 0.1
+
+
+@pytest.mark.parametrize("height", [0.15, 0.3])
+def test_step_up_raises_a_foot_by_the_step_height(height: float) -> None:
+    m = _motion("step_up", reps=2, step_height_m=height)
+    heel_z = m.world[:, [KP["left_heel"], KP["right_heel"]], 2]
+    # Standing on the step: a flat foot whose heel rests at the step height.
+    on_step = np.abs(heel_z - height) < 1e-3
+    assert on_step.any(axis=0).all()  # both feet stand on it
+    assert m.ground_z is not None
+    assert m.ground_z.max() == pytest.approx(height)
+    np.testing.assert_allclose(heel_z[on_step], m.ground_z[on_step], atol=1e-3)
+    assert _mid_hip(m)[:, 2].max() > _mid_hip(m)[0, 2] + 0.8 * height
+
+
+def test_lunge_bends_the_front_knee_and_lifts_the_rear_heel() -> None:
+    m = _motion("lunge", reps=2, depth=0.8)
+    hip_z = _mid_hip(m)[:, 2]
+    bottom = int(hip_z.argmin())
+    assert hip_z[0] - hip_z[bottom] > 0.2
+    heels = m.world[bottom, [KP["left_heel"], KP["right_heel"]]]
+    rear = int(np.argmin(heels[:, 0]))
+    assert heels[rear, 2] > 0.03  # rear heel up
+    assert heels[1 - rear, 2] < 1e-3  # front heel down
+
+
+# How many repetitions the skeleton-based labeller finds for ``reps`` in the
+# script. Exact where the action starts and ends at a top of its indicator;
+# the stepping actions have one cut more or less at the ends (see gait.py).
+TOLERANCE = {
+    "squat": 0,
+    "lunge": 0,
+    "jump": 0,
+    "step_up": 1,
+    "walking": 1,
+    "backward_walking": 1,
+    "side_walking": 1,
+    "in_place_walking": 1,
+}
+
+
+@pytest.mark.parametrize("action", ACTIONS)
+def test_labels_progress_in_range_and_repetitions_counted(action: str) -> None:
+    reps = 5
+    scene = Scene.model_validate(
+        {
+            "seed": 3,
+            "subject": {"height_m": 1.7, "mass_kg": 65.0, "style_seed": 2},
+            "script": [{"action": action, "reps": reps}],
+        }
+    )
+    m = build_motion(scene)
+    lab = labels(m)
+    active = lab.action != NO_ACTION
+    assert active.any()
+    assert (lab.action[active] == ACTIONS.index(action)).all()
+    assert np.isfinite(lab.progress[active]).all()
+    assert (lab.progress[active] >= 0.0).all()
+    assert (lab.progress[active] <= 1.0).all()
+    assert np.isnan(lab.progress[~active]).all()
+    assert (lab.repetition[~active] == -1).all()
+    counted = int(lab.repetition[active].max()) + 1
+    assert abs(counted - reps) <= TOLERANCE[action]
+    assert lab.keypoints.dtype == np.float32
+    assert lab.keypoints.shape == (len(m), 19, 3)
+
+
+def test_same_scene_and_seed_give_identical_arrays() -> None:
+    raw = {
+        "seed": 5,
+        "subject": {"height_m": 1.8, "mass_kg": 80.0, "style_seed": 9},
+        "script": [{"action": "walking", "reps": 6}, {"action": "squat", "reps": 2}],
+    }
+    a, b = (build_motion(Scene.model_validate(raw)) for _ in range(2))
+    np.testing.assert_array_equal(a.world, b.world)
+    np.testing.assert_array_equal(a.action, b.action)
+    np.testing.assert_array_equal(a.com, b.com)
+    other = build_motion(Scene.model_validate({**raw, "seed": 6}))
+    assert other.world.shape != a.world.shape or not np.array_equal(other.world, a.world)
+
+
+def test_transitions_blend_without_a_jump() -> None:
+    scene = Scene.model_validate(
+        {
+            "subject": {"height_m": 1.7, "mass_kg": 60.0},
+            "rate": 16.0,
+            "script": [
+                {"action": "walking", "reps": 4, "stand_s": 1.0},
+                {"action": "squat", "reps": 2, "stand_s": 0.5},
+                {"action": "side_walking", "reps": 2},
+            ],
+        }
+    )
+    m = build_motion(scene, oversample=4)
+    assert m.rate_hz == 64.0
+    step = np.linalg.norm(np.diff(m.world, axis=0), axis=-1).max(axis=1)
+    changes = np.flatnonzero(np.diff(m.action) != 0)
+    assert step[changes].max() < 0.02  # 2 cm in 1/64 s where the label changes
+    assert (m.action[: int(m.rate_hz)] == NO_ACTION).all()  # lead-in stand
+    down = m.every(4)
+    assert down.rate_hz == 16.0
+    np.testing.assert_array_equal(down.world, m.world[::4])
