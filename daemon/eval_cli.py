@@ -1,0 +1,143 @@
+"""``scotti eval SESSIONS... --model M [--json] [--plots DIR]``: score a model like the paper.
+
+Replays labelled session files through the daemon's own streaming path (see
+``scotti.daemon.evaluation``) as fast as the model runs, and prints MPJPE,
+MPJAE, action accuracy and the confusion matrix, progress MSE and APP,
+overall and per action, next to a random baseline. ``--plots DIR`` writes the
+precision-margin curve and the confusion matrix as PNG files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from scotti.daemon.evaluation import EvaluationError, evaluate_sessions, find_session_files
+from scotti.firmware_protocol.errors import SessionError
+from scotti.models.contract import ACTIONS
+from scotti.models.errors import ModelError
+from scotti.models.runtime import ScottiRuntime
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("sessions", nargs="+", type=Path, help="session files or directories")
+    parser.add_argument("--model", type=Path, required=True, help="streaming step graph (.onnx)")
+    parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+    parser.add_argument("--plots", type=Path, default=None, help="write PNG figures here")
+    parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        if args.threads < 1:
+            msg = f"--threads must be at least 1, got {args.threads}"
+            raise EvaluationError(msg)
+        files = find_session_files(args.sessions)
+        runtime = ScottiRuntime(args.model, threads=args.threads)
+        report = evaluate_sessions(files, runtime)
+        if args.plots is not None:
+            report["plots"] = write_plots(report, args.plots)
+    except (EvaluationError, ModelError, SessionError, OSError) as exc:
+        print(f"scotti eval: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(_finite(report), indent=2))
+    else:
+        print("\n".join(format_report(report)))
+    return 0
+
+
+def format_report(report: dict[str, Any]) -> list[str]:
+    m = report["metrics"]
+    model = report["model"]
+    lines = [
+        f"model {model['path']} (T={model['window']}, E={model['embed_dim']}), "
+        f"{len(report['sessions'])} sessions, {m['frames']} frames evaluated",
+        f"  MPJPE {m['mpjpe_mm']:.2f} mm   MPJAE {m['mpjae_deg']:.2f} deg   "
+        f"accuracy {100 * m['action_accuracy']:.2f} %   "
+        f"progress MSE {m['progress_mse']:.4f}   APP {m['app']:.4f}",
+    ]
+    base = report["random_baseline"]
+    lines.append(
+        f"  random baseline: accuracy {100 * base['action_accuracy']:.2f} %   "
+        f"progress MSE {base['progress_mse']:.4f}   APP {base['app']:.4f}"
+    )
+    step = report["step_ms"]
+    lines.append(f"  streaming step: median {step['median']:.2f} ms, p99 {step['p99']:.2f} ms")
+    lines.append(
+        f"  {'action':18s} {'frames':>7s} {'MPJPE':>8s} {'acc %':>7s} {'MSE':>8s} {'APP':>7s}"
+    )
+    for name, row in report["per_action"].items():
+        lines.append(
+            f"  {name:18s} {row['frames']:7d} {row['mpjpe_mm']:8.2f} "
+            f"{100 * row['action_accuracy']:7.2f} {row['progress_mse']:8.4f} {row['app']:7.4f}"
+        )
+    lines.append("  confusion (rows true, columns predicted): " + " ".join(ACTIONS))
+    for name, counts in zip(ACTIONS, report["confusion"]["matrix"], strict=True):
+        lines.append(f"  {name:18s} " + " ".join(f"{c:6d}" for c in counts))
+    for s in report["sessions"]:
+        lines.append(
+            f"  {s['path']}: {s['labels']} labels, {s['predictions']} predictions, "
+            f"{s['evaluated']} scored, {s['window_restarts']} window restarts, "
+            f"{s['degraded_pairs']} degraded pairs, {s['decode_errors']} decode errors"
+        )
+    for path in report.get("plots", []):
+        lines.append(f"  wrote {path}")
+    return lines
+
+
+def write_plots(report: dict[str, Any], directory: Path) -> list[str]:
+    """precision-margin.png and confusion.png (matplotlib, loaded only when asked)."""
+    import matplotlib  # heavy and optional: only for --plots
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    directory.mkdir(parents=True, exist_ok=True)
+    pm = report["precision_margin"]
+    fig, ax = plt.subplots(figsize=(4.5, 3.5), dpi=120)
+    ax.plot(pm["margins"], pm["precision"], label=f"model, APP {pm['app']:.3f}")
+    ax.plot([0, 1], [0, 1], "--", color="grey", label="chance (uniform error)")
+    ax.set(xlabel="margin", ylabel="precision", xlim=(0, 1), ylim=(0, 1.02))
+    ax.set_title("Progress: precision-margin curve")
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    curve = directory / "precision-margin.png"
+    fig.savefig(curve)
+    plt.close(fig)
+
+    matrix = report["confusion"]["matrix"]
+    fig, ax = plt.subplots(figsize=(6, 5), dpi=120)
+    totals = [max(1, sum(row)) for row in matrix]
+    shares = [[c / t for c in row] for row, t in zip(matrix, totals, strict=True)]
+    image = ax.imshow(shares, vmin=0, vmax=1, cmap="Blues")
+    ticks = range(len(ACTIONS))
+    ax.set_xticks(ticks, ACTIONS, rotation=45, ha="right", fontsize=7)
+    ax.set_yticks(ticks, ACTIONS, fontsize=7)
+    for i, row in enumerate(shares):
+        for j, v in enumerate(row):
+            ax.text(j, i, f"{100 * v:.0f}", ha="center", va="center", fontsize=6,
+                    color="white" if v > 0.5 else "black")  # fmt: skip
+    ax.set(xlabel="predicted", ylabel="true")
+    ax.set_title("Action confusion (% of true frames)")
+    fig.colorbar(image, ax=ax, fraction=0.046)
+    fig.tight_layout()
+    confusion = directory / "confusion.png"
+    fig.savefig(confusion)
+    plt.close(fig)
+    return [str(curve), str(confusion)]
+
+
+def _finite(value: Any) -> Any:
+    """NaN becomes null: JSON has no NaN."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return value

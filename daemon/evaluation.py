@@ -1,0 +1,366 @@
+"""Evaluate a model the way the daemon runs it: labelled session files replayed
+through the live path, each prediction scored against the label of its time.
+
+The path is the daemon's, step by step and as fast as the model allows:
+``StreamDecoder`` -> ``FrameAssembler`` -> ``Pairing`` -> ``Window`` (the
+streaming step graph with its embedding cache). A prediction made from the
+frames t-T..t-1 is for time t, so it is scored against the label record of
+the frame after the newest one in its window. The first T labelled frames of
+a session therefore have no prediction (the window warms up on T frames and
+the first prediction is for frame T).
+
+No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
+from scotti.daemon.window import Window
+from scotti.firmware_protocol.assembly import FrameAssembler
+from scotti.firmware_protocol.framing import StreamDecoder
+from scotti.firmware_protocol.packets import FrameRows
+from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
+from scotti.firmware_protocol.wrap import seq_delta
+from scotti.models import metrics
+from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS
+from scotti.models.runtime import ScottiRuntime
+
+F32 = npt.NDArray[np.float32]
+I64 = npt.NDArray[np.int64]
+SESSION_MAGIC: Final = b"SCOTSESS"
+RANDOM_SEED: Final = 0  # the random baseline's draws, fixed so that reruns agree
+
+
+class EvaluationError(Exception):
+    """A mistake in what was asked to evaluate: one line for the user."""
+
+
+@dataclass
+class FrameSet:
+    """Predictions and labels of N evaluated frames, aligned by row."""
+
+    pose_pred: F32  # (N, 19, 3) metres
+    pose_true: F32  # (N, 19, 3) metres, NaN where unknown
+    action_pred: I64  # (N,) argmax of the action probabilities
+    action_true: I64  # (N,) NO_ACTION where the label has none
+    progress_pred: npt.NDArray[np.float64]  # (N,)
+    progress_true: npt.NDArray[np.float64]  # (N,) NaN where there is no action
+
+    @classmethod
+    def empty(cls) -> FrameSet:
+        return cls(
+            np.zeros((0, NUM_KEYPOINTS, 3), np.float32),
+            np.zeros((0, NUM_KEYPOINTS, 3), np.float32),
+            np.zeros(0, np.int64),
+            np.zeros(0, np.int64),
+            np.zeros(0),
+            np.zeros(0),
+        )
+
+    @classmethod
+    def concat(cls, parts: Sequence[FrameSet]) -> FrameSet:
+        if not parts:
+            return cls.empty()
+        return cls(
+            *(
+                np.concatenate([getattr(p, name) for p in parts])
+                for name in (
+                    "pose_pred",
+                    "pose_true",
+                    "action_pred",
+                    "action_true",
+                    "progress_pred",
+                    "progress_true",
+                )
+            )
+        )
+
+    @classmethod
+    def from_labels(cls, labels: Sequence[LabelRecord]) -> FrameSet:
+        """The labels predicted perfectly: the metric path's sanity check."""
+        pose = np.zeros((len(labels), NUM_KEYPOINTS, 3), dtype=np.float32)
+        for i, lb in enumerate(labels):
+            pose[i] = lb.keypoints
+        action = np.array([lb.action for lb in labels], dtype=np.int64)
+        progress = _progress_true(labels)
+        return cls(pose, pose, action, action, np.nan_to_num(progress), progress)
+
+    def __len__(self) -> int:
+        return int(self.action_true.shape[0])
+
+    def subset(self, keep: npt.NDArray[np.bool_]) -> FrameSet:
+        return FrameSet(
+            self.pose_pred[keep],
+            self.pose_true[keep],
+            self.action_pred[keep],
+            self.action_true[keep],
+            self.progress_pred[keep],
+            self.progress_true[keep],
+        )
+
+
+@dataclass
+class SessionReplay:
+    """What one session gave: counts along the path and the aligned frames."""
+
+    path: str
+    subject: str | None
+    labels: int = 0  # label records in the file
+    pairs: int = 0  # paired frames the window took
+    predictions: int = 0  # steps past the warm-up
+    evaluated: int = 0  # predictions whose time has a label
+    unlabelled: int = 0  # predictions for a time without a label (the last one, gaps)
+    window_restarts: int = 0
+    decode_errors: int = 0
+    degraded_pairs: int = 0  # pairs with a held, filled or patched foot
+    step_ms: list[float] = field(default_factory=list, repr=False)
+    frames: FrameSet = field(default_factory=FrameSet.empty, repr=False)
+
+    def summary(self) -> dict[str, Any]:
+        keys = ("path", "subject", "labels", "pairs", "predictions", "evaluated", "unlabelled")
+        out = {k: getattr(self, k) for k in keys}
+        out |= {
+            "window_restarts": self.window_restarts,
+            "decode_errors": self.decode_errors,
+            "degraded_pairs": self.degraded_pairs,
+        }
+        return out
+
+
+def find_session_files(paths: Iterable[str | Path]) -> list[Path]:
+    """Files as given, plus every session file (by its magic) under directories."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found.extend(f for f in sorted(p.rglob("*")) if f.is_file() and _is_session(f))
+        elif p.is_file():
+            found.append(p)
+        else:
+            msg = f"{p}: no such file or directory"
+            raise EvaluationError(msg)
+    if not found:
+        msg = "no session files found in " + ", ".join(map(str, paths))
+        raise EvaluationError(msg)
+    return found
+
+
+def replay_session(
+    path: str | Path, runtime: ScottiRuntime, pairing: PairingConfig | None = None
+) -> SessionReplay:
+    """Replay one session file through the daemon's path; score against its labels."""
+    decoder = StreamDecoder()
+    assembler = FrameAssembler()
+    pairs = Pairing(pairing)
+    window = Window(runtime)
+    labels: list[LabelRecord] = []
+    made: list[_Made] = []
+    clock = _SeqClock()
+    with SessionReader(path) as reader:
+        subject = _subject_of(reader.header.subject)
+        out = SessionReplay(str(path), subject)
+
+        def take(pair: PairedFrame) -> None:
+            ext = clock.unwrap(pair.seqs[0] if pair.seqs[0] >= 0 else pair.seqs[1])
+            if pair.restart:
+                window.restart()
+            start = time.perf_counter()
+            result = window.push(pair.counts).result
+            out.step_ms.append((time.perf_counter() - start) * 1e3)
+            out.pairs += 1
+            out.degraded_pairs += bool(pair.flags)
+            if result is not None and ext is not None:
+                made.append(_Made(ext + 1, result.pose, result.action_probs, result.progress))
+
+        for record in reader:
+            if isinstance(record, LabelRecord):
+                labels.append(record)
+                continue
+            assert isinstance(record, PacketRecord)
+            for packet in decoder.feed(record.data):
+                if isinstance(packet, FrameRows):
+                    for frame in assembler.push(packet, record.t_ns):
+                        for pair in pairs.push(frame):
+                            take(pair)
+        for frame in assembler.flush():
+            for pair in pairs.push(frame):
+                take(pair)
+        for pair in pairs.flush():
+            take(pair)
+    out.labels = len(labels)
+    out.predictions = len(made)
+    out.window_restarts = window.restarts
+    out.decode_errors = decoder.counters.errors
+    out.frames, out.unlabelled = _align(made, labels, clock)
+    out.evaluated = len(out.frames)
+    return out
+
+
+@dataclass(frozen=True)
+class _Made:
+    ext: int  # unwrapped seq of the time the prediction is for
+    pose: F32
+    probs: F32
+    progress: float
+
+
+class _SeqClock:
+    """Unwraps the u16 seqs of successive pairs (and labels) onto one axis."""
+
+    def __init__(self) -> None:
+        self._raw: int | None = None
+        self._ext = 0
+
+    def unwrap(self, seq: int) -> int | None:
+        if seq < 0:
+            return None
+        if self._raw is None:
+            self._raw, self._ext = seq, seq
+        else:
+            self._ext += seq_delta(seq, self._raw)
+            self._raw = seq
+        return self._ext
+
+
+def _align(made: list[_Made], labels: list[LabelRecord], clock: _SeqClock) -> tuple[FrameSet, int]:
+    """Match predictions to labels by unwrapped seq; returns the frames and the misses."""
+    if not made or not labels:
+        return FrameSet.empty(), len(made)
+    # Labels come in seq order; unwrap them onto the pairs' axis from the first pair's seq.
+    first = made[0].ext - 1  # any pair's ext anchors the two axes
+    index: dict[int, int] = {}
+    ext = first + seq_delta(labels[0].seq, first & 0xFFFF)
+    prev = labels[0].seq
+    for i, label in enumerate(labels):
+        ext += seq_delta(label.seq, prev)
+        prev = label.seq
+        index[ext] = i
+    rows = [(m, index.get(m.ext)) for m in made]
+    hits = [(m, i) for m, i in rows if i is not None]
+    if not hits:
+        return FrameSet.empty(), len(made)
+    chosen = [labels[i] for _, i in hits]
+    truth = FrameSet.from_labels(chosen)
+    frames = FrameSet(
+        pose_pred=np.stack([m.pose for m, _ in hits]).astype(np.float32),
+        pose_true=truth.pose_true,
+        action_pred=np.array([int(np.argmax(m.probs)) for m, _ in hits], dtype=np.int64),
+        action_true=truth.action_true,
+        progress_pred=np.array([m.progress for m, _ in hits], dtype=np.float64),
+        progress_true=truth.progress_true,
+    )
+    return frames, len(made) - len(hits)
+
+
+def _progress_true(labels: Sequence[LabelRecord]) -> npt.NDArray[np.float64]:
+    """Progress counts only where there is an action (as in training's loss)."""
+    return np.array(
+        [lb.progress if lb.action != NO_ACTION else np.nan for lb in labels], dtype=np.float64
+    )
+
+
+def _subject_of(subject: dict[str, Any] | None) -> str | None:
+    if not subject:
+        return None
+    for key in ("id", "name", "subject"):
+        if key in subject:
+            return str(subject[key])
+    return None
+
+
+def _is_session(path: Path) -> bool:
+    try:
+        with path.open("rb") as f:
+            return f.read(len(SESSION_MAGIC)) == SESSION_MAGIC
+    except OSError:
+        return False
+
+
+# --- scores ------------------------------------------------------------------
+
+
+def task_metrics(frames: FrameSet) -> dict[str, float | int]:
+    """The four tasks' figures (MPJPE and MPJAE for pose) over one set of frames."""
+    pose_ok = np.isfinite(frames.pose_true).all(axis=(1, 2))
+    pose_true = np.nan_to_num(frames.pose_true)
+    return {
+        "mpjpe_mm": metrics.mpjpe_mm(frames.pose_pred, pose_true, pose_ok),
+        "mpjae_deg": metrics.mpjae_deg(frames.pose_pred, pose_true, pose_ok),
+        "action_accuracy": metrics.action_accuracy(frames.action_pred, frames.action_true),
+        "progress_mse": metrics.progress_mse(frames.progress_pred, frames.progress_true),
+        "app": metrics.app(frames.progress_pred, frames.progress_true),
+        "frames": len(frames),
+        "frames_action": int(metrics.action_mask(frames.action_true).sum()),
+        "frames_progress": int(metrics.progress_mask(frames.progress_true).sum()),
+    }
+
+
+def random_baseline(frames: FrameSet, seed: int = RANDOM_SEED) -> dict[str, float]:
+    """Uniform random progress (and action) on the same frames: the paper's chance row."""
+    rng = np.random.default_rng(seed)
+    progress = rng.uniform(0.0, 1.0, len(frames))
+    action = rng.integers(0, NUM_ACTIONS, len(frames)).astype(np.int64)
+    return {
+        "action_accuracy": metrics.action_accuracy(action, frames.action_true),
+        "progress_mse": metrics.progress_mse(progress, frames.progress_true),
+        "app": metrics.app(progress, frames.progress_true),
+    }
+
+
+def score(frames: FrameSet) -> dict[str, Any]:
+    """Overall and per-action figures, confusion matrix, precision-margin curve."""
+    curve = metrics.precision_margin(frames.progress_pred, frames.progress_true)
+    per_action = {
+        name: task_metrics(frames.subset(frames.action_true == a)) for a, name in enumerate(ACTIONS)
+    }
+    per_action["none"] = task_metrics(frames.subset(frames.action_true == NO_ACTION))
+    return {
+        "metrics": task_metrics(frames),
+        "per_action": per_action,
+        "confusion": {
+            "actions": list(ACTIONS),
+            "rows": "true action",
+            "columns": "predicted action",
+            "matrix": metrics.confusion_matrix(frames.action_pred, frames.action_true).tolist(),
+        },
+        "precision_margin": {
+            "app": curve.app,
+            "margins": curve.margins.tolist(),
+            "precision": curve.precision.tolist(),
+        },
+        "random_baseline": random_baseline(frames),
+    }
+
+
+def evaluate_sessions(
+    paths: Sequence[str | Path], runtime: ScottiRuntime, pairing: PairingConfig | None = None
+) -> dict[str, Any]:
+    """Replay every session, pool their frames, and score them (JSON-ready)."""
+    replays = [replay_session(p, runtime, pairing) for p in paths]
+    frames = FrameSet.concat([r.frames for r in replays])
+    steps = np.array([ms for r in replays for ms in r.step_ms], dtype=np.float64)
+    report: dict[str, Any] = {
+        "model": {
+            "path": str(runtime.path),
+            "sha256": runtime.sha256,
+            "window": runtime.window,
+            "embed_dim": runtime.embed_dim,
+            "threads": runtime.threads,
+        },
+        "sessions": [r.summary() for r in replays],
+        "subjects": sorted({r.subject for r in replays if r.subject is not None}),
+        "step_ms": {
+            "median": float(np.median(steps)) if steps.size else float("nan"),
+            "p99": float(np.percentile(steps, 99)) if steps.size else float("nan"),
+            "steps": int(steps.size),
+        },
+    }
+    report |= score(frames)
+    return report
