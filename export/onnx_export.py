@@ -241,7 +241,7 @@ def write_metadata(path: Path, graph: str, cfg: ScottiConfig, card: dict[str, An
         contract.META_FRAME_COLS: str(cfg.cols),
         contract.META_KEYPOINTS: json.dumps(list(contract.KEYPOINTS)),
         contract.META_ACTIONS: json.dumps(list(contract.ACTIONS)),
-        contract.META_CARD: json.dumps(card, sort_keys=True),
+        contract.META_CARD: json.dumps(card, sort_keys=True, default=_jsonable),
     }
     del proto.metadata_props[:]
     for key, value in values.items():
@@ -328,7 +328,8 @@ def export_model(
             "parity": {"tolerance": {"atol": tol.atol, "rtol": tol.rtol}, "max_abs_diff": parity},
             "int8_drift_max_abs": int8_drift or None,
         }
-        staged.card_json.write_text(json.dumps(full_card, indent=2, sort_keys=True) + "\n")
+        text = json.dumps(full_card, indent=2, sort_keys=True, default=_jsonable)
+        staged.card_json.write_text(text + "\n")
         staged.card_md.write_text(card_markdown(full_card))
         for kind in ("step", "window", "card_json", "card_md", "int8_step", "int8_window"):
             src = getattr(staged, kind)
@@ -399,4 +400,11 @@ def _block(value: Any) -> str:
         return "Not recorded in the checkpoint."
     if isinstance(value, str):
         return value
-    return "```json\n" + json.dumps(value, indent=2, sort_keys=True, default=str) + "\n```"
+    return "```json\n" + json.dumps(value, indent=2, sort_keys=True, default=_jsonable) + "\n```"
+
+
+def _jsonable(value: Any) -> Any:
+    """Checkpoint extras may hold tensors (weights_only allows them): as lists."""
+    if isinstance(value, torch.Tensor):
+        return value.tolist()
+    return str(value)

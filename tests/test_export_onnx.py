@@ -215,7 +215,7 @@ def test_cli_exports_proves_and_quantizes(
     torch.manual_seed(7)
     model = Scotti(cfg).eval()
     ckpt = tmp_path / "run.pt"
-    metrics = {"mpjpe_mm": 123.4, "action_accuracy": 0.5}
+    metrics = {"mpjpe_mm": 123.4, "action_accuracy": 0.5, "confusion": torch.eye(2)}
     torch.save(
         {"config": cfg.to_dict(), "model": model.state_dict(), "metrics": metrics, "epoch": 3},
         ckpt,
@@ -236,7 +236,7 @@ def test_cli_exports_proves_and_quantizes(
         "run.window.onnx",
     ]
     card = json.loads((out.parent / "run.card.json").read_text())
-    assert card["metrics"] == metrics
+    assert card["metrics"] == {**metrics, "confusion": [[1.0, 0.0], [0.0, 1.0]]}
     assert card["epoch"] == 3
     assert set(card["files"]) == {"step", "window", "int8_step", "int8_window"}
     assert "123.4" in (out.parent / "run.card.md").read_text()
