@@ -12,21 +12,19 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
-import hashlib
 import json
 import logging
 import os
-import platform
 import tempfile
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
 
 import onnx
 import torch
+from scotti.export.card import card_markdown, file_entry, jsonable, tool_versions
 from scotti.export.errors import ExportError
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.parity import (
@@ -38,7 +36,6 @@ from scotti.export.parity import (
     Report,
     Tolerance,
     drift,
-    format_report,
     prove,
 )
 from scotti.export.quantize import quantize_int8
@@ -241,7 +238,7 @@ def write_metadata(path: Path, graph: str, cfg: ScottiConfig, card: dict[str, An
         contract.META_FRAME_COLS: str(cfg.cols),
         contract.META_KEYPOINTS: json.dumps(list(contract.KEYPOINTS)),
         contract.META_ACTIONS: json.dumps(list(contract.ACTIONS)),
-        contract.META_CARD: json.dumps(card, sort_keys=True, default=_jsonable),
+        contract.META_CARD: json.dumps(card, sort_keys=True, default=jsonable),
     }
     del proto.metadata_props[:]
     for key, value in values.items():
@@ -249,16 +246,6 @@ def write_metadata(path: Path, graph: str, cfg: ScottiConfig, card: dict[str, An
         entry.key, entry.value = key, value
     proto.producer_name = "scotti.export"
     onnx.save(proto, str(path))
-
-
-def tool_versions() -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for dist in ("torch", "onnx", "onnxruntime", "onnxscript", "numpy", "scotti"):
-        try:
-            versions[dist] = importlib_metadata.version(dist)
-        except importlib_metadata.PackageNotFoundError:
-            versions[dist] = "absent"
-    return versions
 
 
 def base_card(ckpt: Checkpoint, name: str, precision: str) -> dict[str, Any]:
@@ -279,11 +266,6 @@ def base_card(ckpt: Checkpoint, name: str, precision: str) -> dict[str, Any]:
         "exported_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "tools": tool_versions(),
     }
-
-
-def file_entry(path: Path) -> dict[str, Any]:
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    return {"file": path.name, "bytes": path.stat().st_size, "sha256": digest}
 
 
 def export_model(
@@ -328,7 +310,7 @@ def export_model(
             "parity": {"tolerance": {"atol": tol.atol, "rtol": tol.rtol}, "max_abs_diff": parity},
             "int8_drift_max_abs": int8_drift or None,
         }
-        text = json.dumps(full_card, indent=2, sort_keys=True, default=_jsonable)
+        text = json.dumps(full_card, indent=2, sort_keys=True, default=jsonable)
         staged.card_json.write_text(text + "\n")
         staged.card_md.write_text(card_markdown(full_card))
         for kind in ("step", "window", "card_json", "card_md", "int8_step", "int8_window"):
@@ -342,69 +324,3 @@ def export_checkpoint(
     checkpoint: Path, out: Path, *, int8: bool = False, threads: int = 1
 ) -> ExportResult:
     return export_model(load_checkpoint(checkpoint), out, int8=int8, threads=threads)
-
-
-def card_markdown(card: dict[str, Any]) -> str:
-    """The card for people: what the model is, what it was trained on, how it was proven."""
-    cfg = card["config"]
-    lines = [
-        f"# Model card: {card['name']}",
-        "",
-        f"{card['model']}. Contract version {card['contract_version']}; "
-        f"precision {card['precision']}; {card['parameters']:,} parameters; "
-        f"exported {card['exported_utc']}.",
-        "",
-        f"Input: raw taxel counts, window T = {cfg['window']} frames of "
-        f"{cfg['rows']} x {2 * cfg['cols']} (left | right). Normalisation inside the graph: "
-        f"`{card['normalisation']}`. Timing: {card['timing']}.",
-        "",
-        "## Configuration",
-        "",
-        "| key | value |",
-        "|---|---|",
-        *(f"| {k} | {v} |" for k, v in cfg.items()),
-        "",
-        "## Training data",
-        "",
-        _block(card.get("training_data")),
-        "",
-        "## Metrics",
-        "",
-        _block(card.get("metrics")) + (f" (epoch {card['epoch']})" if card.get("epoch") else ""),
-        "",
-        "## Files",
-        "",
-        "| graph | file | bytes | sha256 |",
-        "|---|---|---|---|",
-        *(
-            f"| {k} | {v['file']} | {v['bytes']:,} | `{v['sha256']}` |"
-            for k, v in card["files"].items()
-        ),
-        "",
-        "## Proof (onnxruntime against torch, max abs difference)",
-        "",
-        f"Tolerance: atol {card['parity']['tolerance']['atol']:g}, "
-        f"rtol {card['parity']['tolerance']['rtol']:g}; hard inputs included.",
-        "",
-        *(f"- {line}" for line in format_report(card["parity"]["max_abs_diff"])),
-    ]
-    if card.get("int8_drift_max_abs"):
-        lines += ["", "## int8 drift against fp32 (measured, not bounded)", ""]
-        lines += [f"- {line}" for line in format_report(card["int8_drift_max_abs"])]
-    lines += ["", "## Tools", "", ", ".join(f"{k} {v}" for k, v in card["tools"].items()), ""]
-    return "\n".join(lines)
-
-
-def _block(value: Any) -> str:
-    if value is None:
-        return "Not recorded in the checkpoint."
-    if isinstance(value, str):
-        return value
-    return "```json\n" + json.dumps(value, indent=2, sort_keys=True, default=_jsonable) + "\n```"
-
-
-def _jsonable(value: Any) -> Any:
-    """Checkpoint extras may hold tensors (weights_only allows them): as lists."""
-    if isinstance(value, torch.Tensor):
-        return value.tolist()
-    return str(value)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+import hashlib
 import json
 from pathlib import Path
 
@@ -77,8 +79,6 @@ def test_committed_graphs_pass_checker_and_carry_contract_metadata(path: Path, g
 
 
 def test_card_files_match_the_committed_graphs() -> None:
-    import hashlib
-
     card = json.loads(TINY_STEP.with_suffix("").with_suffix(".card.json").read_text())
     for kind, path in (("step", TINY_STEP), ("window", TINY_WINDOW)):
         assert card["files"][kind]["file"] == path.name
@@ -165,8 +165,6 @@ def test_proof_catches_a_graph_from_other_weights(tiny: Scotti) -> None:
 
 
 def export(argv: list[str]) -> int:
-    import argparse
-
     parser = argparse.ArgumentParser()
     export_cli.add_arguments(parser)
     return export_cli.run(parser.parse_args(argv))
