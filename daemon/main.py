@@ -109,7 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     except ModelError as exc:
         return _fail("model error", str(exc))
     if runtime.graph != "step":
-        return _fail("model error", f"{model_path.name} is a {runtime.graph} graph; give the step")
+        return _fail(
+            "model error", f"{model_path.name} is a {runtime.graph} graph; give the step graph"
+        )
     try:
         return asyncio.run(Daemon(settings, runtime).run())
     except KeyboardInterrupt:  # a second Ctrl-C during the graceful stop

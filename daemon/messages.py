@@ -165,9 +165,13 @@ def _latency(summary: Mapping[str, Any] | None) -> Latency:
     )
 
 
-def _total(value: Any) -> int:
+# Decoder counters that are packets thrown away (the rest count bytes or good packets).
+BAD_PACKET_KEYS = ("bad_cobs", "too_long", "bad_crc", "bad_version", "unknown_type", "malformed")
+
+
+def _total(value: Any, keys: tuple[str, ...] | None = None) -> int:
     if isinstance(value, Mapping):
-        return sum(int(v) for v in value.values() if isinstance(v, int | float))
+        return sum(int(v) for k, v in value.items() if keys is None or k in keys)
     return int(value or 0)
 
 
@@ -181,7 +185,7 @@ def health(snapshot: Mapping[str, Any], publisher: Publisher, uptime_s: float) -
         host_mono_ns=time.monotonic_ns(),
         last_seq=stats.last_seq,
         frames_in={k: int(v) for k, v in snapshot.get("frames_in", {}).items()},
-        bad_packets=_total(snapshot.get("bad_packets")),
+        bad_packets=_total(snapshot.get("bad_packets"), BAD_PACKET_KEYS),
         gaps=_total(snapshot.get("gaps")),
         predictions=_total(snapshot.get("predictions")),
         published=stats.published,

@@ -79,13 +79,17 @@ class SourceSettings(BaseModel):
     simulate: str | None = None  # scene name (sim/scenes/NAME.toml) or a scene TOML path
     speed: Speed = 1.0  # replay / simulate rate: 1 = real time, N times, or max
 
-    @field_validator("speed")
+    @field_validator("speed", mode="before")
     @classmethod
-    def _positive_speed(cls, v: Speed) -> Speed:
-        if v != "max" and not v > 0:
-            msg = "speed must be > 0 or 'max'"
+    def _speed(cls, v: object) -> Speed:
+        try:
+            speed = parse_speed(v) if isinstance(v, str) else float(v)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            speed = 0.0
+        if speed != "max" and not 0 < speed < float("inf"):
+            msg = f"speed must be a positive number or 'max', got {v!r}"
             raise ValueError(msg)
-        return v
+        return speed
 
     @model_validator(mode="after")
     def _exactly_one(self) -> SourceSettings:
