@@ -121,9 +121,15 @@ def foot_track(body: Body, side: int, plants: list[Plant], t: Array) -> FootTrac
     return FootTrack(ankle, yaw, pitch, stance, ground)
 
 
-def support_path(body: Body, feet: tuple[FootTrack, FootTrack], smooth_frames: int) -> Array:
-    """Pelvis (N, 3): the standing feet's centre, smoothed, raised to hip height."""
-    weight = np.stack([f.stance.astype(np.float64) for f in feet], axis=1)  # (N, 2)
+def support_path(
+    body: Body, feet: tuple[FootTrack, FootTrack], smooth_frames: int, swing_weight: float = 0.0
+) -> Array:
+    """Pelvis (N, 3): the standing feet's centre, smoothed, raised to hip height.
+
+    A swinging foot counts with ``swing_weight`` (0: only standing feet pull
+    the pelvis, which sways over each; 1: the plain middle of the feet).
+    """
+    weight = np.stack([np.where(f.stance, 1.0, swing_weight) for f in feet], axis=1)  # (N, 2)
     weight[weight.sum(axis=1) == 0] = 1.0  # both in the air: their middle
     points = np.stack([f.ankle for f in feet], axis=1)  # (N, 2, 3)
     points[..., 2] = np.stack([f.ground_z for f in feet], axis=1)

@@ -23,14 +23,15 @@ from scotti.sim.actions.base import (
     finalize,
     neutral,
 )
-from scotti.sim.actions.curves import ease
+from scotti.sim.actions.curves import ease, hermite
 from scotti.sim.actions.footsteps import FLAT, HEEL, TOE, FootTrack, Plant, foot_track, support_path
 from scotti.sim.skeleton import LEFT, RIGHT, Array, PoseParams, axes
 
 STANCE = 0.6  # share of the gait cycle a foot stands (Winter; Perry)
-STEP_LENGTH = 0.40  # x height: comfortable step length
+STEP_LENGTH = 0.38  # x height: comfortable step length (0.67 m at 1.75 m)
 SETTLE_S = 0.5  # after the closing step, before the segment ends
 START_S = 0.3  # weight shift before the first swing
+LEAD_AT_STRIKE = [0.1, 0.2]
 
 
 def steps_for(spec: ActionSpec, step_s: float, least: int = 2) -> int:
@@ -109,7 +110,19 @@ def _walk(
     feet = (foot_track(body, LEFT, plants[LEFT], t), foot_track(body, RIGHT, plants[RIGHT], t))
     envelope = ease(t / START_S) * ease((end_s - t) / SETTLE_S)
     p = _drive(ctx, place, t, feet, round(step_s * ctx.rate_hz))
-    p = p.replace(lean=lean * envelope)
+    # Forwards the pelvis is half-way between the feet at each heel strike; sideways it sways over the stance foot (``support_path``).
+    f, _ = axes(place.heading)
+    strikes = heel_strike[:-1]
+    middles = 0.5 * (forward[:-1] + np.r_[0.0, forward[:-2]])
+    knot_t = np.r_[0.0, strikes, end_s - SETTLE_S, end_s]
+    knot_u = np.r_[0.0, middles, forward[-1], forward[-1]]
+    knot_v = np.gradient(knot_u, knot_t)
+    knot_v[[0, -2, -1]] = 0.0
+    along = hermite(t, knot_t, knot_u, knot_v)
+    lateral = (p.pelvis[:, :2] - np.array([place.x, place.y])) @ f[:2]
+    pelvis = p.pelvis.copy()
+    pelvis[:, :2] += (along - lateral)[:, None] * f[:2]
+    p = p.replace(lean=lean * envelope, pelvis=pelvis)
     p = _arm_swing(p, feet, place.heading, length, 0.35)
     end = Place(*place.xy(forward[-1], 0.0), place.heading, place.floor_z)
     ground = np.stack([f.ground_z for f in feet], axis=1)
