@@ -31,8 +31,8 @@ class Subject:
 
     height_m: float
     mass_kg: float
+    foot_length_m: float | None = None  # None: 0.152 x height
     style_seed: int = 0
-    foot_length_m: float | None = None
     cadence_spm: float = field(init=False)
     depth: float = field(init=False)
     asymmetry: float = field(init=False)

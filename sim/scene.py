@@ -53,10 +53,21 @@ class SubjectModel(_Strict):
     style_seed: int = 0
 
     def subject(self) -> Subject:
-        return Subject(self.height_m, self.mass_kg, self.style_seed, self.foot_length_m)
+        return Subject(
+            self.height_m,
+            self.mass_kg,
+            foot_length_m=self.foot_length_m,
+            style_seed=self.style_seed,
+        )
 
 
 class ScriptEntry(_Strict):
+    """One action. ``depth`` applies to squat, lunge, jump and in-place walking
+    (None: the subject's own); ``step_length_m`` to walking, backward and side
+    walking and lunge (None: from height); ``step_height_m`` to step-up;
+    ``direction`` to side walking. Repetitions: one step for the walking
+    actions, one full movement for the others."""
+
     action: Literal[ACTIONS]  # type: ignore[valid-type]
     reps: int | None = Field(default=None, gt=0, le=500)
     duration_s: float | None = Field(default=None, gt=0.0, le=3600.0)

@@ -6,7 +6,7 @@ import itertools
 
 import numpy as np
 import pytest
-from scotti.models.contract import ACTIONS, KP, NO_ACTION
+from scotti.models.contract import ACTIONS, BONE_INDEX, KP, NO_ACTION
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place
 from scotti.sim.actions.base import finalize, neutral
 from scotti.sim.actions.strength import SQUAT_DROP
@@ -44,6 +44,8 @@ def _contact(m: Motion, side: str) -> np.ndarray:
 def test_every_action_keeps_feet_above_floor_and_moves_smoothly(action: str) -> None:
     m = _motion(action, rate=64.0)
     assert (_feet_z(m) >= -1e-3).all()
+    bones = np.linalg.norm(m.world[:, BONE_INDEX[:, 0]] - m.world[:, BONE_INDEX[:, 1]], axis=-1)
+    assert np.ptp(bones, axis=0).max() < 1e-3  # every contract bone keeps its length
     assert np.isfinite(m.world).all()
     assert np.isfinite(m.com).all()
     # No teleporting: no keypoint faster than a sprinting foot (8 m/s).

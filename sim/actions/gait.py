@@ -110,7 +110,8 @@ def _walk(
     feet = (foot_track(body, LEFT, plants[LEFT], t), foot_track(body, RIGHT, plants[RIGHT], t))
     envelope = ease(t / START_S) * ease((end_s - t) / SETTLE_S)
     p = _drive(ctx, place, t, feet, round(step_s * ctx.rate_hz))
-    # Forwards the pelvis is half-way between the feet at each heel strike; sideways it sways over the stance foot (``support_path``).
+    # Forwards the pelvis is half-way between the feet at each heel strike;
+    # sideways it sways over the stance foot (``support_path``).
     f, _ = axes(place.heading)
     strikes = heel_strike[:-1]
     middles = 0.5 * (forward[:-1] + np.r_[0.0, forward[:-2]])
