@@ -52,10 +52,11 @@ CONTACT_NONE_M: Final = 0.040
 # COP along the foot (0 heel, 1 hallux tip) for heel-only and flat contact.
 _COP_HEEL: Final = 0.10
 _COP_FLAT_RANGE: Final = (0.15, 0.80)
-# Toes-only contact: forefoot at first, the hallux once the heel is this high.
+# Toes-only contact: the metatarsal heads at first, rolling onto the hallux as
+# the foot pitches up (sine of the pitch from the first to the second value).
 _COP_FOREFOOT: Final = 0.70
 _COP_HALLUX: Final = 0.92
-_HEEL_RISE_FOR_HALLUX_M: Final = 0.08
+_PITCH_SIN_ROLL: Final = (0.15, 0.70)
 # The COP's reach along the foot (the outermost regions' centres) and the
 # bisection for the tilt that puts it there.
 _COP_REACH: Final = (float(REGION_U.min()) + 0.01, float(REGION_U.max()) - 0.01)
@@ -135,8 +136,12 @@ def foot_loads(
     rel = com[:, None, :2] - heel[..., :2]  # (N, 2, 2)
     u_com = np.einsum("nfk,nfk->nf", rel, fwd) / length
     u_flat = np.clip(u_com, *_COP_FLAT_RANGE)
-    heel_rise = np.clip((heel_z - toe_z) / _HEEL_RISE_FOR_HALLUX_M, 0.0, 1.0)
-    u_toe = _COP_FOREFOOT + (_COP_HALLUX - _COP_FOREFOOT) * heel_rise
+    pitch_sin = (heel_z - toe_z) / np.maximum(np.linalg.norm(toe - heel, axis=-1), 1e-3)
+    lo, hi = _PITCH_SIN_ROLL
+    heel_rise = np.clip((pitch_sin - lo) / (hi - lo), 0.0, 1.0)
+    # On the toes the COP is under the forefoot, as near the COM as it can be.
+    u_pitch = _COP_FOREFOOT + (_COP_HALLUX - _COP_FOREFOOT) * heel_rise
+    u_toe = np.clip(np.maximum(u_pitch, u_com), _COP_FOREFOOT, _COP_HALLUX)
     w_flat = c_heel * c_toe
     w_heel = c_heel * (1.0 - c_toe)
     w_toe = c_toe * (1.0 - c_heel)
@@ -185,14 +190,17 @@ DEFAULT_TRANSFER: Final = Transfer()
 
 
 def counts_from_kpa(kpa: np.ndarray, transfer: Transfer = DEFAULT_TRANSFER) -> np.ndarray:
-    """Float counts (same shape), clipped to [0, MAX_COUNT]; round when packing."""
-    q = np.maximum(np.asarray(kpa, dtype=np.float64) - transfer.threshold_kpa, 0.0)
+    """Float32 counts (same shape), clipped to [0, MAX_COUNT]; round when packing."""
+    f32 = np.float32
+    q = np.maximum(np.asarray(kpa, dtype=f32) - f32(transfer.threshold_kpa), f32(0.0))
+    half = f32(transfer.p_half_kpa)
     if transfer.exponent != 1.0:
-        q = q**transfer.exponent
-        half = transfer.p_half_kpa**transfer.exponent
-    else:
-        half = transfer.p_half_kpa
-    return np.asarray(np.minimum(transfer.full_scale * q / (q + half), float(MAX_COUNT)))
+        q **= f32(transfer.exponent)
+        half **= f32(transfer.exponent)
+    counts: np.ndarray = np.asarray(q / (q + half), dtype=f32)
+    counts *= f32(transfer.full_scale)
+    np.minimum(counts, f32(MAX_COUNT), out=counts)
+    return counts
 
 
 def to_uint16(counts: np.ndarray) -> np.ndarray:

@@ -146,7 +146,7 @@ class CountsStream:
         x = self.renderer.kpa(self.loads, frames)
         for stage in self.plan.kpa:
             x = stage.apply(x)
-        x = counts_from_kpa(x, self.plan.transfer).astype(np.float32)
+        x = counts_from_kpa(x, self.plan.transfer)
         for stage in self.plan.counts:
             x = stage.apply(x)
         return to_uint16(x * self.renderer.mask)
@@ -177,12 +177,13 @@ def encode_batch(packets: Sequence[FrameRows | BoardStatus]) -> list[bytes]:
         by_length.setdefault(len(raw), []).append(i)
     for length, idx in by_length.items():
         a = np.frombuffer(b"".join([raws[i] for i in idx]), np.uint8).reshape(len(idx), length)
-        cols = np.arange(length)
+        cols = np.arange(length, dtype=np.int16)  # packets are < 2048 bytes
         is_zero = a == 0
         # next_zero[:, j]: first zero at or after j (length if none)
-        next_zero = np.minimum.accumulate(np.where(is_zero, cols, length)[:, ::-1], axis=1)
+        marks = np.where(is_zero, cols, np.int16(length))
+        next_zero = np.minimum.accumulate(marks[:, ::-1], axis=1)
         next_zero = next_zero[:, ::-1]
-        after = np.concatenate([next_zero[:, 1:], np.full((len(idx), 1), length)], axis=1)
+        after = np.concatenate([next_zero[:, 1:], np.full((len(idx), 1), length, np.int16)], 1)
         codes = np.where(is_zero, after - cols, a)
         first = next_zero[:, 0] + 1
         long_block = ((after - cols > _COBS_SHORT_BLOCK) & is_zero).any(axis=1)

@@ -1,0 +1,161 @@
+"""``scotti sim``: scenes into session files, corpora, pictures and the speed benchmark.
+
+    scotti sim SCENE -o FILE [--seed N]
+    scotti sim corpus -o DIR --subjects N [--seed N] [--minutes-per-action M]
+                      [--effects realistic|none]
+    scotti sim render FILE -o OUT.png [--start S] [--duration D] [--gif OUT.gif]
+    scotti sim bench [--minutes M] [--effects realistic|none]
+
+The first word picks the form: ``corpus``, ``render`` and ``bench`` are
+sub-verbs; anything else is a scene file (a scene file literally named
+``corpus`` can be given as ``./corpus``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Final
+
+SUB_VERBS: Final = ("corpus", "render", "bench")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.description = __doc__
+    parser.usage = "scotti sim {SCENE -o FILE | corpus ... | render ... | bench ...} [-h]"
+    parser.add_argument(
+        "words",
+        nargs=argparse.REMAINDER,
+        metavar="SCENE|corpus|render|bench ...",
+        help="a scene file and its options, or a sub-verb and its options",
+    )
+
+
+def _scene_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="scotti sim", description="render a scene to a session file")
+    p.add_argument("scene", type=Path, help="scene TOML file")
+    p.add_argument("-o", "--output", type=Path, required=True, help="session file to write")
+    p.add_argument("--seed", type=int, default=None, help="override the scene's seed")
+    return p
+
+
+def _corpus_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="scotti sim corpus", description="N subjects doing all eight actions"
+    )
+    p.add_argument("-o", "--output", type=Path, required=True, help="directory to fill")
+    p.add_argument("--subjects", type=int, required=True, help="how many subjects to draw")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--minutes-per-action", type=float, default=1.0)
+    p.add_argument("--effects", choices=("realistic", "none"), default="realistic")
+    return p
+
+
+def _render_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="scotti sim render", description="draw a session")
+    p.add_argument("session", type=Path, help="session file with labels")
+    p.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
+    p.add_argument("--start", type=float, default=0.0, help="seconds from the first frame")
+    p.add_argument("--duration", type=float, default=6.0, help="seconds to draw")
+    p.add_argument("--gif", type=Path, default=None, help="also write an animated GIF")
+    return p
+
+
+def _bench_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="scotti sim bench", description="speed against real time")
+    p.add_argument("--minutes", type=float, default=10.0, help="minutes to simulate")
+    p.add_argument("--effects", choices=("realistic", "none"), default="none")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    words: list[str] = list(args.words)
+    if not words:
+        print("scotti sim: give a scene file or one of corpus, render, bench (-h)", file=sys.stderr)
+        return 2
+    try:
+        return _dispatch(words)
+    except Exception as exc:  # user mistakes from any room, as one line
+        from scotti.firmware_protocol.errors import ProtocolError
+        from scotti.sim import SimError
+
+        if isinstance(exc, SimError | ProtocolError | OSError):
+            print(f"scotti sim: {exc}", file=sys.stderr)
+            return 2
+        raise
+
+
+def _dispatch(words: list[str]) -> int:
+    verb = words[0]
+    if verb == "corpus":
+        return _corpus(_corpus_parser().parse_args(words[1:]))
+    if verb == "render":
+        return _render(_render_parser().parse_args(words[1:]))
+    if verb == "bench":
+        return _bench(_bench_parser().parse_args(words[1:]))
+    return _scene(_scene_parser().parse_args(words))
+
+
+def _scene(a: argparse.Namespace) -> int:
+    from scotti.sim.corpus import render_scene
+    from scotti.sim.scene import load_scene
+
+    scene = load_scene(a.scene)
+    report = render_scene(scene, a.output, seed=a.seed)
+    print(
+        f"{a.output}: {report.duration_s:.1f} s, {report.frames} frames, "
+        f"{report.packet_records} packet records, {report.bytes_written} bytes on the line"
+        + (f", effects: {', '.join(report.effects)}" if report.effects else "")
+    )
+    return 0
+
+
+def _corpus(a: argparse.Namespace) -> int:
+    from scotti.sim import SimError
+    from scotti.sim.corpus import MANIFEST, write_corpus
+
+    if a.subjects < 1 or not 0 < a.minutes_per_action <= 60:
+        msg = "--subjects must be >= 1 and --minutes-per-action in (0, 60]"
+        raise SimError(msg)
+    manifest = write_corpus(
+        a.output,
+        subjects=a.subjects,
+        seed=a.seed,
+        minutes_per_action=a.minutes_per_action,
+        effects=a.effects,
+        progress=print,
+    )
+    total = manifest["total_duration_s"]
+    print(f"{a.output / MANIFEST}: {a.subjects} subjects, {total / 60:.1f} min in all")
+    return 0
+
+
+def _render(a: argparse.Namespace) -> int:
+    from scotti.sim.render import load_span, render_gif, render_png
+
+    if a.duration <= 0 or a.start < 0:
+        from scotti.sim import SimError
+
+        msg = "--start must be >= 0 and --duration > 0"
+        raise SimError(msg)
+    span = load_span(a.session, a.start, a.duration)
+    print(render_png(span, a.output))
+    if a.gif is not None:
+        print(render_gif(span, a.gif))
+    return 0
+
+
+def _bench(a: argparse.Namespace) -> int:
+    from scotti.sim.bench import run_bench
+
+    if not 0 < a.minutes <= 120:
+        from scotti.sim import SimError
+
+        msg = "--minutes must be in (0, 120]"
+        raise SimError(msg)
+    result = run_bench(a.minutes, effects=a.effects == "realistic")
+    for line in result.lines():
+        print(line)
+    return 0

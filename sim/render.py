@@ -1,0 +1,238 @@
+"""Pictures of a session: pressure maps, skeleton, action and progress.
+
+Reads any session file with labels (simulated or labelled recordings): the
+packets go through the real decoder and frame assembler, the labels give the
+pose (pose frame: x forward, y left, z up) and the action and progress.
+
+Foot maps are drawn as seen from above with the toes up. The data's column 0
+is medial on both insoles, so the right foot is drawn as sent and the left
+foot mirrored, giving an anatomical pair (big toes towards the middle).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from scotti.firmware_protocol.assembly import FrameAssembler
+from scotti.firmware_protocol.framing import StreamDecoder
+from scotti.firmware_protocol.packets import FrameRows
+from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionHeader, iter_records
+from scotti.models.contract import ACTIONS, BONES, KP, MAX_COUNT, NO_ACTION
+from scotti.sim import SimError
+
+_MARGIN_NS: Final = 1_000_000_000  # packets read around the span, for late or early feet
+_SNAPSHOTS: Final = 4
+_GIF_FPS: Final = 8.0
+
+
+class RenderError(SimError):
+    """The session cannot be drawn (no labels in the span, unreadable file)."""
+
+
+@dataclass(frozen=True)
+class Span:
+    """The labelled frames of a time span of a session."""
+
+    time_s: np.ndarray  # (n,) since the session's first label
+    counts: np.ndarray  # (n, 2, rows, cols) uint16, zeros where a frame was lost
+    keypoints: np.ndarray  # (n, 19, 3) pose frame
+    action: np.ndarray  # (n,)
+    progress: np.ndarray  # (n,)
+    header: SessionHeader
+
+
+def load_span(
+    path: str | os.PathLike[str], start_s: float = 0.0, duration_s: float | None = None
+) -> Span:
+    """Frames and labels from ``start_s`` for ``duration_s`` (None: to the end)."""
+    header: SessionHeader | None = None
+    labels: list[LabelRecord] = []
+    blocks: list[tuple[int, FrameRows]] = []
+    decoder = StreamDecoder()
+    t0: int | None = None
+    begin = end = 0
+    try:
+        for record in iter_records(path):
+            if isinstance(record, SessionHeader):
+                header = record
+            elif isinstance(record, LabelRecord):
+                if t0 is None:
+                    t0 = record.t_ns
+                    begin = t0 + round(start_s * 1e9)
+                    end = begin + round(duration_s * 1e9) if duration_s is not None else 2**62
+                if begin <= record.t_ns < end:
+                    labels.append(record)
+                elif record.t_ns >= end + _MARGIN_NS:
+                    break
+            elif (
+                isinstance(record, PacketRecord)
+                and begin - _MARGIN_NS <= record.t_ns < end + _MARGIN_NS
+            ):
+                items = decoder.feed(record.data)
+                blocks += [(record.t_ns, p) for p in items if isinstance(p, FrameRows)]
+    except SimError:
+        raise
+    except Exception as exc:  # the protocol's SessionError and OS errors, as one line
+        msg = f"cannot read {path}: {exc}"
+        raise RenderError(msg) from None
+    if header is None or not labels:
+        msg = f"{path}: no labelled frames in that span"
+        raise RenderError(msg)
+    return _assemble(header, labels, blocks, t0 or 0)
+
+
+def _assemble(
+    header: SessionHeader, labels: list[LabelRecord], blocks: list[tuple[int, FrameRows]], t0: int
+) -> Span:
+    assembler = FrameAssembler(max_in_progress=4)
+    frames = []
+    for t_ns, block in blocks:
+        frames += assembler.push(block, t_ns)
+    frames += assembler.flush()
+    index = {label.seq: i for i, label in enumerate(labels)}  # seq is unique within a span
+    counts = np.zeros((len(labels), 2, header.rows, header.cols), np.uint16)
+    for f in frames:
+        i = index.get(f.seq)
+        if i is not None and f.counts.shape == counts.shape[2:]:
+            counts[i, int(f.foot)] = f.counts
+    return Span(
+        time_s=np.array([(label.t_ns - t0) / 1e9 for label in labels]),
+        counts=counts,
+        keypoints=np.stack([label.keypoints for label in labels]),
+        action=np.array([label.action for label in labels]),
+        progress=np.array([label.progress for label in labels]),
+        header=header,
+    )
+
+
+def _anatomical(counts: np.ndarray) -> np.ndarray:
+    """(rows, 2 * cols + 2): left foot mirrored, a gap, right foot as sent."""
+    left, right = counts[0][:, ::-1], counts[1]
+    gap = np.full((left.shape[0], 2), np.nan)
+    return np.hstack([left.astype(float), gap, right.astype(float)])
+
+
+_SEGMENTS: Final = [(KP[a], KP[b]) for a, b in BONES]
+
+
+def _draw_skeleton(ax: Any, kp: np.ndarray, view: str) -> None:
+    """Side view (x forward, z up) or front view (y left drawn to the right, z up)."""
+    horizontal = kp[:, 0] if view == "side" else -kp[:, 1]
+    z = kp[:, 2]
+    for a, b in _SEGMENTS:
+        left_side = "left" in _name(a) or "left" in _name(b)
+        ax.plot(
+            [horizontal[a], horizontal[b]],
+            [z[a], z[b]],
+            color="tab:blue" if left_side else "tab:red",
+            lw=2,
+        )
+    ax.scatter(horizontal, z, s=8, color="k", zorder=3)
+    ax.axhline(0.0, color="0.6", lw=1)
+    ax.set_xlim(-0.75, 0.75)
+    ax.set_ylim(-0.05, 1.95)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_title("side (facing right)" if view == "side" else "front (viewer's view)", fontsize=7)
+
+
+def _name(index: int) -> str:
+    return next(name for name, i in KP.items() if i == index)
+
+
+def _action_name(action: int) -> str:
+    return ACTIONS[action] if 0 <= action < len(ACTIONS) else "none"
+
+
+def _draw_timeline(ax: Any, span: Span, marks: list[float]) -> None:
+    t = span.time_s
+    load = span.counts.astype(float).sum(axis=(2, 3)) / 1e3
+    ax.plot(t, load[:, 0], color="tab:blue", lw=1.5, ls="--", label="left counts (k)")
+    ax.plot(t, load[:, 1], color="tab:red", lw=1, label="right counts (k)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("sum of counts / 1000")
+    ax.set_xlim(t[0], t[-1] if len(t) > 1 else t[0] + 1)
+    twin = ax.twinx()
+    twin.plot(t, span.progress, color="k", lw=1.5, label="progress")
+    twin.set_ylim(-0.05, 1.6)
+    twin.set_ylabel("progress")
+    changes = np.flatnonzero(np.diff(span.action, prepend=NO_ACTION - 1))
+    for i in changes:
+        twin.text(t[i], 1.45, _action_name(int(span.action[i])), fontsize=7, rotation=0)
+        twin.axvline(t[i], color="0.8", lw=0.8)
+    for m in marks:
+        ax.axvline(m, color="tab:green", lw=1.2, ls="--")
+    ax.legend(loc="upper left", fontsize=6)
+    twin.legend(loc="upper right", fontsize=6)
+
+
+def _snapshot(fig: Any, grid: Any, span: Span, i: int) -> None:
+    sub = grid.subgridspec(2, 2, height_ratios=[1.5, 1.0], hspace=0.2, wspace=0.02)
+    _draw_skeleton(fig.add_subplot(sub[0, 0]), span.keypoints[i], "side")
+    _draw_skeleton(fig.add_subplot(sub[0, 1]), span.keypoints[i], "front")
+    ax = fig.add_subplot(sub[1, :])
+    ax.imshow(_anatomical(span.counts[i]), cmap="inferno", vmin=0, vmax=MAX_COUNT * 0.7)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    progress = span.progress[i]
+    title = f"t={span.time_s[i]:.2f}s {_action_name(int(span.action[i]))}"
+    if np.isfinite(progress):
+        title += f" p={progress:.2f}"
+    ax.set_title(title + "\nL (mirrored) | R, toes up", fontsize=7)
+
+
+def render_png(span: Span, out: str | os.PathLike[str]) -> Path:
+    """Snapshots across the span (skeleton side + front, both feet) and a timeline."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(span.time_s)
+    picks = np.unique(np.linspace(0, n - 1, min(_SNAPSHOTS, n)).round().astype(int))
+    fig = plt.figure(figsize=(3.0 * len(picks), 7.0), dpi=100)
+    fig.subplots_adjust(left=0.06, right=0.94, top=0.93, bottom=0.07)
+    grid = fig.add_gridspec(2, len(picks), height_ratios=[3.0, 1.0], hspace=0.2)
+    for col, i in enumerate(picks):
+        _snapshot(fig, grid[0, col], span, int(i))
+    _draw_timeline(fig.add_subplot(grid[1, :]), span, [float(span.time_s[i]) for i in picks])
+    scene = span.header.scene or {}
+    fig.suptitle(f"{Path(out).stem}: {scene.get('name', span.header.source)}", fontsize=9)
+    path = Path(out)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def render_gif(span: Span, out: str | os.PathLike[str], fps: float = _GIF_FPS) -> Path:
+    """An animation of the span: skeleton, both feet and the timeline cursor."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    rate = span.header.rate_hz or 16.0
+    step = max(1, round(rate / fps))
+    frames = list(range(0, len(span.time_s), step))
+    fig = plt.figure(figsize=(6.4, 5.2), dpi=72)
+    grid = fig.add_gridspec(2, 1, height_ratios=[3.0, 1.0], hspace=0.3)
+
+    def draw(k: int) -> list[Any]:
+        fig.clear()
+        g = fig.add_gridspec(2, 1, height_ratios=[3.0, 1.0], hspace=0.3)
+        _snapshot(fig, g[0, 0], span, k)
+        _draw_timeline(fig.add_subplot(g[1, 0]), span, [float(span.time_s[k])])
+        return []
+
+    del grid
+    anim = FuncAnimation(fig, draw, frames=frames, blit=False)
+    path = Path(out)
+    anim.save(str(path), writer=PillowWriter(fps=max(1, round(rate / step))))
+    plt.close(fig)
+    return path

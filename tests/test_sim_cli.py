@@ -1,0 +1,118 @@
+"""``scotti sim``: scene files, corpora, pictures and the benchmark, through the real dispatcher."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from scotti.cli.main import main
+from scotti.firmware_protocol.session import read_session
+from scotti.models.contract import ACTIONS
+
+SCENE = """
+description = "two squats with sensor noise"
+seed = 4
+[subject]
+height_m = 1.7
+mass_kg = 65.0
+style_seed = 1
+[[script]]
+action = "squat"
+reps = 2
+stand_s = 0.5
+[[effects]]
+name = "noise"
+std_counts = 3
+"""
+
+
+@pytest.fixture
+def scene(tmp_path: Path) -> Path:
+    path = tmp_path / "squat.toml"
+    path.write_text(SCENE)
+    return path
+
+
+def test_scene_to_session_is_bit_identical_on_rerun(
+    scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    a, b, c = tmp_path / "a.ses", tmp_path / "b.ses", tmp_path / "c.ses"
+    assert main(["sim", str(scene), "-o", str(a)]) == 0
+    assert main(["sim", str(scene), "-o", str(b)]) == 0
+    assert a.read_bytes() == b.read_bytes()
+    assert main(["sim", str(scene), "-o", str(c), "--seed", "5"]) == 0
+    assert c.read_bytes() != a.read_bytes()
+    session = read_session(a)
+    assert session.header.source == "simulated"
+    assert session.header.scene is not None
+    assert session.header.scene["effects"] == [{"name": "noise", "std_counts": 3}]
+    assert session.header.subject is not None
+    assert session.header.subject["mass_kg"] == 65.0
+    assert {label.action for label in session.labels} >= {ACTIONS.index("squat")}
+    assert "noise" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["sim", "missing.toml", "-o", "x.ses"], "cannot read scene"),
+        (["sim", "render", "missing.ses", "-o", "x.png"], "missing.ses"),
+        (["sim"], "give a scene file"),
+        (["sim", "bench", "--minutes", "0"], "--minutes"),
+    ],
+)
+def test_user_mistakes_are_one_line(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    assert err.count("\n") == 1
+
+
+def test_bad_effect_in_scene_names_the_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SCENE.replace("std_counts = 3", "std_counts = -3"))
+    assert main(["sim", str(bad), "-o", str(tmp_path / "x.ses")]) == 2
+    err = capsys.readouterr().err
+    assert "std_counts" in err
+    assert err.count("\n") == 1
+
+
+def test_corpus_writes_sessions_and_manifest(tmp_path: Path) -> None:
+    out = tmp_path / "corpus"
+    argv = ["sim", "corpus", "-o", str(out), "--subjects", "2", "--minutes-per-action", "0.02"]
+    assert main([*argv, "--seed", "3"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["subjects"] == 2
+    sessions = manifest["sessions"]
+    assert [s["file"] for s in sessions] == ["subject-000.ses", "subject-001.ses"]
+    assert sessions[0]["seed"] != sessions[1]["seed"]
+    assert sessions[0]["subject"] != sessions[1]["subject"]
+    assert "packet_loss" in sessions[0]["effects"]
+    labels = read_session(out / "subject-000.ses").labels
+    assert {label.action for label in labels} == {-1, *range(len(ACTIONS))}
+    assert len(labels) == sessions[0]["frames"]
+    first = (out / "subject-001.ses").read_bytes()
+    assert main([*argv, "--seed", "3", "--effects", "none"]) == 0
+    assert (out / "subject-001.ses").read_bytes() != first
+    assert json.loads((out / "manifest.json").read_text())["sessions"][1]["effects"] == []
+
+
+def test_render_png_and_gif(scene: Path, tmp_path: Path) -> None:
+    session, png, gif = tmp_path / "s.ses", tmp_path / "s.png", tmp_path / "s.gif"
+    assert main(["sim", str(scene), "-o", str(session)]) == 0
+    argv = ["sim", "render", str(session), "-o", str(png), "--start", "1", "--duration", "1"]
+    assert main([*argv, "--gif", str(gif)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+
+
+def test_bench_prints_the_ratio_to_real_time(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["sim", "bench", "--minutes", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "ratio to real time:" in out
+    assert "one hour:" in out
