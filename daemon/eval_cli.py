@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from scotti.daemon.evaluation import EvaluationError, evaluate_sessions, find_session_files
+from scotti.daemon.evaluation import EvaluationError, evaluate_models, find_session_files
 from scotti.firmware_protocol.errors import SessionError
 from scotti.models.contract import ACTIONS
 from scotti.models.errors import ModelError
@@ -25,9 +25,19 @@ from scotti.models.runtime import ScottiRuntime
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("sessions", nargs="+", type=Path, help="session files or directories")
-    parser.add_argument("--model", type=Path, required=True, help="streaming step graph (.onnx)")
-    parser.add_argument("--json", action="store_true", help="print the full report as JSON")
-    parser.add_argument("--plots", type=Path, default=None, help="write PNG figures here")
+    parser.add_argument(
+        "--model",
+        type=Path,
+        required=True,
+        action="append",
+        help="streaming step graph (.onnx); repeat it to score several models on one replay",
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="print the report as JSON (a list for several models)"
+    )
+    parser.add_argument(
+        "--plots", type=Path, default=None, help="write PNG figures here (DIR/MODEL/ for several)"
+    )
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
 
 
@@ -37,18 +47,26 @@ def run(args: argparse.Namespace) -> int:
             msg = f"--threads must be at least 1, got {args.threads}"
             raise EvaluationError(msg)
         files = find_session_files(args.sessions)
-        runtime = ScottiRuntime(args.model, threads=args.threads)
-        report = evaluate_sessions(files, runtime)
+        runtimes = [ScottiRuntime(m, threads=args.threads) for m in args.model]
+        reports = evaluate_models(files, runtimes)
         if args.plots is not None:
-            report["plots"] = write_plots(report, args.plots)
+            for report in reports:
+                where = args.plots if len(reports) == 1 else args.plots / _stem(report)
+                report["plots"] = write_plots(report, where)
     except (EvaluationError, ModelError, SessionError, OSError) as exc:
         print(f"scotti eval: {exc}", file=sys.stderr)
         return 2
     if args.json:
-        print(json.dumps(_finite(report), indent=2))
+        value = reports[0] if len(reports) == 1 else reports
+        print(json.dumps(_finite(value), indent=2))
     else:
-        print("\n".join(format_report(report)))
+        print("\n\n".join("\n".join(format_report(r)) for r in reports))
     return 0
+
+
+def _stem(report: dict[str, Any]) -> str:
+    name = Path(report["model"]["path"]).name
+    return name.removesuffix(".onnx")
 
 
 def format_report(report: dict[str, Any]) -> list[str]:

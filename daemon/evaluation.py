@@ -112,7 +112,7 @@ class SessionReplay:
     """What one session gave: counts along the path and the aligned frames."""
 
     path: str
-    subject: str | None
+    subject: str  # the header's subject id, else the file's stem (as training names it)
     labels: int = 0  # label records in the file
     pairs: int = 0  # paired frames the window took
     predictions: int = 0  # steps past the warm-up
@@ -156,28 +156,28 @@ def replay_session(
     path: str | Path, runtime: ScottiRuntime, pairing: PairingConfig | None = None
 ) -> SessionReplay:
     """Replay one session file through the daemon's path; score against its labels."""
+    return replay_session_models(path, [runtime], pairing)[0]
+
+
+def replay_session_models(
+    path: str | Path, runtimes: Sequence[ScottiRuntime], pairing: PairingConfig | None = None
+) -> list[SessionReplay]:
+    """One replay, several models: the bytes are decoded, assembled and paired once,
+    and every paired frame goes into each model's own window (nothing is shared
+    between the models but the pairs). One ``SessionReplay`` per runtime."""
     decoder = StreamDecoder()
     assembler = FrameAssembler()
     pairs = Pairing(pairing)
-    window = Window(runtime)
     labels: list[LabelRecord] = []
-    made: list[_Made] = []
     clock = _SeqClock()
     with SessionReader(path) as reader:
-        subject = _subject_of(reader.header.subject)
-        out = SessionReplay(str(path), subject)
+        subject = _subject_of(reader.header.subject) or Path(path).stem
+        tracks = [_Track(Window(r), SessionReplay(str(path), subject)) for r in runtimes]
 
         def take(pair: PairedFrame) -> None:
             ext = clock.unwrap(pair.seqs[0] if pair.seqs[0] >= 0 else pair.seqs[1])
-            if pair.restart:
-                window.restart()
-            start = time.perf_counter()
-            result = window.push(pair.counts).result
-            out.step_ms.append((time.perf_counter() - start) * 1e3)
-            out.pairs += 1
-            out.degraded_pairs += bool(pair.flags)
-            if result is not None and ext is not None:
-                made.append(_Made(ext + 1, result.pose, result.action_probs, result.progress))
+            for track in tracks:
+                track.take(pair, ext)
 
         for record in reader:
             if isinstance(record, LabelRecord):
@@ -194,13 +194,35 @@ def replay_session(
                 take(pair)
         for pair in pairs.flush():
             take(pair)
-    out.labels = len(labels)
-    out.predictions = len(made)
-    out.window_restarts = window.restarts
-    out.decode_errors = decoder.counters.errors
-    out.frames, out.unlabelled = _align(made, labels, clock)
-    out.evaluated = len(out.frames)
-    return out
+    for track in tracks:
+        out = track.out
+        out.labels = len(labels)
+        out.predictions = len(track.made)
+        out.window_restarts = track.window.restarts
+        out.decode_errors = decoder.counters.errors
+        out.frames, out.unlabelled = _align(track.made, labels)
+        out.evaluated = len(out.frames)
+    return [t.out for t in tracks]
+
+
+@dataclass
+class _Track:
+    """One model's window over the shared pairs, and what it predicted."""
+
+    window: Window
+    out: SessionReplay
+    made: list[_Made] = field(default_factory=list)
+
+    def take(self, pair: PairedFrame, ext: int | None) -> None:
+        if pair.restart:
+            self.window.restart()
+        start = time.perf_counter()
+        result = self.window.push(pair.counts).result
+        self.out.step_ms.append((time.perf_counter() - start) * 1e3)
+        self.out.pairs += 1
+        self.out.degraded_pairs += bool(pair.flags)
+        if result is not None and ext is not None:
+            self.made.append(_Made(ext + 1, result.pose, result.action_probs, result.progress))
 
 
 @dataclass(frozen=True)
@@ -229,7 +251,7 @@ class _SeqClock:
         return self._ext
 
 
-def _align(made: list[_Made], labels: list[LabelRecord], clock: _SeqClock) -> tuple[FrameSet, int]:
+def _align(made: list[_Made], labels: list[LabelRecord]) -> tuple[FrameSet, int]:
     """Match predictions to labels by unwrapped seq; returns the frames and the misses."""
     if not made or not labels:
         return FrameSet.empty(), len(made)
@@ -269,7 +291,7 @@ def _progress_true(labels: Sequence[LabelRecord]) -> npt.NDArray[np.float64]:
 def _subject_of(subject: dict[str, Any] | None) -> str | None:
     if not subject:
         return None
-    for key in ("id", "name", "subject"):
+    for key in ("id", "name", "subject_id"):  # the rule training uses, then the file stem
         if key in subject:
             return str(subject[key])
     return None
@@ -343,7 +365,23 @@ def evaluate_sessions(
     paths: Sequence[str | Path], runtime: ScottiRuntime, pairing: PairingConfig | None = None
 ) -> dict[str, Any]:
     """Replay every session, pool their frames, and score them (JSON-ready)."""
-    replays = [replay_session(p, runtime, pairing) for p in paths]
+    return evaluate_models(paths, [runtime], pairing)[0]
+
+
+def evaluate_models(
+    paths: Sequence[str | Path],
+    runtimes: Sequence[ScottiRuntime],
+    pairing: PairingConfig | None = None,
+) -> list[dict[str, Any]]:
+    """``evaluate_sessions`` for several models over one replay of each session."""
+    per_session = [replay_session_models(p, runtimes, pairing) for p in paths]
+    return [
+        _report(runtime, [replays[i] for replays in per_session])
+        for i, runtime in enumerate(runtimes)
+    ]
+
+
+def _report(runtime: ScottiRuntime, replays: list[SessionReplay]) -> dict[str, Any]:
     frames = FrameSet.concat([r.frames for r in replays])
     steps = np.array([ms for r in replays for ms in r.step_ms], dtype=np.float64)
     report: dict[str, Any] = {
@@ -355,7 +393,7 @@ def evaluate_sessions(
             "threads": runtime.threads,
         },
         "sessions": [r.summary() for r in replays],
-        "subjects": sorted({r.subject for r in replays if r.subject is not None}),
+        "subjects": sorted({r.subject for r in replays}),
         "step_ms": {
             "median": float(np.median(steps)) if steps.size else float("nan"),
             "p99": float(np.percentile(steps, 99)) if steps.size else float("nan"),

@@ -9,7 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scotti.cli.main import main
-from scotti.daemon.evaluation import FrameSet, evaluate_sessions, replay_session, score
+from scotti.daemon.evaluation import (
+    FrameSet,
+    evaluate_models,
+    evaluate_sessions,
+    replay_session,
+    score,
+)
 from scotti.firmware_protocol.session import read_session
 from scotti.models.runtime import ScottiRuntime
 
@@ -121,3 +127,15 @@ def test_a_bad_model_is_one_line(
     bad.write_bytes(b"not onnx")
     assert main(["eval", str(session), "--model", str(bad)]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_several_models_on_one_replay_match_one_at_a_time(
+    session: Path, runtime: ScottiRuntime, tiny_model_path: Path
+) -> None:
+    other = ScottiRuntime(tiny_model_path)
+    both = evaluate_models([session], [runtime, other])
+    alone = evaluate_sessions([session], runtime)
+    assert len(both) == 2
+    for report in both:
+        assert report["metrics"] == alone["metrics"]
+        assert report["confusion"] == alone["confusion"]
