@@ -87,18 +87,18 @@ class Publisher:
         self._health_dirty = False
         self._queue: collections.deque[FrameBatch] = collections.deque()
         self._wake = asyncio.Event()
-        self._frame_props = _properties(self._fmt, expiry_s=settings.message_expiry_s)
-        self._retained_props = _properties(self._fmt, expiry_s=None)
-        self._health_props = _properties(
-            self._fmt, expiry_s=max(1, round(3 * settings.health_interval_s))
-        )
+        v5 = settings.protocol == "5"  # MQTT 3.1.1 has no properties: none are sent
+        self._frame_props = _properties(self._fmt, settings.message_expiry_s) if v5 else None
+        self._retained_props = _properties(self._fmt, None) if v5 else None
+        health_expiry = max(1, round(3 * settings.health_interval_s))
+        self._health_props = _properties(self._fmt, health_expiry) if v5 else None
         self._client = aiomqtt.Client(
             settings.host,
             settings.port,
             username=settings.username,
             password=settings.password.get_secret_value() if settings.password else None,
             identifier=settings.client_id or f"scotti-daemon-{settings.device_id}",
-            protocol=aiomqtt.ProtocolVersion.V5,
+            protocol=aiomqtt.ProtocolVersion.V5 if v5 else aiomqtt.ProtocolVersion.V311,
             will=aiomqtt.Will(
                 settings.topic("status"),
                 encode(will, self._fmt),
@@ -204,7 +204,7 @@ class Publisher:
             encode(payload, self._fmt),
             qos=RETAINED_QOS if retained else FRAME_QOS,
             retain=retained,
-            properties=props or self._retained_props,
+            properties=props if props is not None else self._retained_props,
         )
 
     def _set_state(self, state: BrokerState, detail: str) -> None:
@@ -220,6 +220,7 @@ class Publisher:
 
 
 def _properties(fmt: Literal["json", "msgpack"], expiry_s: int | None) -> Properties:
+    """MQTT v5 publish properties: content type, and expiry for what goes stale."""
     props = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
     props.ContentType = CONTENT_TYPES[fmt]
     if expiry_s is not None:

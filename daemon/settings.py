@@ -137,6 +137,7 @@ class MqttSettings(BaseModel):
     device_id: str = Field(default_factory=lambda: sanitise_device_id(socket.gethostname()))
     topic_prefix: str = "scotti"
     format: Literal["json", "msgpack"] = "json"
+    protocol: Literal["5", "3.1.1"] = "5"  # 3.1.1 only for brokers without v5 (no properties)
     keepalive_s: Annotated[int, Field(ge=5, le=3600)] = 15
     message_expiry_s: Annotated[int, Field(ge=1, le=3600)] = 2  # pose/action/progress
     queue_size: Annotated[int, Field(ge=1, le=10_000)] = 32  # predictions waiting to publish

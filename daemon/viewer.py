@@ -170,8 +170,10 @@ async def run_viewer(
     try:
         while not stop.is_set():
             try:
+                v5 = settings.protocol == "5"
+                protocol = aiomqtt.ProtocolVersion.V5 if v5 else aiomqtt.ProtocolVersion.V311
                 async with aiomqtt.Client(
-                    settings.host, settings.port, protocol=aiomqtt.ProtocolVersion.V5
+                    settings.host, settings.port, protocol=protocol
                 ) as client:
                     await client.subscribe(topic, qos=1)
                     reader = asyncio.create_task(_read(client, state))

@@ -1,0 +1,138 @@
+"""The no-hardware demo: board, broker, daemon and a live view on one machine.
+
+A simulated receiver board plays a scene (``sim/scenes/demo.toml``) into a
+pseudo-terminal; ``scotti-daemon --simulate`` reads it exactly as it would
+read the real port and publishes to a local broker (mosquitto when
+installed, else an embedded amqtt); the terminal view subscribes over MQTT
+like any robot controller would. Ctrl-C (or ``--duration``) ends it all:
+the daemon stops gracefully first (publishing ``offline``), then the broker.
+
+    python -m scotti.daemon.demo [--duration S] [--scene demo] [--model PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any, Literal
+
+from scotti.daemon.local_broker import BrokerError, Mosquitto, find_mosquitto, free_port
+from scotti.daemon.settings import EX_CONFIG, ConfigError, MqttSettings, default_model_path
+from scotti.daemon.viewer import run_viewer
+
+DEVICE = "demo"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="scripts/demo", description=__doc__.split("\n\n")[0])
+    p.add_argument("--duration", type=float, default=0.0, help="seconds; 0 = until Ctrl-C")
+    p.add_argument("--scene", default="demo", help="scene name or TOML path (default demo)")
+    p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
+    p.add_argument("--speed", default="1", help="1 = real time, N times faster")
+    p.add_argument(
+        "--broker",
+        choices=("auto", "mosquitto", "amqtt"),
+        default="auto",
+        help="auto: mosquitto if installed, else the embedded amqtt",
+    )
+    return p
+
+
+@contextlib.asynccontextmanager
+async def local_broker(kind: str) -> AsyncIterator[tuple[str, Literal["5", "3.1.1"]]]:
+    """A broker on 127.0.0.1:<free port>; yields (URL, MQTT protocol it speaks)."""
+    if kind == "mosquitto" or (kind == "auto" and find_mosquitto()):
+        broker = Mosquitto()
+        await asyncio.to_thread(broker.start)
+        try:
+            yield broker.url, "5"
+        finally:
+            broker.close()
+        return
+    from amqtt.broker import Broker  # the [demo] extra; speaks MQTT 3.1.1 only
+
+    port = free_port()
+    config: dict[str, Any] = {
+        "listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
+        "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
+    }
+    embedded = Broker(config)
+    await embedded.start()
+    try:
+        yield f"mqtt://127.0.0.1:{port}", "3.1.1"
+    finally:
+        await embedded.shutdown()
+
+
+async def run_demo(args: argparse.Namespace, model: Path) -> int:
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    if args.duration > 0:
+        loop.call_later(args.duration, stop.set)
+    log_path = Path(tempfile.gettempdir()) / f"scotti-demo-daemon-{os.getpid()}.log"
+    async with local_broker(args.broker) as (url, protocol):
+        cmd = [sys.executable, "-m", "scotti.daemon.main", "--simulate", args.scene]
+        cmd += ["--speed", args.speed, "--model", str(model), "--broker", url]
+        cmd += ["--device-id", DEVICE, "--pressure"]
+        env = {**os.environ, "SCOTTI_MQTT_PROTOCOL": protocol, "SCOTTI_LOG_LEVEL": "info"}
+        with log_path.open("wb") as log:
+            # Own session: Ctrl-C reaches the demo only, which stops the daemon in order.
+            daemon = await asyncio.create_subprocess_exec(
+                *cmd, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+            )
+        watcher = asyncio.create_task(_stop_when_exits(daemon, stop))
+        settings = MqttSettings(broker=url, protocol=protocol, device_id=DEVICE)
+        state = await run_viewer(settings, stop, device=DEVICE)
+        watcher.cancel()
+        code = await _stop_daemon(daemon)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.remove_signal_handler(sig)
+    print(f"demo: {state.frames_seen} frames shown; daemon exit {code}; its log: {log_path}")
+    if code not in (0, -signal.SIGTERM):
+        tail = log_path.read_text(errors="replace").strip().splitlines()[-5:]
+        print("\n".join(f"  {line}" for line in tail), file=sys.stderr)
+        return 1
+    return 0
+
+
+async def _stop_when_exits(daemon: asyncio.subprocess.Process, stop: asyncio.Event) -> None:
+    await daemon.wait()  # the daemon failed (or its scene ended): end the demo too
+    stop.set()
+
+
+async def _stop_daemon(daemon: asyncio.subprocess.Process) -> int:
+    if daemon.returncode is None:
+        daemon.send_signal(signal.SIGTERM)
+        try:
+            return await asyncio.wait_for(daemon.wait(), 15)
+        except TimeoutError:
+            daemon.kill()
+    return await daemon.wait()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        model = args.model or default_model_path()
+    except ConfigError as exc:
+        print(f"demo: {exc}", file=sys.stderr)
+        return EX_CONFIG
+    try:
+        return asyncio.run(run_demo(args, model))
+    except BrokerError as exc:
+        print(f"demo: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
