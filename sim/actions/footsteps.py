@@ -4,9 +4,10 @@ A ``Plant`` is one stance of one foot: where the flat foot's ankle is, on
 which surface, from when to when, and how the foot rolls in and out of it
 (heel strike then flat foot then toe off for walking; toe first for
 backward walking; flat for a side step). Between two plants the foot swings
-on a cubic path lifted by a bump, so every stance and swing join with zero
-velocity (C1). The pelvis can follow the feet: ``support_path`` averages the
-standing feet and smooths them over about one step.
+on a cubic path lifted by a bump: with zero velocity at both ends (C1), or,
+for walking, leaving and striking the floor with some vertical speed. The
+pelvis can follow the feet: ``support_path`` averages the standing feet and
+smooths them over about one step.
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ class Plant:
     release_s: float = 0.0
     lift_before: float = 0.05  # swing height (m) on the way to this plant
     swing_pitch: float = 0.0  # extra pitch at mid-swing on the way here
+    # Lift profile sin(pi s) ** lift_power: 2 leaves and lands with zero vertical
+    # speed (C1); 1 lifts off and strikes with some, as a walking heel does.
+    lift_power: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -112,7 +116,8 @@ def foot_track(body: Body, side: int, plants: list[Plant], t: Array) -> FootTrac
         s = (t[on] - before.t_off) / (after.t_on - before.t_off)
         path = hermite(s, [0.0, 1.0], np.stack([a0[0], a1[0]]))
         rise = max(before.floor_z, after.floor_z) - min(before.floor_z, after.floor_z)
-        path[:, 2] += (after.lift_before + 0.6 * rise) * bump(s)
+        lift = np.sin(np.pi * np.clip(s, 0.0, 1.0)) ** after.lift_power
+        path[:, 2] += (after.lift_before + 0.6 * rise) * lift
         ankle[on] = path
         pitch[on] = hermite(s, [0.0, 1.0], [p0[0], p1[0]]) + after.swing_pitch * bump(s)
         yaw[on] = before.yaw + (after.yaw - before.yaw) * ease(s)

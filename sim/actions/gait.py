@@ -11,6 +11,8 @@ in reverse, which turns heel strike into the toe-first landing it has.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.actions.base import (
@@ -103,6 +105,7 @@ def _walk(
                 strike_pitch=strike_pitch * (0.5 if last else 1.0),
                 strike_s=0.24 * durations[k],
                 lift_before=0.05,
+                lift_power=1.0,
             )
         )
     end_s = heel_strike[-1] + SETTLE_S
@@ -131,21 +134,9 @@ def _walk(
 
 
 def _with_release(plant: Plant, t_off: float, pitch: float, release_s: float) -> Plant:
-    return Plant(
-        plant.t_on,
-        t_off,
-        plant.xy,
-        plant.yaw,
-        plant.floor_z,
-        plant.strike,
-        plant.strike_pitch,
-        plant.strike_s,
-        TOE if pitch < 0 else FLAT,
-        pitch,
-        release_s,
-        plant.lift_before,
-        plant.swing_pitch,
-    )
+    """The plant, left at ``t_off`` rolling over the toes by ``pitch`` (or flat)."""
+    release = TOE if pitch < 0 else FLAT
+    return replace(plant, t_off=t_off, release=release, release_pitch=pitch, release_s=release_s)
 
 
 def _drive(

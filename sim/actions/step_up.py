@@ -9,6 +9,8 @@ them; the pelvis follows the standing feet and rises by the step height.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.actions.base import TOE_OUT, ActionSpec, Context, Place, Segment, finalize, neutral
@@ -42,11 +44,7 @@ def step_up(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
         for i, (side, (a, b)) in enumerate(zip(order, SWINGS, strict=True)):
             on_step = i < 2
             before = plants[side][-1]
-            plants[side][-1] = Plant(
-                before.t_on, t0 + a * d, before.xy, before.yaw, before.floor_z, before.strike,
-                before.strike_pitch, before.strike_s, FLAT, 0.0, 0.0,
-                before.lift_before, before.swing_pitch,
-            )  # fmt: skip
+            plants[side][-1] = replace(before, t_off=t0 + a * d, release=FLAT)
             target = place.xy(ahead, lateral[side]) if on_step else home[side].xy
             plants[side].append(
                 Plant(

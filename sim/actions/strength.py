@@ -9,6 +9,8 @@ the foot steps back; legs alternate repetition by repetition.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.actions.base import TOE_OUT, ActionSpec, Context, Place, Segment, finalize, neutral
@@ -131,7 +133,7 @@ def lunge(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
 
 
 def _until(plant: Plant, t_off: float) -> Plant:
-    return Plant(plant.t_on, t_off, plant.xy, plant.yaw, plant.floor_z, FLAT)
+    return replace(plant, t_off=t_off, release=FLAT)
 
 
 def _heel_up(body: Body, side: int, ankle: Array, yaw: float, lift: Array) -> tuple[Array, Array]:
