@@ -26,6 +26,7 @@ from scotti.daemon.schemas import (
 from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_RATE_HZ, KEYPOINTS, NO_ACTION
 
 if TYPE_CHECKING:
+    from scotti.daemon.pairing import FootFrameLike, PairedFrame, Pairing
     from scotti.daemon.pipeline import PipelineState, Prediction
     from scotti.daemon.publisher import Publisher
     from scotti.daemon.settings import Settings
@@ -36,7 +37,10 @@ TOPIC_NAMES = ("status", "info", "pose", "action", "progress", "health", "pressu
 
 
 def frame_payloads(
-    p: Prediction, latency_ms: float, pressure_downsample: int = 0
+    p: Prediction,
+    latency_ms: float,
+    pressure_downsample: int = 0,
+    counts: np.ndarray | None = None,
 ) -> list[tuple[str, BaseModel]]:
     """pose, action, progress (and pressure) of one prediction, same stamp."""
     stamp: dict[str, Any] = {
@@ -69,10 +73,41 @@ def frame_payloads(
             Progress(**stamp, action=action, progress=progress, repetition=p.repetition),
         ),
     ]
-    counts = getattr(p, "counts", None)
+    if counts is None:
+        counts = getattr(p, "counts", None)
     if pressure_downsample and counts is not None:
         out.append(("pressure", pressure(stamp, np.asarray(counts), pressure_downsample)))
     return out
+
+
+class PressureTap:
+    """Stopgap until ``Prediction`` carries its input frame: keeps the newest paired
+    frames' counts by device seqs, read off the pipeline's pairing output.
+    """
+
+    def __init__(self, pairing: Pairing, keep: int = 64) -> None:
+        self._frames: dict[tuple[int, int], np.ndarray] = {}
+        self._keep = keep
+        push, flush = pairing.push, pairing.flush
+
+        def tapped_push(frame: FootFrameLike) -> list[PairedFrame]:
+            return self._remember(push(frame))
+
+        def tapped_flush() -> list[PairedFrame]:
+            return self._remember(flush())
+
+        pairing.push = tapped_push  # type: ignore[method-assign]
+        pairing.flush = tapped_flush  # type: ignore[method-assign]
+
+    def _remember(self, pairs: list[PairedFrame]) -> list[PairedFrame]:
+        for pair in pairs:
+            self._frames[pair.seqs] = pair.counts
+        while len(self._frames) > self._keep:
+            del self._frames[next(iter(self._frames))]
+        return pairs
+
+    def counts_for(self, left_seq: int, right_seq: int) -> np.ndarray | None:
+        return self._frames.get((left_seq, right_seq))
 
 
 def downsample(counts: np.ndarray, k: int) -> np.ndarray:

@@ -1,0 +1,128 @@
+"""The terminal view, the optional pressure topic it draws, and the demo end to end."""
+
+from __future__ import annotations
+
+import base64
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scotti.daemon.local_broker import Mosquitto
+from scotti.daemon.messages import downsample
+from scotti.daemon.schemas import Pressure
+from scotti.daemon.viewer import ViewState, decode_payload, pressure_grid, render
+from scotti.firmware_protocol.packets import Foot
+
+from tests.support.broker import collect, start_daemon
+from tests.support.sessions import synthetic_counts, write_synthetic_session
+
+
+def grid_bytes(grid: np.ndarray) -> str:
+    return base64.urlsafe_b64encode(grid.astype("<u2").tobytes()).decode()
+
+
+def test_render_shows_feet_action_progress_and_latency() -> None:
+    state = ViewState()
+    left = np.full((16, 11), 4095, dtype=np.uint16)
+    right = np.zeros((16, 11), dtype=np.uint16)
+    state.update("status", {"state": "degraded", "reasons": ["right insole silent"]}, "s/d/status")
+    state.update("pose", {"seq": 41, "latency_ms": 3.25}, "scotti/dev/pose")
+    state.update(
+        "action",
+        {"action": "squat", "confidence": 0.87, "probabilities": {"squat": 0.87, "jump": 0.13}},
+        "scotti/dev/action",
+    )
+    state.update(
+        "progress",
+        {"action": "squat", "progress": 0.5, "repetition": 3},
+        "scotti/dev/progress",
+    )
+    state.update(
+        "pressure",
+        {"rows": 16, "cols": 11, "left": grid_bytes(left), "right": grid_bytes(right)},
+        "scotti/dev/pressure",
+    )
+    screen = render(state)
+    assert "scotti/dev" in screen
+    assert "degraded" in screen
+    assert "right insole silent" in screen
+    assert "squat" in screen
+    assert "0.87" in screen
+    assert "█" * 15 + "░" * 15 in screen  # progress 0.5 of a 30-wide bar
+    assert "rep 3" in screen
+    assert "3.2 ms" in screen or "3.3 ms" in screen
+    assert screen.count("\x1b[48;5;196m") == 16 * 11  # left foot all hot
+    assert screen.count("\x1b[48;5;16m") == 16 * 11  # right foot all cold
+
+
+def test_render_before_anything_arrived() -> None:
+    screen = render(ViewState())
+    assert "waiting" in screen
+    assert "no pressure frames" in screen
+
+
+def test_decode_by_content_type() -> None:
+    import msgpack
+
+    assert decode_payload(b'{"a": 1}', "application/json") == {"a": 1}
+    assert decode_payload(msgpack.packb({"a": 1}), "application/msgpack") == {"a": 1}
+    assert decode_payload(b"\xff garbage", None) is None
+
+
+def test_downsample_means_blocks() -> None:
+    counts = np.arange(32 * 22, dtype=np.uint16).reshape(32, 22)
+    small = downsample(counts, 2)
+    assert small.shape == (16, 11)
+    assert small[0, 0] == round((0 + 1 + 22 + 23) / 4)
+    assert downsample(counts, 1).tolist() == counts.tolist()
+    assert downsample(counts, 3).shape == (11, 8)  # edges padded
+
+
+@pytest.mark.mosquitto
+@pytest.mark.slow
+def test_pressure_topic_carries_the_downsampled_frames(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
+) -> None:
+    session = write_synthetic_session(tmp_path / "p.scotti", frames=48)
+    with collect(mosquitto, "scotti/press/#") as got:
+        args = ["--replay", str(session.path), "--speed", "8", "--model", str(tiny_model_path)]
+        args += ["--broker", mosquitto.url, "--device-id", "press", "--pressure"]
+        daemon = start_daemon(args, tmp_path / "press.log", env={"SCOTTI_MQTT_FORMAT": "msgpack"})
+        assert daemon.wait(60) == 0, daemon.log
+        got.wait_for(lambda m: any(x.topic.endswith("/status") for x in m), 5)
+    msgs = [m for m in got.snapshot() if m.topic.endswith("/pressure")]
+    assert len(msgs) == 48 - 39
+    assert all(m.content_type == "application/msgpack" for m in msgs)
+    import msgpack
+
+    p = Pressure.model_validate(msgpack.unpackb(msgs[0].payload))
+    assert (p.rows, p.cols, p.downsample) == (16, 11, 2)
+    left = np.frombuffer(p.left, "<u2").reshape(16, 11)
+    expected = downsample(synthetic_counts(Foot.LEFT, p.device_seq.left), 2)
+    np.testing.assert_array_equal(left, expected)
+    assert pressure_grid(msgpack.unpackb(msgs[0].payload), "right") is not None
+
+
+@pytest.mark.mosquitto
+@pytest.mark.slow
+def test_demo_runs_for_a_duration_and_ends_cleanly(tiny_model_path: Path) -> None:
+    pytest.importorskip("scotti.daemon.sources_sim")  # the --simulate source (daemon-core)
+    demo = [sys.executable, "-m", "scotti.daemon.demo", "--duration", "8", "--speed", "2"]
+    out = subprocess.run(
+        [*demo, "--model", str(tiny_model_path)],
+        capture_output=True,
+        text=True,
+        timeout=90,
+        env={k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")},
+    )
+    assert out.returncode == 0, out.stderr + out.stdout[-2000:]
+    assert "\x1b[48;5;" in out.stdout  # heat maps were drawn
+    assert "progress" in out.stdout
+    summary = out.stdout.strip().splitlines()[-1]
+    assert summary.startswith("demo: ")
+    shown = int(summary.split()[1])
+    assert shown > 20
+    assert "daemon exit 0" in summary
