@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
 import contextlib
 import json
 import sys
@@ -40,13 +41,21 @@ class ViewState:
     topic: str = ""
     latest: dict[str, dict[str, Any]] = field(default_factory=dict)
     frames_seen: int = 0
-    started: float = field(default_factory=time.monotonic)
+    arrivals: collections.deque[float] = field(default_factory=lambda: collections.deque(maxlen=33))
 
     def update(self, name: str, data: dict[str, Any], topic: str) -> None:
         self.latest[name] = data
         if name == "pose":
             self.frames_seen += 1
+            self.arrivals.append(time.monotonic())
             self.topic = topic.rsplit("/", 1)[0]
+
+    @property
+    def rate_hz(self) -> float:
+        """Poses per second over the last 32 arrivals (0 once they stop for 1 s)."""
+        if len(self.arrivals) < 2 or time.monotonic() - self.arrivals[-1] > 1.0:
+            return 0.0
+        return (len(self.arrivals) - 1) / max(1e-3, self.arrivals[-1] - self.arrivals[0])
 
 
 def decode_payload(payload: bytes, content_type: str | None) -> dict[str, Any] | None:
@@ -145,7 +154,7 @@ def _latency(state: ViewState) -> str:
     pose = state.latest.get("pose", {})
     health = state.latest.get("health", {})
     p99 = health.get("end_to_end", {}).get("p99_ms")
-    rate = state.frames_seen / max(1e-3, time.monotonic() - state.started)
+    rate = state.rate_hz
     text = f"latency   {pose.get('latency_ms', float('nan')):6.1f} ms (last byte -> publish)"
     if p99 is not None:
         text += f", p99 {p99:.1f} ms"
