@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Final
 
 import numpy as np
-from scotti.models.contract import ACTIONS
+from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim.effects.registry import EffectPlan, parse_effects, realistic_effects
 from scotti.sim.pressure import PressureRenderer
 from scotti.sim.scene import Scene, ScriptEntry, SubjectModel, build_motion
@@ -38,13 +38,17 @@ class BenchResult:
         return self.motion_s + self.session_s  # the session stage renders pressure itself
 
     @property
+    def simulated_s(self) -> float:
+        return self.frames / FRAME_RATE_HZ
+
+    @property
     def ratio(self) -> float:
-        return self.minutes * 60.0 / self.total_s
+        return self.simulated_s / self.total_s
 
     def lines(self) -> list[str]:
-        hour = self.total_s * 60.0 / self.minutes
+        hour = 3600.0 / self.ratio
         return [
-            f"simulated {self.minutes:g} min ({self.frames} frames x 2 feet, 8 actions)",
+            f"simulated {self.simulated_s:.0f} s ({self.frames} frames x 2 feet, 8 actions)",
             f"  motion (sim-body kinematics)     {self.motion_s:8.2f} s",
             f"  pressure + sensor effects only   {self.pressure_s:8.2f} s (measured apart)",
             f"  pressure, packets, session file  {self.session_s:8.2f} s"
@@ -52,7 +56,7 @@ class BenchResult:
             f"  total                            {self.total_s:8.2f} s",
             f"ratio to real time: {self.ratio:.0f}x (target >= {TARGET_RATIO:.0f}x)",
             f"one hour: {hour:.1f} s"
-            + (" (extrapolated linearly)" if self.minutes != 60 else " (measured)"),
+            + (" (measured)" if abs(self.simulated_s - 3600) < 60 else " (extrapolated linearly)"),
         ]
 
 

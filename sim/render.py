@@ -171,11 +171,17 @@ def _draw_timeline(ax: Any, span: Span, marks: list[float]) -> None:
     twin.legend(loc="upper right", fontsize=6)
 
 
-def _snapshot(fig: Any, grid: Any, span: Span, i: int) -> None:
-    sub = grid.subgridspec(2, 2, height_ratios=[1.5, 1.0], hspace=0.2, wspace=0.02)
-    _draw_skeleton(fig.add_subplot(sub[0, 0]), span.keypoints[i], "side")
-    _draw_skeleton(fig.add_subplot(sub[0, 1]), span.keypoints[i], "front")
-    ax = fig.add_subplot(sub[1, :])
+def _snapshot(fig: Any, grid: Any, span: Span, i: int, wide: bool = False) -> None:
+    """Skeleton side and front over both feet, or (``wide``) all three in a row."""
+    if wide:
+        sub = grid.subgridspec(1, 3, wspace=0.05)
+        cells = (sub[0, 0], sub[0, 1], sub[0, 2])
+    else:
+        sub = grid.subgridspec(2, 2, height_ratios=[1.5, 1.0], hspace=0.2, wspace=0.02)
+        cells = (sub[0, 0], sub[0, 1], sub[1, :])
+    _draw_skeleton(fig.add_subplot(cells[0]), span.keypoints[i], "side")
+    _draw_skeleton(fig.add_subplot(cells[1]), span.keypoints[i], "front")
+    ax = fig.add_subplot(cells[2])
     ax.imshow(_anatomical(span.counts[i]), cmap="inferno", vmin=0, vmax=MAX_COUNT * 0.7)
     ax.set_xticks([])
     ax.set_yticks([])
@@ -220,17 +226,16 @@ def render_gif(span: Span, out: str | os.PathLike[str], fps: float = _GIF_FPS) -
     rate = span.header.rate_hz or 16.0
     step = max(1, round(rate / fps))
     frames = list(range(0, len(span.time_s), step))
-    fig = plt.figure(figsize=(6.4, 5.2), dpi=72)
-    grid = fig.add_gridspec(2, 1, height_ratios=[3.0, 1.0], hspace=0.3)
+    fig = plt.figure(figsize=(7.2, 4.8), dpi=72)
 
     def draw(k: int) -> list[Any]:
         fig.clear()
-        g = fig.add_gridspec(2, 1, height_ratios=[3.0, 1.0], hspace=0.3)
-        _snapshot(fig, g[0, 0], span, k)
+        fig.subplots_adjust(left=0.08, right=0.9, top=0.95, bottom=0.1)
+        g = fig.add_gridspec(2, 1, height_ratios=[2.2, 1.0], hspace=0.25)
+        _snapshot(fig, g[0, 0], span, k, wide=True)
         _draw_timeline(fig.add_subplot(g[1, 0]), span, [float(span.time_s[k])])
         return []
 
-    del grid
     anim = FuncAnimation(fig, draw, frames=frames, blit=False)
     path = Path(out)
     anim.save(str(path), writer=PillowWriter(fps=max(1, round(rate / step))))
