@@ -60,17 +60,27 @@ def subject_scene(
 
 
 def render_scene(
-    scene: Scene, path: str | os.PathLike[str], seed: int | None = None
+    scene: Scene,
+    path: str | os.PathLike[str],
+    seed: int | None = None,
+    subject_id: str | None = None,
 ) -> RenderReport:
-    """Motion, pressure and effects of ``scene`` into the session file ``path``."""
+    """Motion, pressure and effects of ``scene`` into the session file ``path``.
+
+    ``subject_id`` goes into the header's subject as "id" (training splits
+    by it); without it readers fall back to the file name.
+    """
     motion = build_motion(scene)
+    subject: dict[str, Any] = motion.subject.as_dict()
+    if subject_id is not None:
+        subject["id"] = subject_id
     return write_session(
         path,
         sim_input(motion),
         seed=scene.seed if seed is None else seed,
         effects=parse_effects(scene.effects),
         scene=scene.model_dump(mode="json"),
-        subject=motion.subject.as_dict(),
+        subject=subject,
     )
 
 
@@ -92,10 +102,10 @@ def write_corpus(
             i, subject, corpus_seed=seed, minutes_per_action=minutes_per_action, effects=effects
         )
         name = f"{scene.name}.ses"
-        report = render_scene(scene, out / name)
+        report = render_scene(scene, out / name, subject_id=scene.name)
         entries.append(
             {
-                "id": i,
+                "id": scene.name,
                 "file": name,
                 "seed": scene.seed,
                 "subject": subject.as_dict(),

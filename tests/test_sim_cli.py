@@ -91,6 +91,7 @@ def test_corpus_writes_sessions_and_manifest(tmp_path: Path) -> None:
     sessions = manifest["sessions"]
     assert [s["file"] for s in sessions] == ["subject-000.ses", "subject-001.ses"]
     assert sessions[0]["seed"] != sessions[1]["seed"]
+    assert read_session(out / "subject-001.ses").header.subject["id"] == "subject-001"  # type: ignore[index]
     assert sessions[0]["subject"] != sessions[1]["subject"]
     assert "packet_loss" in sessions[0]["effects"]
     labels = read_session(out / "subject-000.ses").labels
