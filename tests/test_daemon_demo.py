@@ -109,7 +109,6 @@ def test_pressure_topic_carries_the_downsampled_frames(
 @pytest.mark.mosquitto
 @pytest.mark.slow
 def test_demo_runs_for_a_duration_and_ends_cleanly(tiny_model_path: Path) -> None:
-    pytest.importorskip("scotti.daemon.sources_sim")  # the --simulate source (daemon-core)
     demo = [sys.executable, "-m", "scotti.daemon.demo", "--duration", "8", "--speed", "2"]
     out = subprocess.run(
         [*demo, "--model", str(tiny_model_path)],
@@ -121,7 +120,8 @@ def test_demo_runs_for_a_duration_and_ends_cleanly(tiny_model_path: Path) -> Non
     assert out.returncode == 0, out.stderr + out.stdout[-2000:]
     assert "\x1b[48;5;" in out.stdout  # heat maps were drawn
     assert "progress" in out.stdout
-    summary = out.stdout.strip().splitlines()[-1]
+    assert out.stdout.count("\x1b[?1049h") == out.stdout.count("\x1b[?1049l") == 1  # screen back
+    summary = out.stdout.rsplit("\x1b[?1049l", 1)[1].strip()
     assert summary.startswith("demo: ")
     shown = int(summary.split()[1])
     assert shown > 20
