@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib
 import logging
 import platform
 import signal
 import time
 from importlib import metadata
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from pydantic import BaseModel
@@ -120,10 +121,11 @@ class Daemon:
             return SerialSource(src.port)
         if src.replay is not None:
             return ReplaySource(src.replay, speed=src.speed)
-        from scotti.daemon.sources_sim import SimulatedSource
-
+        # The simulated board (a scene on a pty, read through the serial source) is
+        # daemon-core's; looked up at run time so the service does not depend on it.
         assert src.simulate is not None
-        return SimulatedSource(src.simulate, speed=src.speed)
+        sources_sim = importlib.import_module("scotti.daemon.sources_sim")
+        return cast(Source, sources_sim.SimulatedSource(src.simulate, speed=src.speed))
 
     def _make_recorder(self) -> Recorder | None:
         if self.settings.record is None:
