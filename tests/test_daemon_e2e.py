@@ -19,6 +19,7 @@ import pytest
 from scotti.daemon.board_emulator import BoardEmulator
 from scotti.daemon.local_broker import Mosquitto
 from scotti.daemon.schemas import Action, Health, Info, Pose, Progress, Status
+from scotti.firmware_protocol.session import read_session
 from scotti.models.contract import KEYPOINTS, WINDOW
 
 from tests.support.broker import Received, collect, payloads, start_daemon
@@ -45,10 +46,17 @@ def offline(msgs: list[Received]) -> bool:
 
 
 def replay(
-    broker: Mosquitto, session: Path, model: Path, tmp_path: Path, device: str, **env: str
+    broker: Mosquitto,
+    session: Path,
+    model: Path,
+    tmp_path: Path,
+    device: str,
+    *extra: str,
+    **env: str,
 ) -> list[Received]:
     with collect(broker, f"scotti/{device}/#") as got:
         args = daemon_args(broker, model, device, "--replay", str(session), "--speed", "8")
+        args += extra
         daemon = start_daemon(args, tmp_path / f"{device}.log", env=env)
         assert daemon.wait(60) == 0, daemon.log
         got.wait_for(offline, 5, "status offline")
@@ -121,8 +129,15 @@ def test_replay_publishes_joinable_valid_frames_deterministically(
     assert any(n.startswith("STATUS=") and "broker connected" in n for n in notes)
     assert "STOPPING=1" in notes
 
-    second = replay(mosquitto, session.path, tiny_model_path, tmp_path, "e2e-b")
+    recording = tmp_path / "recorded.scotti"
+    second = replay(
+        mosquitto, session.path, tiny_model_path, tmp_path, "e2e-b", "--record", str(recording)
+    )
     assert prediction_view(second) == prediction_view(first)  # same file, same predictions
+    recorded = read_session(recording)  # --record kept every byte, closed cleanly
+    assert recorded.header.source == "recorded"
+    assert b"".join(p.data for p in recorded.packets) == session.data
+    assert not recorded.truncated
 
 
 def test_live_board_subscriber_example_and_last_will_on_sigkill(
