@@ -1,0 +1,169 @@
+"""What the experiment drivers share: running ``scotti`` verbs, partitions, budgets, tables.
+
+The drivers are plain scripts, not part of the installed daemon. They call
+the ``scotti`` CLI verbs in subprocesses (train, export, eval), so each
+figure in the docs comes from the same commands a user would type, and
+every command line they run is logged to be quoted in the docs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / "data" / "corpus"
+REALISTIC = DATA / "realistic"
+CLEAN = DATA / "clean"
+PARTITIONS = ROOT / "experiments" / "partitions.json"
+RUNS = ROOT / "runs"
+DOCS = ROOT / "docs"
+IMG = DOCS / "img"
+
+# Command lines run so far in this process, to be quoted in the docs.
+COMMANDS: list[str] = []
+
+
+class ExperimentError(Exception):
+    """A step failed: one line for the user."""
+
+
+def scotti_command(*args: str | Path) -> list[str]:
+    """The ``scotti`` CLI of this interpreter's environment."""
+    return [sys.executable, "-m", "scotti.cli.main", *map(str, args)]
+
+
+def shown(cmd: Sequence[str]) -> str:
+    """A command line as a user would type it (``scotti ...``, paths relative to the repo)."""
+    words = list(cmd)
+    if words[:3] == [sys.executable, "-m", "scotti.cli.main"]:
+        words = ["scotti", *words[3:]]
+    elif words[:1] == [sys.executable]:
+        words = ["python", *words[1:]]
+    root = str(ROOT) + os.sep
+    return shlex.join(w.replace(root, "") for w in words)
+
+
+def run(cmd: Sequence[str], log: Path | None = None, *, quote: bool = True) -> str:
+    """Run ``cmd`` from the repository root; its stdout is returned, both streams logged."""
+    line = shown(cmd)
+    if quote:
+        COMMANDS.append(line)
+    print(f"$ {line}", flush=True)
+    started = time.monotonic()
+    proc = subprocess.run(list(cmd), cwd=ROOT, capture_output=True, text=True, check=False)
+    if log is not None:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with log.open("a") as f:
+            f.write(f"$ {line}\n{proc.stdout}{proc.stderr}\n")
+    if proc.returncode != 0:
+        tail = (proc.stderr.strip() or proc.stdout.strip()).splitlines()[-1:] or ["(no output)"]
+        msg = f"{line!r} failed with status {proc.returncode}: {tail[0]}"
+        raise ExperimentError(msg)
+    print(f"  ({time.monotonic() - started:.0f} s)", flush=True)
+    return proc.stdout
+
+
+# --- partitions -----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Partition:
+    name: str
+    train: tuple[str, ...]  # subject ids (session file stems)
+    test: tuple[str, ...]
+
+    def test_files(self, corpus: Path = REALISTIC) -> list[Path]:
+        return [session_file(corpus, s) for s in self.test]
+
+
+def session_file(corpus: Path, subject: str) -> Path:
+    path = corpus / f"{subject}.ses"
+    if not path.is_file():
+        msg = f"{path} is missing: run python experiments/corpus.py first"
+        raise ExperimentError(msg)
+    return path
+
+
+def load_partitions(path: Path = PARTITIONS) -> list[Partition]:
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        msg = f"cannot read {path}: {exc}; run python experiments/corpus.py first"
+        raise ExperimentError(msg) from None
+    return [Partition(p["name"], tuple(p["train"]), tuple(p["test"])) for p in raw["partitions"]]
+
+
+# --- training within a budget ---------------------------------------------------
+
+THROUGHPUT = re.compile(r"chunked ([0-9.]+) windows/s")
+WINDOWS = re.compile(r"windows train (\d+)")
+
+
+def epochs_for(budget_min: float, windows_per_s: float, train_windows: int, stride: int) -> int:
+    """Whole epochs that fit the budget (at least 1), so the LR schedule runs to its end."""
+    per_epoch = max(1, train_windows // stride)
+    return max(1, math.floor(0.9 * budget_min * 60.0 * windows_per_s / per_epoch))
+
+
+def last_history(run_dir: Path) -> dict[str, Any]:
+    """The final epoch record of a run (history.jsonl), empty if none."""
+    path = run_dir / "history.jsonl"
+    if not path.is_file():
+        return {}
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+    return dict(json.loads(lines[-1])) if lines else {}
+
+
+# --- figures --------------------------------------------------------------------
+
+
+def mean_sd(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value); NaNs left out."""
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    if not v:
+        return math.nan, math.nan
+    mean = sum(v) / len(v)
+    if len(v) == 1:
+        return mean, 0.0
+    return mean, math.sqrt(sum((x - mean) ** 2 for x in v) / (len(v) - 1))
+
+
+def fmt(values: Sequence[float], digits: int, scale: float = 1.0) -> str:
+    """``mean ± sd`` over the partitions, or a dash."""
+    kept = [x * scale for x in values if x is not None and math.isfinite(x)]
+    mean, sd = mean_sd(kept)
+    if not math.isfinite(mean):
+        return "-"
+    if len(kept) == 1:
+        return f"{mean:.{digits}f}"  # one value has no spread
+    return f"{mean:.{digits}f} ± {sd:.{digits}f}"
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return lines
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    return dict(json.loads(path.read_text()))
+
+
+def write_json(path: Path, value: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(value, indent=2) + "\n")
+
+
+def utc_now() -> str:
+    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())

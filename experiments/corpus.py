@@ -1,0 +1,94 @@
+"""The evaluation corpus and its three subject-wise partitions, in one command.
+
+    nice -n 5 python experiments/corpus.py [--subjects 15] [--minutes-per-action 2]
+
+Writes data/corpus/realistic/ (every subject with the simulator's
+``realistic`` effects preset: sensor gain spread, noise, hysteresis and creep,
+crosstalk, clock drift, jitter, packet loss, ...; the preset draws them per
+subject), data/corpus/clean/ (the same subjects and motions, no effects) and
+experiments/partitions.json: three partitions of 10 training and 5 test
+subjects with disjoint test sets, so that every subject is tested exactly once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from common import CLEAN, PARTITIONS, REALISTIC, ExperimentError, run, scotti_command, write_json
+
+PARTITION_SEED = 2024  # which subjects land in which test set
+
+
+def partitions(subject_ids: list[str], folds: int = 3, seed: int = PARTITION_SEED) -> list[dict]:
+    """``folds`` partitions; partition k tests the k-th slice of a seeded shuffle."""
+    import numpy as np
+
+    order = [subject_ids[i] for i in np.random.default_rng(seed).permutation(len(subject_ids))]
+    size = len(order) // folds
+    out = []
+    for k in range(folds):
+        test = sorted(order[k * size : (k + 1) * size])
+        train = sorted(s for s in subject_ids if s not in test)
+        out.append({"name": f"p{k + 1}", "train": train, "test": test})
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python experiments/corpus.py", description=__doc__)
+    parser.add_argument("--subjects", type=int, default=15)
+    parser.add_argument("--minutes-per-action", type=float, default=2.0)
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args(argv)
+    try:
+        for effects, out in (("realistic", REALISTIC), ("none", CLEAN)):
+            if (out / "manifest.json").is_file():
+                print(f"{out} exists: kept (delete it to render again)")
+                continue
+            run(
+                scotti_command(
+                    "sim",
+                    "corpus",
+                    "-o",
+                    out,
+                    "--subjects",
+                    str(args.subjects),
+                    "--seed",
+                    str(args.seed),
+                    "--minutes-per-action",
+                    str(args.minutes_per_action),
+                    "--effects",
+                    effects,
+                )
+            )
+        manifest = json.loads((REALISTIC / "manifest.json").read_text())
+        ids = [entry["file"].rsplit(".", 1)[0] for entry in manifest["sessions"]]
+        if len(ids) % 3:
+            msg = f"{len(ids)} subjects do not split into three equal test sets"
+            raise ExperimentError(msg)
+        write_json(
+            PARTITIONS,
+            {
+                "corpus": {
+                    "realistic": str(REALISTIC.relative_to(REALISTIC.parents[2])),
+                    "clean": str(CLEAN.relative_to(CLEAN.parents[2])),
+                    "subjects": len(ids),
+                    "minutes_per_action": manifest["minutes_per_action"],
+                    "seed": manifest["seed"],
+                    "effects": sorted({e for s in manifest["sessions"] for e in s["effects"]}),
+                    "total_hours": round(manifest["total_duration_s"] / 3600, 2),
+                },
+                "partition_seed": PARTITION_SEED,
+                "partitions": partitions(ids),
+            },
+        )
+        print(f"wrote {PARTITIONS}")
+    except ExperimentError as exc:
+        print(f"corpus: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,174 @@
+"""Budgeted, resumable training runs through ``scotti train`` (or its loss-weight wrapper).
+
+A run lives in runs/<group>/<name>/ with ``plan.json``: the epochs and
+stride chosen from the measured throughput so that the LR schedule ends
+inside the run's share of the budget, and the seconds of training it has
+had (``trained_s``). Calling ``train`` again resumes it from last.pt until its
+planned epochs are done; each call spends at most the time it is given.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from common import (
+    REALISTIC,
+    RUNS,
+    THROUGHPUT,
+    WINDOWS,
+    ExperimentError,
+    Partition,
+    read_json,
+    run,
+    scotti_command,
+    shown,
+    write_json,
+)
+
+CACHE = RUNS / ".session-cache"
+VARIANT = Path(__file__).resolve().parent / "train_variant.py"
+EPOCHS = 3  # epochs a budget is cut into: the schedule's warmup and decay both happen
+MAX_STRIDE = 40  # T: a larger stride would skip frames entirely
+LR = 1e-3  # short budgets want a brisk learning rate (Adam, warmup + cosine)
+
+# Loss weights per variant: the multi-task model and its single-task variants (Table 3).
+VARIANTS: dict[str, str | None] = {
+    "multi": None,  # scotti train's defaults: pose 0.01, action 1, progress 1
+    "pose": "0.01,0,0",
+    "action": "0,1,0",
+    "progress": "0,0,1",
+}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    run_dir: Path
+    partition: Partition
+    config: str  # preset name or JSON object, as scotti train --config takes it
+    variant: str = "multi"
+    threads: int = 2
+    val_stride: int = 32  # validation is for the log only: keep it cheap
+
+    def train_args(self, *, epochs: int, stride: int, minutes: float, resume: bool) -> list[str]:
+        args = [
+            str(REALISTIC),
+            "-o",
+            str(self.run_dir),
+            "--config",
+            self.config,
+            "--test-subjects",
+            *self.partition.test,
+            "--epochs",
+            str(epochs),
+            "--stride",
+            str(stride),
+            "--val-stride",
+            str(self.val_stride),
+            "--lr",
+            str(LR),
+            "--threads",
+            str(self.threads),
+            "--max-minutes",
+            f"{minutes:.2f}",
+            "--cache",
+            str(CACHE),
+            "--no-progress",
+        ]
+        return [*args, "--resume"] if resume else args
+
+    def command(self, args: list[str]) -> list[str]:
+        weights = VARIANTS[self.variant]
+        if weights is None:
+            return scotti_command("train", *args)
+        return [sys.executable, str(VARIANT), "--loss-weights", weights, *args]
+
+
+def measure(spec: RunSpec, log: Path) -> tuple[float, int]:
+    """(training windows/s, training windows at stride 1) of this config and partition."""
+    out = run(
+        scotti_command(
+            "train",
+            *spec.train_args(epochs=1, stride=2, minutes=1, resume=False),
+            "--benchmark",
+            "3",
+        ),
+        log,
+        quote=False,
+    )
+    text = out + log.read_text()
+    rate, windows = THROUGHPUT.search(text), WINDOWS.findall(text)
+    if rate is None or not windows:
+        msg = f"could not read the throughput from {log}"
+        raise ExperimentError(msg)
+    return float(rate.group(1)), int(windows[-1])
+
+
+def plan(spec: RunSpec, budget_s: float, rate: float, windows: int) -> dict[str, Any]:
+    """Epochs and stride so that EPOCHS epochs fit ``budget_s`` at ``rate`` windows/s."""
+    per_epoch = 0.85 * budget_s * rate / EPOCHS  # windows one epoch may have
+    stride = min(MAX_STRIDE, max(2, math.ceil(windows / max(1.0, per_epoch))))
+    return {
+        "config": spec.config,
+        "variant": spec.variant,
+        "loss_weights": VARIANTS[spec.variant] or "0.01,1,1",
+        "partition": spec.partition.name,
+        "budget_s": budget_s,
+        "measured_windows_per_s": rate,
+        "train_windows_stride_1": windows,
+        "epochs": EPOCHS,
+        "stride": stride,
+        "trained_s": 0.0,
+        "status": "planned",
+        "commands": [],
+    }
+
+
+def train(spec: RunSpec, budget_s: float, rate: float, windows: int, log: Path) -> dict[str, Any]:
+    """Train (or resume) until the planned epochs are done or this call's time is spent."""
+    path = spec.run_dir / "plan.json"
+    state = read_json(path) if path.is_file() else plan(spec, budget_s, rate, windows)
+    if state["status"] == "done":
+        return state
+    left = state["budget_s"] - state["trained_s"]
+    if left <= 5:
+        state["status"] = "budget spent"
+        write_json(path, state)
+        return state
+    resume = (spec.run_dir / "last.pt").is_file()
+    args = spec.train_args(
+        epochs=state["epochs"], stride=state["stride"], minutes=left / 60.0, resume=resume
+    )
+    cmd = spec.command(args)
+    started = time.monotonic()
+    run(cmd, log)
+    state["trained_s"] += time.monotonic() - started
+    state["commands"].append(shown(cmd))
+    history = _history(spec.run_dir)
+    state["epochs_done"] = len(history)
+    state["status"] = "done" if len(history) >= state["epochs"] else "stopped"
+    write_json(path, state)
+    return state
+
+
+def export(run_dir: Path, onnx: Path, log: Path, *, int8: bool = False) -> Path:
+    """last.pt -> ONNX (checked against torch by scotti export); skipped when up to date."""
+    ckpt = run_dir / "last.pt"
+    if onnx.is_file() and onnx.stat().st_mtime > ckpt.stat().st_mtime:
+        return onnx
+    onnx.parent.mkdir(parents=True, exist_ok=True)
+    args = ["export", ckpt, "-o", onnx, *(["--int8"] if int8 else [])]
+    run(scotti_command(*args), log)
+    return onnx
+
+
+def _history(run_dir: Path) -> list[dict[str, Any]]:
+    path = run_dir / "history.jsonl"
+    if not path.is_file():
+        return []
+    return [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
