@@ -24,7 +24,9 @@ Behaviour worth knowing:
   as a USB receiver drops what the host does not take; the board never blocks.
 - ``loop=True`` starts over at the end: the sequence numbers and board clocks
   of the session repeat, so the host sees them jump back (as after a board
-  reset) once per loop.
+  reset) once per loop. The host's frame assembler takes a jump back of fewer
+  than 64 frames for late packets, so sessions meant to loop should be longer
+  than 4 s.
 """
 
 from __future__ import annotations

@@ -101,7 +101,8 @@ def write_synthetic_session(
                     records.append((t, data))
                     t += 1_000_000  # the radio spreads the blocks over a few ms
             if garbage_every and (i + 1) % garbage_every == 0:
-                noise = bytes([0x55, 0x00, 0x13, 0x37, 0xFF, 0x00, 0x42])
+                # Line noise that ends in a delimiter, so no real packet is lost to it.
+                noise = bytes([0x55, 0x00, 0x13, 0x37, 0xFF, 0x00, 0x42, 0x00])
                 writer.write_packet(t, noise)
                 records.append((t, noise))
             if labels:

@@ -1,0 +1,328 @@
+"""Left and right foot frames paired into one model input per moment (sans-I/O).
+
+Each insole board counts its own frames (u16 seq) and keeps its own clock
+(u32 us); both wrap and the two boards' seqs may be offset from each other.
+Every frame is mapped to a pair index ``k`` (one per moment, 16 Hz):
+``k = unwrapped seq - offset`` per foot. A foot's offset is learned when it
+first appears (or after its board restarted): its frame pairs with the other
+foot's newest frame if that one still waits for a partner, else with the next
+moment. Pairs leave in ``k`` order, never twice.
+
+What happens when things go wrong (each counted, each flagged on the pair):
+- duplicates are dropped; a frame for a moment already sent is dropped (late);
+- a frame may arrive up to ``reorder_frames`` moments out of order;
+- a foot missing at a moment is waited for ``reorder_frames`` moments, then
+  held (its last frame repeated, ``left_held``) for up to ``hold_s``, then
+  filled with zeros (``left_filled``) and reported silent: the state degrades;
+- a short gap of both feet is bridged with held frames, so the window keeps
+  its 16 Hz cadence; a gap longer than ``gap_s`` starts the window over
+  (``restart``) instead of pretending the frames in between happened;
+- missing rows of a frame are taken from that foot's previous frame
+  (``rows_missing``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Final, Protocol
+
+import numpy as np
+import numpy.typing as npt
+from scotti.firmware_protocol.wrap import clock_delta_us, seq_delta
+from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS
+
+LEFT: Final = 0
+RIGHT: Final = 1
+FOOT_NAMES: Final = ("left", "right")
+_SEQ_MASK: Final = 0xFFFF
+_CLOCK_MASK: Final = 0xFFFFFFFF
+_RECENT: Final = 64  # seqs per foot remembered to spot duplicates
+
+
+class FootFrameLike(Protocol):
+    """What pairing reads of ``firmware_protocol``'s ``FootFrame``."""
+
+    @property
+    def foot(self) -> int: ...
+    @property
+    def seq(self) -> int: ...
+    @property
+    def board_clock_us(self) -> int: ...
+    @property
+    def counts(self) -> npt.NDArray[np.uint16]: ...
+    @property
+    def rows_missing(self) -> npt.NDArray[np.bool_]: ...
+    @property
+    def last_byte_ns(self) -> int: ...
+
+
+@dataclass(frozen=True)
+class PairingConfig:
+    rate_hz: float = FRAME_RATE_HZ
+    reorder_frames: int = 2  # moments to wait for a late or missing frame
+    hold_s: float = 0.5  # a silent foot is held this long, then filled and reported silent
+    gap_s: float = 1.0  # a longer gap of both feet restarts the window
+
+    @property
+    def period_us(self) -> float:
+        return 1e6 / self.rate_hz
+
+    @property
+    def hold_frames(self) -> int:
+        return round(self.hold_s * self.rate_hz)
+
+    @property
+    def gap_frames(self) -> int:
+        return round(self.gap_s * self.rate_hz)
+
+
+@dataclass(frozen=True, eq=False)
+class PairedFrame:
+    """One moment: both feet side by side, as the model takes it."""
+
+    counts: npt.NDArray[np.uint16]  # (H, 2W): left columns then right columns
+    seqs: tuple[int, int]  # device seqs (left, right); a held foot's expected seq; -1 unknown
+    clocks: tuple[int, int]  # board clocks in us (left, right), estimated when held; -1 unknown
+    last_byte_mono_ns: int  # host time of the last byte of the newest frame in the pair
+    flags: tuple[str, ...] = ()
+    restart: bool = False  # the window must start over with this frame
+
+
+@dataclass
+class PairingCounters:
+    frames_in: list[int] = field(default_factory=lambda: [0, 0])  # per foot
+    duplicates: int = 0
+    late: int = 0  # arrived after its moment was sent
+    bad_geometry: int = 0  # frames whose shape is not the model's
+    held: list[int] = field(default_factory=lambda: [0, 0])  # pairs with the foot held
+    filled: list[int] = field(default_factory=lambda: [0, 0])  # pairs with the foot zero-filled
+    rows_missing: int = 0  # frames completed from the previous frame
+    gaps: int = 0  # moments bridged with both feet held
+    restarts: int = 0  # long gaps: the window started over
+    resyncs: int = 0  # a board's seqs jumped (restart, loop): its offset was learned again
+    pairs_out: int = 0
+
+
+@dataclass
+class _Entry:
+    counts: npt.NDArray[np.uint16]
+    seq: int
+    clock: int
+    last_byte_ns: int
+    rows_missing: bool
+
+
+@dataclass
+class _Track:
+    """What is known about one foot's board."""
+
+    offset: int | None = None  # k = ext - offset
+    ext: int = 0  # unwrapped seq of the newest frame (by seq)
+    raw_seq: int = 0
+    clock: int = 0
+    newest_k: int | None = None
+    last_counts: npt.NDArray[np.uint16] | None = None  # newest frame, to complete missing rows
+    sent: _Entry | None = None  # the last frame of this foot that went out, to hold
+    missed: int = 0  # consecutive pairs sent without this foot
+    recent: deque[int] = field(default_factory=lambda: deque(maxlen=_RECENT))
+
+
+class Pairing:
+    """``push(FootFrame) -> [PairedFrame]``; ``flush()`` at the end of a stream."""
+
+    def __init__(self, config: PairingConfig | None = None) -> None:
+        self.config = config if config is not None else PairingConfig()
+        self.counters = PairingCounters()
+        self._tracks = (_Track(), _Track())
+        self._pending: dict[int, dict[int, _Entry]] = {}
+        self._next_k: int | None = None
+        self._restart_next = False
+        self._last_arrival_ns = 0
+
+    # --- public --------------------------------------------------------------
+
+    def foot_states(self) -> dict[str, str]:
+        """{"left": "ok"|"silent", "right": ...}: silent once held longer than ``hold_s``."""
+        return {
+            FOOT_NAMES[f]: "silent" if t.missed > self.config.hold_frames else "ok"
+            for f, t in enumerate(self._tracks)
+        }
+
+    def reset(self) -> None:
+        """Forget everything (the source reconnected): offsets are learned again."""
+        self._tracks = (_Track(), _Track())
+        self._pending.clear()
+        self._next_k = None
+        self._restart_next = True
+
+    def push(self, frame: FootFrameLike) -> list[PairedFrame]:
+        foot = int(frame.foot)
+        if foot not in (LEFT, RIGHT) or frame.counts.shape != (FRAME_ROWS, FRAME_COLS):
+            self.counters.bad_geometry += 1
+            return []
+        self.counters.frames_in[foot] += 1
+        out: list[PairedFrame] = []
+        k = self._place(foot, frame)
+        track = self._tracks[foot]
+        if k in track.recent:
+            self.counters.duplicates += 1
+            return out
+        if self._next_k is None:
+            self._next_k = k
+        if k < self._next_k:
+            self.counters.late += 1
+            track.missed = 0  # too late to use, but the foot is back: wait for its next frame
+            return out
+        if k - (self._next_k - 1) > self.config.gap_frames:
+            out += self._send_pending()  # what came before the gap still goes out
+            self._next_k = k
+            self._restart_next = True
+            self.counters.restarts += 1
+        track.recent.append(k)
+        entry = self._entry(track, frame)
+        self._pending.setdefault(k, {})[foot] = entry
+        if track.newest_k is None or k > track.newest_k:
+            track.newest_k = k
+        self._last_arrival_ns = frame.last_byte_ns
+        out += self._drain()
+        return out
+
+    def flush(self) -> list[PairedFrame]:
+        """Send every pending moment (end of a replay), holding what is missing."""
+        return self._send_pending()
+
+    # --- placing a frame -----------------------------------------------------
+
+    def _place(self, foot: int, frame: FootFrameLike) -> int:
+        """The pair index of ``frame``; learns the foot's offset when needed."""
+        track = self._tracks[foot]
+        if track.offset is None:
+            return self._learn(foot, frame)
+        d = seq_delta(frame.seq, track.raw_seq)
+        # A step back (late frame) or a long step forward (gap) must agree with the
+        # board's clock; if it does not, the board restarted. No frame is a second
+        # late: a longer step back is a restart (or a replay that looped) whatever the clock.
+        gap = self.config.gap_frames
+        if d < -gap or ((d < 0 or d > gap) and not self._clock_agrees(track, frame, d)):
+            self.counters.resyncs += 1
+            return self._learn(foot, frame)
+        if d > 0:
+            track.ext += d
+            track.raw_seq, track.clock = frame.seq, frame.board_clock_us
+            return track.ext - track.offset
+        return track.ext + d - track.offset
+
+    def _clock_agrees(self, track: _Track, frame: FootFrameLike, d: int) -> bool:
+        """Did the board's clock run as long as its seq says? (No: it restarted.)"""
+        elapsed = clock_delta_us(frame.board_clock_us, track.clock)
+        expected = d * self.config.period_us
+        return abs(elapsed - expected) <= 0.2 * abs(expected)
+
+    def _learn(self, foot: int, frame: FootFrameLike) -> int:
+        track, other = self._tracks[foot], self._tracks[1 - foot]
+        next_k = self._next_k
+        other_active = (
+            other.newest_k is not None
+            and other.missed == 0
+            and (next_k is None or other.newest_k >= next_k - 1 - self.config.reorder_frames)
+        )
+        if other_active:
+            assert other.newest_k is not None
+            waiting = self._pending.get(other.newest_k, {})
+            k = other.newest_k if (waiting and foot not in waiting) else other.newest_k + 1
+        else:
+            k = 0 if next_k is None else next_k
+            gap_ns = frame.last_byte_ns - self._last_arrival_ns
+            if next_k is not None and self._last_arrival_ns and gap_ns > self.config.gap_s * 1e9:
+                k = next_k + self.config.gap_frames + 1  # nothing to align to: go by host time
+        track.recent.clear()
+        track.ext, track.raw_seq, track.clock = frame.seq, frame.seq, frame.board_clock_us
+        track.offset = frame.seq - k
+        return k
+
+    def _entry(self, track: _Track, frame: FootFrameLike) -> _Entry:
+        counts = np.asarray(frame.counts, dtype=np.uint16)
+        missing = np.asarray(frame.rows_missing, dtype=bool)
+        has_missing = bool(missing.any())
+        if has_missing:
+            counts = counts.copy()
+            counts[missing] = 0 if track.last_counts is None else track.last_counts[missing]
+            self.counters.rows_missing += 1
+        track.last_counts = counts
+        return _Entry(counts, frame.seq, frame.board_clock_us, frame.last_byte_ns, has_missing)
+
+    # --- sending pairs -------------------------------------------------------
+
+    def _drain(self) -> list[PairedFrame]:
+        out: list[PairedFrame] = []
+        reorder = self.config.reorder_frames
+        while self._next_k is not None and self._pending:
+            k = self._next_k
+            entry = self._pending.get(k, {})
+            newest = max(t.newest_k for t in self._tracks if t.newest_k is not None)
+            if len(entry) == 2 or newest - k >= reorder or self._other_known_silent(entry):
+                out.append(self._send(k))
+            else:
+                break
+        return out
+
+    def _other_known_silent(self, entry: dict[int, _Entry]) -> bool:
+        """One foot is here and has been all along, the other is already being held."""
+        if len(entry) != 1:
+            return False
+        present = next(iter(entry))
+        return self._tracks[present].missed == 0 and self._tracks[1 - present].missed > 0
+
+    def _send_pending(self) -> list[PairedFrame]:
+        out: list[PairedFrame] = []
+        while self._next_k is not None and self._pending:
+            out.append(self._send(self._next_k))
+        return out
+
+    def _send(self, k: int) -> PairedFrame:
+        entry = self._pending.pop(k, {})
+        if not entry:
+            self.counters.gaps += 1
+        self._next_k = k + 1
+        halves: list[npt.NDArray[np.uint16]] = []
+        seqs: list[int] = []
+        clocks: list[int] = []
+        flags: list[str] = []
+        last_byte = 0
+        for foot, track in enumerate(self._tracks):
+            got = entry.get(foot)
+            name = FOOT_NAMES[foot]
+            if got is not None:
+                track.missed = 0
+                track.sent = got
+                halves.append(got.counts)
+                seqs.append(got.seq)
+                clocks.append(got.clock)
+                last_byte = max(last_byte, got.last_byte_ns)
+                if got.rows_missing:
+                    flags.append("rows_missing")
+                continue
+            track.missed += 1
+            held = track.sent
+            if held is not None and track.missed <= self.config.hold_frames:
+                halves.append(held.counts)
+                flags.append(f"{name}_held")
+                self.counters.held[foot] += 1
+            else:
+                halves.append(np.zeros((FRAME_ROWS, FRAME_COLS), dtype=np.uint16))
+                flags.append(f"{name}_filled")
+                self.counters.filled[foot] += 1
+            seqs.append(-1 if track.offset is None else (k + track.offset) & _SEQ_MASK)
+            step = round(track.missed * self.config.period_us)
+            clocks.append(-1 if held is None else (held.clock + step) & _CLOCK_MASK)
+        restart, self._restart_next = self._restart_next, False
+        self.counters.pairs_out += 1
+        return PairedFrame(
+            counts=np.concatenate(halves, axis=1),
+            seqs=(seqs[LEFT], seqs[RIGHT]),
+            clocks=(clocks[LEFT], clocks[RIGHT]),
+            last_byte_mono_ns=last_byte,
+            flags=tuple(dict.fromkeys(flags)),
+            restart=restart,
+        )

@@ -1,0 +1,267 @@
+"""One frame's way through the daemon: source -> record -> decode -> assemble ->
+pair -> window/inference -> ``on_prediction``.
+
+Everything here runs on the event loop except the model, which runs on the
+inference worker's thread. Nothing on this path blocks: a live source is
+never made to wait (frames inference cannot keep up with are dropped,
+counted, and the window restarts); a replay is made to wait instead, so the
+same session always gives the same predictions.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Final, Literal, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+from scotti.daemon.counters import Counters
+from scotti.daemon.inference import InferenceJob, InferenceResult, InferenceWorker
+from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
+from scotti.daemon.recording import Recorder
+from scotti.daemon.repetitions import RepetitionCounter
+from scotti.daemon.sources import Source, SourceEvent
+from scotti.daemon.window import Window
+from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
+from scotti.firmware_protocol.errors import DecodeError
+from scotti.firmware_protocol.framing import StreamDecoder
+from scotti.firmware_protocol.packets import BoardStatus, FrameRows
+from scotti.models.contract import FRAME_RATE_HZ
+from scotti.models.runtime import ScottiRuntime
+
+log = logging.getLogger(__name__)
+
+FRAME_PERIOD_NS: Final = round(1e9 / FRAME_RATE_HZ)
+T = TypeVar("T")
+
+
+@dataclass(frozen=True, eq=False)
+class Prediction:
+    seq: int  # host-side count of paired frames since start (continuous)
+    left_seq: int  # device u16 seqs of the newest pair (-1: that foot never seen)
+    right_seq: int
+    device_clock_us: int  # left board clock of the newest frame (right's if no left)
+    host_wall_ns: int  # when the prediction was made
+    host_mono_ns: int
+    predicted_for_mono_ns: int  # newest frame's time + 1/16 s: the model looks one ahead
+    last_byte_mono_ns: int  # last byte of the newest frame
+    pose: npt.NDArray[np.float32]  # (19, 3) metres, pose frame
+    action_probs: npt.NDArray[np.float32]  # (8,)
+    action: int  # index into ACTIONS
+    progress: float  # 0..1
+    repetition: int  # repetitions completed in the current action
+    flags: tuple[str, ...]  # "left_held", "right_filled", "rows_missing", ...
+    inference_ms: float
+
+
+@dataclass(frozen=True)
+class PipelineState:
+    source: Literal["connected", "disconnected"]
+    feet: dict[str, str] = field(default_factory=lambda: {"left": "ok", "right": "ok"})
+    warming: tuple[int, int] = (0, 0)  # (frames_in_window, needed)
+    reasons: tuple[str, ...] = ()  # why the output is degraded, one line each
+
+
+class Pipeline:
+    """Reads ``source`` until it ends or ``stop`` is set."""
+
+    def __init__(
+        self,
+        source: Source,
+        runtime: ScottiRuntime,
+        counters: Counters,
+        recorder: Recorder | None = None,
+        *,
+        pairing: PairingConfig | None = None,
+        max_queue: int = 16,
+    ) -> None:
+        self.source = source
+        self.counters = counters
+        self.recorder = recorder
+        self.decoder = StreamDecoder()
+        self.assembler = FrameAssembler()
+        self.pairing = Pairing(pairing)
+        counters.pairing = self.pairing.counters
+        self.window = Window(runtime)
+        self.worker = InferenceWorker(self.window, self._on_result, max_queue=max_queue)
+        self.repetitions = RepetitionCounter()
+        self._seq = 0
+        self._connected = False
+        self._disconnect_reason = "not connected yet"
+        self._warming = (0, self.window.needed)
+        self._model_error: str | None = None
+        self._state: PipelineState | None = None
+        self._on_prediction: Callable[[Prediction], None] = lambda _: None
+        self._on_state: Callable[[PipelineState], None] = lambda _: None
+
+    async def run(
+        self,
+        on_prediction: Callable[[Prediction], None],
+        on_state: Callable[[PipelineState], None],
+        stop: asyncio.Event,
+    ) -> None:
+        self._on_prediction, self._on_state = on_prediction, on_state
+        self.worker.start()
+        self._update_state()
+        consume = asyncio.create_task(self._consume(), name="pipeline-consume")
+        stopper = asyncio.create_task(stop.wait(), name="pipeline-stop")
+        try:
+            await asyncio.wait({consume, stopper}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (consume, stopper):
+                task.cancel()
+            await asyncio.gather(consume, stopper, return_exceptions=True)
+            await self.worker.stop()
+        if not consume.cancelled() and (exc := consume.exception()) is not None:
+            raise exc
+
+    # --- bytes in --------------------------------------------------------------
+
+    async def _consume(self) -> None:
+        async with contextlib.aclosing(self.source.stream()) as items:
+            async for item in items:
+                if isinstance(item, SourceEvent):
+                    await self._on_source_event(item)
+                else:
+                    await self._on_chunk(*item)
+                self._update_state()
+        await self._end_of_stream()
+        await self.worker.wait_below(1)  # every frame's result delivered
+
+    async def _on_chunk(self, t_ns: int, data: bytes) -> None:
+        counters = self.counters
+        counters.bytes_in += len(data)
+        counters.chunks_in += 1
+        if self.recorder is not None:
+            self.recorder.tap(t_ns, data)
+        for packet in self.decoder.feed(data):
+            if isinstance(packet, FrameRows):
+                for frame in self.assembler.push(packet, t_ns):
+                    await self._pair(frame)
+            elif isinstance(packet, BoardStatus):
+                counters.board_status += 1
+            elif isinstance(packet, DecodeError):
+                log.debug("bad packet: %s", packet)
+        counters.bad_packets = self.decoder.counters.as_dict()
+        counters.assembler = self.assembler.counters.as_dict()
+
+    async def _on_source_event(self, event: SourceEvent) -> None:
+        counters = self.counters
+        if event.kind == "connected":
+            counters.connects += 1
+            counters.reconnects = max(0, counters.connects - 1)
+            self._connected = True
+            return
+        if self._connected:
+            counters.disconnects += 1
+        self._connected = False
+        self._disconnect_reason = event.reason
+        # What arrived before the cut still goes through; after it, everything is
+        # learned afresh (offsets, partial packets) and the window warms up again.
+        await self._end_of_stream()
+        self.decoder.reset()
+        self.pairing.reset()
+
+    async def _end_of_stream(self) -> None:
+        for frame in self.assembler.flush():
+            await self._pair(frame)
+        for pair in self.pairing.flush():
+            await self._submit(pair)
+
+    async def _pair(self, frame: FootFrame) -> None:
+        for pair in self.pairing.push(frame):
+            await self._submit(pair)
+
+    async def _submit(self, pair: PairedFrame) -> None:
+        if not self.source.live:
+            await self.worker.wait_below(self.worker.max_queue)  # a replay can wait
+        self.counters.dropped_frames += self.worker.submit(InferenceJob(self._seq, pair))
+        self._seq += 1
+        self.counters.observe_queue(self.worker.in_flight)
+
+    # --- results out (event loop thread) ---------------------------------------------
+
+    def _on_result(self, result: InferenceResult) -> None:
+        counters = self.counters
+        counters.inference_ms.add(result.inference_ms)
+        counters.window_restarts = self.window.restarts
+        counters.observe_queue(self.worker.in_flight)
+        if result.restarted:
+            self.repetitions.reset()
+        output = result.output
+        self._model_error = result.error
+        if output is None:
+            self._update_state()
+            return
+        self._warming = (output.frames_in_window, output.needed)
+        step = output.result
+        if step is not None:
+            self._predict(result, step.pose, step.action_probs, step.progress)
+        self._update_state()
+
+    def _predict(
+        self,
+        result: InferenceResult,
+        pose: npt.NDArray[np.float32],
+        probs: npt.NDArray[np.float32],
+        progress: float,
+    ) -> None:
+        pair = result.job.frame
+        now_mono = time.monotonic_ns()
+        last_byte = pair.last_byte_mono_ns
+        action = int(np.argmax(probs))
+        left_clock, right_clock = pair.clocks
+        prediction = Prediction(
+            seq=result.job.seq,
+            left_seq=pair.seqs[0],
+            right_seq=pair.seqs[1],
+            device_clock_us=left_clock if left_clock >= 0 else right_clock,
+            host_wall_ns=time.time_ns(),
+            host_mono_ns=now_mono,
+            predicted_for_mono_ns=(last_byte or now_mono) + FRAME_PERIOD_NS,
+            last_byte_mono_ns=last_byte,
+            pose=pose,
+            action_probs=probs,
+            action=action,
+            progress=progress,
+            repetition=self.repetitions.update(action, progress),
+            flags=pair.flags,
+            inference_ms=result.inference_ms,
+        )
+        self.counters.predictions += 1
+        if last_byte:
+            self.counters.end_to_end_ms.add((now_mono - last_byte) / 1e6)
+        self._call(self._on_prediction, prediction)
+
+    # --- state --------------------------------------------------------------------
+
+    def _update_state(self) -> None:
+        feet = self.pairing.foot_states()
+        reasons = [f"{foot} insole silent" for foot, s in feet.items() if s == "silent"]
+        if not self._connected:
+            reasons.insert(0, f"receiver disconnected: {self._disconnect_reason}")
+        if self._model_error is not None:
+            reasons.append(f"inference failed: {self._model_error}")
+        if self.recorder is not None and self.recorder.failed:
+            reasons.append(self.recorder.failed)
+        state = PipelineState(
+            source="connected" if self._connected else "disconnected",
+            feet=feet,
+            warming=self._warming,
+            reasons=tuple(reasons),
+        )
+        if state != self._state:
+            self._state = state
+            self._call(self._on_state, state)
+
+    def _call(self, callback: Callable[[T], None], value: T) -> None:
+        try:
+            callback(value)
+        except Exception:  # a failing consumer never kills the reader
+            self.counters.callback_errors += 1
+            log.debug("pipeline callback failed", exc_info=True)

@@ -1,0 +1,60 @@
+"""Repetitions counted from the progress stream.
+
+Progress runs 0 -> 1 through one repetition and falls back to 0 when the
+next begins. A fall from above ``high`` to below ``low`` while the action
+stays the same counts one repetition; the gap between the two thresholds
+keeps noise around one value from counting twice. The action itself must
+hold for ``confirm_frames`` predictions before the count starts over, so
+one misclassified frame does not reset it.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+class RepetitionCounter:
+    """``update(action, progress) -> repetitions completed in the current action``."""
+
+    def __init__(self, high: float = 0.7, low: float = 0.3, confirm_frames: int = 4) -> None:
+        if not 0.0 <= low < high <= 1.0:
+            msg = f"need 0 <= low < high <= 1, got low={low} high={high}"
+            raise ValueError(msg)
+        self.high = high
+        self.low = low
+        self.confirm_frames = confirm_frames
+        self.reset()
+
+    def reset(self) -> None:
+        self._action: int | None = None
+        self._count = 0
+        self._armed = False  # progress has been above ``high`` since the last count
+        self._candidate: int | None = None
+        self._candidate_frames = 0
+
+    @property
+    def action(self) -> int | None:
+        """The action being counted (after hysteresis)."""
+        return self._action
+
+    def update(self, action: int, progress: float) -> int:
+        if action != self._action:
+            if action == self._candidate:
+                self._candidate_frames += 1
+            else:
+                self._candidate, self._candidate_frames = action, 1
+            if self._action is None or self._candidate_frames >= self.confirm_frames:
+                self._action, self._count, self._armed = action, 0, False
+                self._candidate = None
+            else:
+                return self._count  # a flicker: neither counted nor reset
+        else:
+            self._candidate = None
+        if math.isnan(progress):
+            return self._count
+        if progress >= self.high:
+            self._armed = True
+        elif self._armed and progress <= self.low:
+            self._count += 1
+            self._armed = False
+        return self._count

@@ -1,0 +1,219 @@
+"""Where the bytes come from: the receiver's serial port, or a session file replayed.
+
+Every source is an async stream of ``(host_mono_ns, bytes)`` chunks and
+``SourceEvent`` values (connected / disconnected, with a reason). The
+pipeline does not care which source it reads: replay and the simulated
+board (``sources_sim``) run exactly the live path.
+
+The serial source survives anything the port does: absent at start,
+unplugged, stalled (no byte for ``stall_s``), busy or forbidden. It reports
+each change once and tries again with a capped, jittered exponential backoff.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import logging
+import random
+import time
+from collections.abc import AsyncGenerator, AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final, Literal, Protocol, TypeAlias
+
+import serial
+import serial_asyncio_fast
+
+log = logging.getLogger(__name__)
+
+Speed: TypeAlias = float | Literal["max"]
+READ_SIZE: Final = 4096  # bytes asked for per read; a 16 Hz pair of frames is ~3 KB
+_YIELD_EVERY: Final = 64  # replay at max speed gives the loop a turn every this many records
+
+
+class SourceError(Exception):
+    """A source that cannot start at all (a replay file that is not a session)."""
+
+
+@dataclass(frozen=True)
+class SourceEvent:
+    kind: Literal["connected", "disconnected"]
+    reason: str = ""
+
+
+Chunk: TypeAlias = tuple[int, bytes]  # (host monotonic ns when read, bytes as received)
+SourceItem: TypeAlias = Chunk | SourceEvent
+
+
+class Source(Protocol):
+    """What the pipeline reads. ``live`` False: it may be slowed down (backpressure)."""
+
+    name: str
+    live: bool
+
+    def stream(self) -> AsyncGenerator[SourceItem, None]: ...
+
+
+@dataclass
+class Backoff:
+    """Exponential backoff, capped, with jitter (so many daemons do not retry in step)."""
+
+    initial_s: float = 0.05
+    cap_s: float = 5.0
+    factor: float = 2.0
+    jitter: float = 0.5  # each delay is shortened by up to this fraction at random
+    attempt: int = 0
+
+    def next_delay(self) -> float:
+        delay = min(self.cap_s, self.initial_s * self.factor**self.attempt)
+        self.attempt += 1
+        return delay * (1.0 - self.jitter * random.random())
+
+    def reset(self) -> None:
+        self.attempt = 0
+
+
+class PortUnavailableError(Exception):
+    """The port cannot be opened now; ``str()`` is the reason for ``status``."""
+
+
+def explain_open_error(port: str, exc: BaseException) -> str:
+    """One line saying why ``port`` did not open and, where there is one, the fix."""
+    code = getattr(exc, "errno", None)
+    if code in (errno.ENOENT, errno.ENODEV, errno.ENXIO):
+        return f"{port} not found (receiver unplugged?)"
+    if code in (errno.EACCES, errno.EPERM):
+        return (
+            f"permission denied on {port}: add the user to the 'dialout' group "
+            "(sudo usermod -aG dialout $USER, then log in again)"
+        )
+    if code in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EBUSY):
+        return f"{port} is in use by another process (it holds the exclusive lock)"
+    return f"cannot open {port}: {exc}"
+
+
+class SerialSource:
+    """The receiver board on a serial port, reopened whenever it goes away."""
+
+    live = True
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = 921_600,  # ignored by USB CDC receivers, needed by UART bridges
+        stall_s: float = 0.5,
+        backoff: Backoff | None = None,
+    ) -> None:
+        self.port = port
+        self.name = f"serial {port}"
+        self.baudrate = baudrate
+        self.stall_s = stall_s
+        self.backoff = backoff if backoff is not None else Backoff()
+
+    def __aiter__(self) -> AsyncIterator[SourceItem]:
+        return self.stream()
+
+    async def stream(self) -> AsyncGenerator[SourceItem, None]:
+        reported: str | None = None  # the last disconnect reason already yielded
+        while True:
+            try:
+                reader, writer = await self._open()
+            except PortUnavailableError as exc:
+                reason = str(exc)
+                if reason != reported:
+                    log.warning("receiver: %s", reason)
+                    yield SourceEvent("disconnected", reason)
+                    reported = reason
+                await asyncio.sleep(self.backoff.next_delay())
+                continue
+            log.info("receiver: %s opened", self.port)
+            try:
+                yield SourceEvent("connected", f"{self.port} opened")
+                ended: str | None = None
+                while ended is None:
+                    chunk, ended = await self._read(reader)
+                    if chunk is not None:
+                        if self.backoff.attempt:
+                            self.backoff.reset()  # bytes flowed: the next outage starts afresh
+                        yield chunk
+            finally:
+                await _close(writer)
+            log.warning("receiver: %s", ended)
+            yield SourceEvent("disconnected", ended)
+            reported = ended
+            await asyncio.sleep(self.backoff.next_delay())
+
+    async def _open(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+        try:
+            reader, writer = await serial_asyncio_fast.open_serial_connection(
+                url=self.port, baudrate=self.baudrate, exclusive=True
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise PortUnavailableError(explain_open_error(self.port, exc)) from None
+        return reader, writer
+
+    async def _read(self, reader: asyncio.StreamReader) -> tuple[Chunk | None, str | None]:
+        """One chunk, or the reason the connection is over."""
+        try:
+            data = await asyncio.wait_for(reader.read(READ_SIZE), self.stall_s)
+        except TimeoutError:
+            return None, f"no bytes from {self.port} for {self.stall_s:g} s (stalled)"
+        except (serial.SerialException, OSError) as exc:
+            return None, f"{self.port} lost: {exc}"
+        if not data:
+            return None, f"{self.port} closed"
+        return (time.monotonic_ns(), data), None
+
+
+async def _close(writer: asyncio.StreamWriter) -> None:
+    """Close without flushing (the port may be gone) and wait until it is closed."""
+    if not writer.transport.is_closing():  # closing already: a second close would fail
+        writer.transport.abort()
+    with contextlib.suppress(Exception):
+        await asyncio.wait_for(writer.wait_closed(), 2.0)
+
+
+class ReplaySource:
+    """A session file's packet records fed back at ``speed`` (1 = as recorded, or max).
+
+    Not live: the pipeline may make it wait rather than drop frames, so a replay
+    is deterministic (the same file gives the same predictions). The chunks carry
+    the host time at which they are handed on, so latencies stay meaningful.
+    """
+
+    live = False
+
+    def __init__(self, path: Path | str, *, speed: Speed = 1.0) -> None:
+        self.path = Path(path)
+        self.speed = speed
+        self.name = f"replay {self.path.name}"
+
+    def __aiter__(self) -> AsyncIterator[SourceItem]:
+        return self.stream()
+
+    async def stream(self) -> AsyncGenerator[SourceItem, None]:
+        from scotti.firmware_protocol.errors import SessionError
+        from scotti.firmware_protocol.session import read_session
+
+        try:
+            session = await asyncio.to_thread(read_session, self.path)
+        except SessionError as exc:
+            raise SourceError(str(exc)) from None
+        yield SourceEvent("connected", f"replaying {self.path.name}")
+        packets = session.packets
+        base_ns = time.monotonic_ns()
+        t0 = packets[0].t_ns if packets else 0
+        for i, record in enumerate(packets):
+            if self.speed == "max":
+                if i % _YIELD_EVERY == 0:
+                    await asyncio.sleep(0)
+            else:
+                due = base_ns + (record.t_ns - t0) / self.speed
+                delay = (due - time.monotonic_ns()) / 1e9
+                if delay > 0:
+                    await asyncio.sleep(delay)
+            yield time.monotonic_ns(), record.data
+        yield SourceEvent("disconnected", "end of replay")

@@ -1,0 +1,54 @@
+"""The model's window over paired frames: T frames, each embedded once.
+
+A thin layer over ``models.streaming.StreamingWindow``: a new frame costs one
+step of the streaming graph (its CNN pass + the transformer over the cached
+embeddings of the previous T-1 frames). Until T frames are in, there is no
+prediction and the window reports that it is warming.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scotti.models.runtime import ScottiRuntime, StepResult
+from scotti.models.streaming import StreamingWindow
+
+
+@dataclass(frozen=True)
+class WindowOutput:
+    result: StepResult | None  # None while warming
+    frames_in_window: int
+    needed: int  # T
+
+    @property
+    def warming(self) -> bool:
+        return self.result is None
+
+
+class Window:
+    """``push(counts) -> WindowOutput``; ``restart()`` after a gap, a drop or a reconnect."""
+
+    def __init__(self, runtime: ScottiRuntime) -> None:
+        self._streaming = StreamingWindow(runtime)
+        self.restarts = 0
+
+    @property
+    def needed(self) -> int:
+        return self._streaming.needed
+
+    @property
+    def frames_in_window(self) -> int:
+        return self._streaming.frames_in_window
+
+    def push(self, counts: npt.NDArray[np.uint16]) -> WindowOutput:
+        """One paired frame (H, 2W) of raw counts; normalisation is inside the graph."""
+        result = self._streaming.push(counts.astype(np.float32))
+        return WindowOutput(result, self._streaming.frames_in_window, self._streaming.needed)
+
+    def restart(self) -> None:
+        """Forget every frame: the next T frames warm the window up again."""
+        if self._streaming.frames_seen:
+            self.restarts += 1
+        self._streaming.reset()

@@ -1,0 +1,158 @@
+"""The window, the inference worker, repetitions and counters."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scotti.daemon.counters import Counters, LatencyRing
+from scotti.daemon.inference import InferenceJob, InferenceResult, InferenceWorker
+from scotti.daemon.pairing import PairedFrame
+from scotti.daemon.repetitions import RepetitionCounter
+from scotti.daemon.window import Window
+from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
+from scotti.models.runtime import ScottiRuntime
+
+
+@pytest.fixture(scope="module")
+def runtime(tiny_model_path: Path) -> ScottiRuntime:
+    return ScottiRuntime(tiny_model_path)
+
+
+def paired(i: int, restart: bool = False) -> PairedFrame:
+    rng = np.random.default_rng(i)
+    counts = rng.integers(0, MAX_COUNT + 1, size=(FRAME_ROWS, 2 * FRAME_COLS), dtype=np.uint16)
+    return PairedFrame(counts, (i, i), (i, i), i, restart=restart)
+
+
+def test_the_window_predicts_from_the_t_th_frame_and_warms_again_after_restart(
+    runtime: ScottiRuntime,
+) -> None:
+    window = Window(runtime)
+    t = window.needed
+    outputs = [window.push(paired(i).counts) for i in range(t + 2)]
+    assert [o.warming for o in outputs] == [True] * (t - 1) + [False] * 3
+    assert outputs[t - 2].frames_in_window == t - 1
+    assert outputs[t - 1].frames_in_window == t
+    window.restart()
+    assert window.restarts == 1
+    again = window.push(paired(99).counts)
+    assert again.warming
+    assert again.frames_in_window == 1
+
+
+def test_the_window_gives_what_the_runtime_gives_on_the_same_frames(
+    runtime: ScottiRuntime, tiny_window_model_path: Path
+) -> None:
+    window = Window(runtime)
+    t = window.needed
+    frames = np.stack([paired(i).counts for i in range(t)]).astype(np.float32)
+    last = [window.push(f.astype(np.uint16)) for f in frames][-1].result
+    assert last is not None
+    batch = ScottiRuntime(tiny_window_model_path).run_windows(frames[None])
+    np.testing.assert_allclose(last.pose, batch.pose[0], atol=1e-4)
+    np.testing.assert_allclose(last.action_probs, batch.action_probs[0], atol=1e-4)
+
+
+def test_a_worker_that_falls_behind_drops_oldest_and_restarts_without_blocking_the_loop(
+    runtime: ScottiRuntime,
+) -> None:
+    results: list[InferenceResult] = []
+
+    async def body() -> tuple[int, float]:
+        worker = InferenceWorker(Window(runtime), results.append, max_queue=4)
+        worker.start()
+        start = time.perf_counter()
+        dropped = sum(worker.submit(InferenceJob(i, paired(i))) for i in range(200))
+        submit_s = time.perf_counter() - start
+        await asyncio.wait_for(worker.wait_below(1), 20)
+        await worker.stop()
+        return dropped, submit_s
+
+    dropped, submit_s = asyncio.run(body())
+    assert dropped > 0
+    assert submit_s < 0.5  # 200 submits never waited for the model
+    assert len(results) == 200 - dropped
+    seqs = [r.job.seq for r in results]
+    assert seqs == sorted(seqs)
+    assert seqs[-1] == 199  # the newest frames survive, the oldest were dropped
+    delivered = set(seqs)
+    after_drop = [r for r in results if r.job.seq > 0 and r.job.seq - 1 not in delivered]
+    assert after_drop
+    assert all(r.restarted for r in after_drop)  # the cache would have missed a frame
+
+
+def test_a_frame_the_model_rejects_is_reported_and_the_worker_goes_on(
+    runtime: ScottiRuntime,
+) -> None:
+    results: list[InferenceResult] = []
+    bad = PairedFrame(np.zeros((3, 3), dtype=np.uint16), (0, 0), (0, 0), 0)
+
+    async def body() -> None:
+        worker = InferenceWorker(Window(runtime), results.append)
+        worker.start()
+        worker.submit(InferenceJob(0, bad))
+        worker.submit(InferenceJob(1, paired(1)))
+        await asyncio.wait_for(worker.wait_below(1), 10)
+        await worker.stop()
+
+    asyncio.run(body())
+    assert results[0].output is None
+    assert results[0].error is not None
+    assert "must be" in results[0].error
+    assert results[1].output is not None
+
+
+def test_repetitions_count_wraps_of_progress_with_hysteresis() -> None:
+    counter = RepetitionCounter()
+    rng = np.random.default_rng(0)
+    reps = []
+    for i in range(16 * 5):  # five repetitions of 1 s each
+        progress = (i % 16) / 15 + float(rng.normal(0, 0.03))
+        reps.append(counter.update(2, progress))
+    assert reps[0] == 0
+    assert reps[-1] == 4  # four wraps from high to low completed
+    assert counter.update(2, float("nan")) == 4
+    # One frame of another action is a flicker; four frames are a new action.
+    assert counter.update(5, 0.1) == 4
+    assert counter.update(2, 0.5) == 4
+    for _ in range(4):
+        got = counter.update(6, 0.1)
+    assert got == 0
+    assert counter.action == 6
+
+
+def test_noise_around_one_level_does_not_count() -> None:
+    counter = RepetitionCounter()
+    values = [0.5 + 0.15 * math.sin(i) for i in range(200)]
+    assert max(counter.update(0, v) for v in values) == 0
+
+
+def test_latency_percentiles_come_from_the_last_values_only() -> None:
+    ring = LatencyRing(size=100)
+    for v in range(1000):
+        ring.add(float(v))
+    summary = ring.summary()
+    assert summary["n"] == 100
+    assert summary["max"] == 999.0
+    assert 948 <= summary["p50"] <= 951
+    assert summary["p99"] >= 997
+    assert LatencyRing().summary()["n"] == 0
+
+
+def test_counters_snapshot_is_plain_json() -> None:
+    counters = Counters()
+    counters.inference_ms.add(1.5)
+    counters.observe_queue(3)
+    counters.observe_queue(1)
+    snap = json.loads(json.dumps(counters.snapshot()))
+    assert snap["queue_depth"] == 1
+    assert snap["queue_depth_max"] == 3
+    assert snap["latency_ms"]["inference"]["p50"] == 1.5
+    assert snap["frames_in"] == {"left": 0, "right": 0}
+    assert snap["uptime_s"] >= 0

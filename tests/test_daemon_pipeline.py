@@ -1,0 +1,146 @@
+"""The whole pipeline on the tiny exported model, fed by replayed and live sessions."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scotti.daemon.board_emulator import BoardEmulator
+from scotti.daemon.counters import Counters
+from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
+from scotti.daemon.sources import Backoff, ReplaySource, SerialSource, Source
+from scotti.models.contract import NUM_ACTIONS, NUM_KEYPOINTS
+from scotti.models.runtime import ScottiRuntime
+
+from tests.support.sessions import write_synthetic_session
+
+
+@pytest.fixture(scope="module")
+def runtime(tiny_model_path: Path) -> ScottiRuntime:
+    return ScottiRuntime(tiny_model_path)
+
+
+def run_pipeline(
+    source: Source,
+    runtime: ScottiRuntime,
+    *,
+    until: Callable[[list[Prediction], list[PipelineState]], bool] | None = None,
+    timeout: float = 30.0,
+    **kwargs: object,
+) -> tuple[list[Prediction], list[PipelineState], Counters]:
+    """Run until the source ends (or ``until`` holds); return what came out."""
+    predictions: list[Prediction] = []
+    states: list[PipelineState] = []
+    counters = Counters()
+
+    async def body() -> None:
+        stop = asyncio.Event()
+        pipeline = Pipeline(source, runtime, counters, **kwargs)  # type: ignore[arg-type]
+
+        def on_prediction(p: Prediction) -> None:
+            predictions.append(p)
+            if until is not None and until(predictions, states):
+                stop.set()
+
+        def on_state(s: PipelineState) -> None:
+            states.append(s)
+            if until is not None and until(predictions, states):
+                stop.set()
+
+        await asyncio.wait_for(pipeline.run(on_prediction, on_state, stop), timeout)
+
+    asyncio.run(body())
+    return predictions, states, counters
+
+
+def test_replay_predicts_from_the_t_th_frame_on_with_continuous_seqs(
+    tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    frames = runtime.window + 20
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=frames, garbage_every=5)
+    predictions, states, counters = run_pipeline(ReplaySource(session.path, speed="max"), runtime)
+    t = runtime.window
+    assert len(predictions) == frames - t + 1
+    assert [p.seq for p in predictions] == list(range(t - 1, frames))
+    first = predictions[0]
+    assert (first.left_seq, first.right_seq) == (t - 1, t - 1)
+    assert first.pose.shape == (NUM_KEYPOINTS, 3)
+    assert first.action_probs.shape == (NUM_ACTIONS,)
+    assert abs(float(first.action_probs.sum()) - 1.0) < 1e-4
+    assert 0 <= first.action < NUM_ACTIONS
+    assert first.flags == ()
+    assert first.predicted_for_mono_ns == first.last_byte_mono_ns + 62_500_000
+    assert first.host_mono_ns >= first.last_byte_mono_ns
+    # The state walked through warming up to (T, T) and ended disconnected.
+    warming = [s.warming for s in states]
+    assert (t - 1, t) in warming
+    assert warming[-1] == (t, t)
+    assert states[0].source == "disconnected"
+    assert any(s.source == "connected" for s in states)
+    assert states[-1].reasons == ("receiver disconnected: end of replay",)
+    snap = counters.snapshot()
+    assert snap["frames_in"] == {"left": frames, "right": frames}
+    assert snap["predictions"] == len(predictions)
+    assert snap["dropped_frames"] == 0
+    bad = snap["bad_packets"]
+    assert bad["bad_cobs"] + bad["bad_crc"] + bad["malformed"] >= frames // 5  # the garbage
+    assert snap["latency_ms"]["inference"]["n"] == frames
+
+
+def test_replaying_the_same_session_twice_gives_identical_predictions(
+    tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=runtime.window + 8)
+    runs = [run_pipeline(ReplaySource(session.path, speed="max"), runtime)[0] for _ in range(2)]
+    assert len(runs[0]) == len(runs[1]) == 9
+    for a, b in zip(*runs, strict=True):
+        assert a.seq == b.seq
+        assert np.array_equal(a.pose, b.pose)
+        assert np.array_equal(a.action_probs, b.action_probs)
+        assert a.progress == b.progress
+        assert a.repetition == b.repetition
+
+
+def test_a_silent_foot_degrades_the_state_and_flags_predictions(
+    tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    from scotti.firmware_protocol.packets import Foot
+
+    session = write_synthetic_session(
+        tmp_path / "left.scotti", frames=runtime.window + 12, feet=(Foot.LEFT,)
+    )
+    predictions, states, _ = run_pipeline(ReplaySource(session.path, speed="max"), runtime)
+    assert predictions
+    assert all("right_filled" in p.flags for p in predictions)
+    assert any("right insole silent" in s.reasons for s in states)
+    assert all(p.right_seq == -1 for p in predictions)
+
+
+def test_live_board_through_a_pty_then_unplug_restarts_the_window(
+    board_factory: Callable[..., BoardEmulator], tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    t = runtime.window
+    session = write_synthetic_session(tmp_path / "live.scotti", frames=2 * t + 10)
+    board = board_factory(session, speed=8.0)
+    source = SerialSource(str(board.link), backoff=Backoff(initial_s=0.02, cap_s=0.2))
+    unplugged = False
+
+    def until(predictions: list[Prediction], states: list[PipelineState]) -> bool:
+        nonlocal unplugged
+        if len(predictions) == 3 and not unplugged:
+            unplugged = True
+            board.unplug()
+            board.replug()
+        return len(predictions) >= 6
+
+    predictions, states, counters = run_pipeline(source, runtime, until=until)
+    assert counters.reconnects >= 1
+    assert any(s.source == "disconnected" for s in states[1:])
+    # After the reconnect the window warmed up again from zero: T more frames.
+    assert predictions[3].seq - predictions[2].seq >= t
+    restart_seq = predictions[3].seq
+    assert [p.seq for p in predictions[3:]] == [restart_seq, restart_seq + 1, restart_seq + 2]
+    assert counters.window_restarts >= 1

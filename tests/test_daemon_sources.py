@@ -1,0 +1,239 @@
+"""Sources: the serial source through a real pty with the board emulator, and replay."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import itertools
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+import pytest
+import serial
+from scotti.daemon.board_emulator import BoardEmulator
+from scotti.daemon.sources import (
+    Backoff,
+    ReplaySource,
+    SerialSource,
+    Source,
+    SourceEvent,
+    SourceItem,
+    explain_open_error,
+)
+from scotti.firmware_protocol.framing import StreamDecoder
+from scotti.firmware_protocol.packets import FrameRows
+
+from tests.support.sessions import SyntheticSession, write_synthetic_session
+
+Factory = Callable[..., BoardEmulator]
+
+
+class Tap:
+    """Runs a source in a task and queues what it yields, so a test can wait with timeouts."""
+
+    def __init__(self, source: Source) -> None:
+        self.items: asyncio.Queue[SourceItem] = asyncio.Queue()
+        self._task = asyncio.create_task(self._pump(source))
+
+    async def _pump(self, source: Source) -> None:
+        async for item in source.stream():
+            await self.items.put(item)
+
+    async def next_event(self, within: float = 5.0) -> tuple[SourceEvent, int]:
+        """The next event, and how many data bytes came before it."""
+        nbytes = 0
+        async with asyncio.timeout(within):
+            while True:
+                item = await self.items.get()
+                if isinstance(item, SourceEvent):
+                    return item, nbytes
+                nbytes += len(item[1])
+
+    async def read_bytes(self, n: int, within: float = 10.0) -> bytes:
+        out = bytearray()
+        async with asyncio.timeout(within):
+            while len(out) < n:
+                item = await self.items.get()
+                assert not isinstance(item, SourceEvent), item
+                out += item[1]
+        return bytes(out)
+
+    async def close(self) -> None:
+        self._task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await self._task
+
+
+def run(body: Callable[[], Awaitable[None]]) -> None:
+    asyncio.run(asyncio.wait_for(body(), 30))
+
+
+def fast_backoff() -> Backoff:
+    return Backoff(initial_s=0.02, cap_s=0.2)
+
+
+def test_serial_source_delivers_the_board_bytes(
+    board_factory: Factory, synthetic_session: SyntheticSession
+) -> None:
+    board = board_factory(synthetic_session, speed="max")
+
+    async def body() -> None:
+        tap = Tap(SerialSource(str(board.link)))
+        event, _ = await tap.next_event()
+        assert event.kind == "connected"
+        data = await tap.read_bytes(len(synthetic_session.data))
+        await tap.close()
+        assert data == synthetic_session.data
+
+    run(body)
+
+
+def test_unplug_disconnects_and_replug_reconnects_within_the_backoff(
+    board_factory: Factory, synthetic_session: SyntheticSession
+) -> None:
+    board = board_factory(synthetic_session, speed=4.0, loop=True)
+
+    async def body() -> None:
+        tap = Tap(SerialSource(str(board.link), backoff=fast_backoff()))
+        assert (await tap.next_event())[0].kind == "connected"
+        await tap.read_bytes(1000)
+        await asyncio.to_thread(board.unplug)
+        event, _ = await tap.next_event(within=2.0)
+        assert event.kind == "disconnected"
+        event, _ = await tap.next_event(within=2.0)  # retries find no port
+        assert event == SourceEvent("disconnected", f"{board.link} not found (receiver unplugged?)")
+        start = time.monotonic()
+        await asyncio.to_thread(board.replug)
+        event, _ = await tap.next_event(within=2.0)
+        assert event.kind == "connected"
+        assert time.monotonic() - start < 0.5  # within the 0.2 s cap, plus scheduling slack
+        assert await tap.read_bytes(1000)
+        await tap.close()
+
+    run(body)
+
+
+def test_a_stall_counts_as_a_disconnect_and_the_source_reconnects(
+    board_factory: Factory, synthetic_session: SyntheticSession
+) -> None:
+    board = board_factory(synthetic_session, speed=4.0, loop=True)
+
+    async def body() -> None:
+        tap = Tap(SerialSource(str(board.link), stall_s=0.3, backoff=fast_backoff()))
+        assert (await tap.next_event())[0].kind == "connected"
+        await tap.read_bytes(500)
+        await asyncio.to_thread(board.pause)
+        start = time.monotonic()
+        event, _ = await tap.next_event(within=3.0)
+        assert event.kind == "disconnected"
+        assert "stalled" in event.reason
+        assert time.monotonic() - start >= 0.25
+        await asyncio.to_thread(board.resume)
+        # It reopens the port (connected), possibly stalls again before the resume lands.
+        while (event := (await tap.next_event(within=3.0))[0]).kind != "connected":
+            pass
+        assert await tap.read_bytes(500)
+        await tap.close()
+
+    run(body)
+
+
+def test_a_port_absent_at_start_is_waited_for(
+    tmp_path: Path, synthetic_session: SyntheticSession
+) -> None:
+    link = tmp_path / "ttyLATE"
+
+    async def body() -> None:
+        tap = Tap(SerialSource(str(link), backoff=fast_backoff()))
+        event, _ = await tap.next_event()
+        assert event.kind == "disconnected"
+        assert "not found" in event.reason
+        with BoardEmulator(synthetic_session.records, link, speed="max"):
+            event, _ = await tap.next_event(within=3.0)
+            assert event.kind == "connected"
+            data = await tap.read_bytes(len(synthetic_session.data))
+            assert data == synthetic_session.data
+            await tap.close()
+
+    run(body)
+
+
+def test_the_port_is_locked_for_one_reader(
+    board_factory: Factory, synthetic_session: SyntheticSession
+) -> None:
+    board = board_factory(synthetic_session, speed=1.0, loop=True)
+
+    async def body() -> None:
+        first = Tap(SerialSource(str(board.link)))
+        assert (await first.next_event())[0].kind == "connected"
+        second = Tap(SerialSource(str(board.link), backoff=fast_backoff()))
+        event, _ = await second.next_event()
+        assert event.kind == "disconnected"
+        assert "in use" in event.reason
+        await second.close()
+        await first.close()
+
+    run(body)
+
+
+def test_garbage_on_the_line_is_counted_and_every_packet_still_arrives(
+    board_factory: Factory, tmp_path: Path
+) -> None:
+    session = write_synthetic_session(tmp_path / "g.scotti", frames=16, garbage_every=2)
+    board = board_factory(session, speed="max")
+    decoder = StreamDecoder()
+
+    async def body() -> None:
+        tap = Tap(SerialSource(str(board.link)))
+        assert (await tap.next_event())[0].kind == "connected"
+        data = await tap.read_bytes(len(session.data))
+        await tap.close()
+        items = decoder.feed(data)
+        assert sum(isinstance(i, FrameRows) for i in items) == 16 * 2 * 4
+        assert decoder.counters.errors >= 8  # one bad run per garbage record at least
+
+    run(body)
+
+
+def test_permission_denied_names_the_group_to_join() -> None:
+    exc = serial.SerialException(errno.EACCES, "could not open port /dev/ttyACM0: denied")
+    reason = explain_open_error("/dev/ttyACM0", exc)
+    assert "add the user to the 'dialout' group" in reason
+    assert reason.count("\n") == 0
+
+
+def test_backoff_grows_is_capped_and_jittered() -> None:
+    backoff = Backoff(initial_s=0.1, cap_s=1.0, jitter=0.5)
+    delays = [backoff.next_delay() for _ in range(8)]
+    assert 0.05 <= delays[0] <= 0.1
+    assert all(0.5 <= d <= 1.0 for d in delays[5:])
+    assert len(set(delays)) == len(delays)  # jitter: no two the same
+    backoff.reset()
+    assert backoff.next_delay() <= 0.1
+
+
+@pytest.mark.parametrize("speed", [1.0, "max"])
+def test_replay_yields_the_recorded_bytes_at_the_recorded_pace(
+    tmp_path: Path, speed: float | str
+) -> None:
+    session = write_synthetic_session(tmp_path / "r.scotti", frames=8)
+
+    async def body() -> None:
+        items = []
+        start = time.monotonic()
+        async for item in ReplaySource(session.path, speed=speed).stream():  # type: ignore[arg-type]
+            items.append(item)
+        elapsed = time.monotonic() - start
+        assert items[0] == SourceEvent("connected", "replaying r.scotti")
+        assert items[-1] == SourceEvent("disconnected", "end of replay")
+        chunks = [i for i in items[1:-1] if not isinstance(i, SourceEvent)]
+        assert [data for _, data in chunks] == [data for _, data in session.records]
+        assert all(b[0] >= a[0] for a, b in itertools.pairwise(chunks))
+        if speed == 1.0:
+            assert elapsed >= 0.9 * session.duration_ns / 1e9
+        else:
+            assert elapsed < session.duration_ns / 1e9 / 3
+
+    run(body)
