@@ -12,6 +12,7 @@ from scotti.daemon.board_emulator import BoardEmulator
 from scotti.daemon.counters import Counters
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
 from scotti.daemon.sources import Backoff, ReplaySource, SerialSource, Source
+from scotti.daemon.sources_sim import SimulatedSource
 from scotti.models.contract import NUM_ACTIONS, NUM_KEYPOINTS
 from scotti.models.runtime import ScottiRuntime
 
@@ -144,3 +145,23 @@ def test_live_board_through_a_pty_then_unplug_restarts_the_window(
     restart_seq = predictions[3].seq
     assert [p.seq for p in predictions[3:]] == [restart_seq, restart_seq + 1, restart_seq + 2]
     assert counters.window_restarts >= 1
+
+
+def test_the_simulated_demo_source_runs_the_live_path(
+    tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    from tests.test_daemon_sources import SHORT_SCENE
+
+    scene = tmp_path / "short.toml"
+    scene.write_text(SHORT_SCENE)
+
+    def until(predictions: list[Prediction], _: list[PipelineState]) -> bool:
+        return len(predictions) >= 5
+
+    predictions, states, counters = run_pipeline(
+        SimulatedSource(scene, speed=4.0), runtime, until=until
+    )
+    assert len(predictions) >= 5
+    assert predictions[0].seq == runtime.window - 1
+    assert states[-1].source == "connected"
+    assert counters.snapshot()["frames_in"]["left"] >= runtime.window

@@ -18,10 +18,12 @@ from scotti.daemon.sources import (
     ReplaySource,
     SerialSource,
     Source,
+    SourceError,
     SourceEvent,
     SourceItem,
     explain_open_error,
 )
+from scotti.daemon.sources_sim import SimulatedSource
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
 
@@ -235,5 +237,54 @@ def test_replay_yields_the_recorded_bytes_at_the_recorded_pace(
             assert elapsed >= 0.9 * session.duration_ns / 1e9
         else:
             assert elapsed < session.duration_ns / 1e9 / 3
+
+    run(body)
+
+
+SHORT_SCENE = """
+description = "a short squat for tests"
+seed = 3
+rate = 16.0
+
+[subject]
+height_m = 1.75
+mass_kg = 72.0
+style_seed = 11
+
+[[script]]
+action = "squat"
+duration_s = 4.0
+stand_s = 0.5
+"""
+
+
+def test_simulated_source_plays_a_scene_through_a_pty(tmp_path: Path) -> None:
+    scene = tmp_path / "short.toml"
+    scene.write_text(SHORT_SCENE)
+    source = SimulatedSource(scene, speed="max")
+
+    async def body() -> None:
+        tap = Tap(source)
+        event, _ = await tap.next_event(within=20.0)
+        assert event == SourceEvent("disconnected", "rendering scene short")
+        event, _ = await tap.next_event(within=20.0)
+        assert event.kind == "connected"
+        assert source.emulator is not None
+        link = source.emulator.link
+        assert link.is_symlink()
+        data = await tap.read_bytes(20_000)
+        await tap.close()
+        assert not link.is_symlink()  # the emulator stopped with the stream
+        packets = [p for p in StreamDecoder().feed(data) if isinstance(p, FrameRows)]
+        assert len(packets) > 20
+
+    run(body)
+
+
+def test_an_unknown_scene_is_one_line() -> None:
+    async def body() -> None:
+        with pytest.raises(SourceError, match="no shipped scene"):
+            async for _ in SimulatedSource("no-such-scene").stream():
+                pass
 
     run(body)
