@@ -5,15 +5,18 @@ FrameAssembler), left and right foot frames are joined by their shared
 sequence number, and labels are attached per sequence number. Sequence
 numbers wrap at 2**16; they are unwrapped into one int64 timeline.
 
-Missing data: the frame grid has one slot per sequence number, so a window
-of T slots is always T/16 s long. A slot whose foot frame never came, or came
-with rows missing, keeps zeros where data is missing and is marked invalid
-(per foot, in ``valid``). ``WindowDataset`` drops, by default, every window
-with an invalid input frame: the daemon fills a silent foot by holding its
-last frame, which a zero-filled training frame would not imitate, and the
-simulator's losses are rare enough that dropping costs little. A gap of more
-than ``MAX_GAP`` sequence numbers (a board reset, a long outage) starts a new
-segment instead of a run of empty slots; windows never cross segments.
+Missing data is repaired as the daemon repairs it live (daemon/pairing.py),
+so the model trains on what it will be shown: missing rows of a foot frame
+are taken from that foot's previous frame; a foot frame that never came is
+held (the foot's previous frame repeated) for up to ``HOLD_FRAMES`` slots,
+then left as zeros. ``valid`` says what arrived whole, ``repaired`` what was
+reconstructed; ``WindowDataset`` drops, by default, every window with an
+input frame that is neither (a zero-filled foot: the daemon flags those
+moments as degraded, they are no training material). The frame grid has one
+slot per sequence number, so a window of T slots is always T/16 s long. A
+gap of more than ``MAX_GAP`` sequence numbers with no frame and no label
+(the daemon restarts its window there) starts a new segment instead of a
+run of empty slots; windows never cross segments.
 
 Decoded sessions are cached as ``.npz`` (keyed by path, size and mtime), so
 repeated training runs do not decode again.
@@ -43,9 +46,10 @@ from scotti.models import contract
 log = logging.getLogger(__name__)
 
 # Bump when the decoded arrays change meaning: old cache files are then ignored.
-CACHE_VERSION = 1
-# A gap longer than this many sequence numbers starts a new segment.
-MAX_GAP = contract.WINDOW
+CACHE_VERSION = 2
+# As the daemon's pairing defaults (hold_s 0.5 s, gap_s 1.0 s at 16 Hz):
+HOLD_FRAMES = 8  # a missing foot frame is replaced by the foot's previous one this long
+MAX_GAP = 16  # a longer run of slots with no data at all starts a new segment
 SEQ_MODULUS = 1 << 16
 
 
@@ -61,6 +65,7 @@ class SessionArrays:
     subject: str
     frames: np.ndarray  # (N, H, 2W) uint16 counts, left foot columns 0..W-1, right W..2W-1
     valid: np.ndarray  # (N, 2) bool: that foot's frame arrived with all rows (left, right)
+    repaired: np.ndarray  # (N, 2) bool: rows filled or frame held from the foot's previous
     seq: np.ndarray  # (N,) int64 unwrapped sequence number, +1 per slot within a segment
     segment: np.ndarray  # (N,) int32, increases at gaps longer than MAX_GAP
     has_label: np.ndarray  # (N,) bool
@@ -74,8 +79,8 @@ class SessionArrays:
 
     @property
     def frame_ok(self) -> np.ndarray:
-        """(N,) bool: both feet arrived whole."""
-        return np.asarray(self.valid.all(axis=1))
+        """(N,) bool: both feet arrived whole or were repaired (no zero-filled foot)."""
+        return np.asarray((self.valid | self.repaired).all(axis=1))
 
     def slice(self, start: int, stop: int) -> SessionArrays:
         """Slots [start, stop) as a session of their own (a time split)."""
@@ -84,6 +89,7 @@ class SessionArrays:
             self,
             frames=self.frames[s],
             valid=self.valid[s],
+            repaired=self.repaired[s],
             seq=self.seq[s],
             segment=self.segment[s],
             has_label=self.has_label[s],
@@ -205,6 +211,7 @@ def _to_grid(
     frames = np.zeros((n, rows, 2 * cols), dtype=np.uint16)
     valid = np.zeros((n, 2), dtype=bool)
     seen = np.zeros((n, 2), dtype=bool)
+    rows_missing: dict[tuple[int, int], np.ndarray] = {}
     for foot in (int(Foot.LEFT), int(Foot.RIGHT)):
         slots = np.searchsorted(seq, unwrapped[foot])
         c0 = foot * cols
@@ -218,10 +225,14 @@ def _to_grid(
             if complete:
                 valid[slot, foot] = True
             else:
-                frames[slot, np.asarray(ff.rows_missing, dtype=bool), c0 : c0 + cols] = 0
+                missing = np.asarray(ff.rows_missing, dtype=bool)
+                frames[slot, missing, c0 : c0 + cols] = 0
+                rows_missing[int(slot), foot] = missing
                 counters["incomplete_frames"] += 1
     counters["missing_left"] = int(n - seen[:, 0].sum())
     counters["missing_right"] = int(n - seen[:, 1].sum())
+    repaired = repair_like_the_daemon(frames, seen, rows_missing, segment, cols)
+    counters["zero_filled"] = int((~(valid | repaired)).sum())
 
     has_label = np.zeros(n, dtype=bool)
     keypoints = np.full((n, contract.NUM_KEYPOINTS, 3), np.nan, dtype=np.float32)
@@ -245,6 +256,7 @@ def _to_grid(
         subject=subject,
         frames=frames,
         valid=valid,
+        repaired=repaired,
         seq=seq,
         segment=segment,
         has_label=has_label,
@@ -253,6 +265,42 @@ def _to_grid(
         progress=progress,
         counters=counters,
     )
+
+
+def repair_like_the_daemon(
+    frames: np.ndarray,
+    seen: np.ndarray,
+    rows_missing: dict[tuple[int, int], np.ndarray],
+    segment: np.ndarray,
+    cols: int,
+) -> np.ndarray:
+    """Fill missing rows and hold missing feet in place; returns ``repaired`` (N, 2).
+
+    ``frames`` (N, H, 2W) is changed in place. ``seen``: (N, 2) the foot frame
+    arrived (whole or not); ``rows_missing``: the rows lost, per (slot, foot).
+    """
+    n = frames.shape[0]
+    repaired = np.zeros((n, 2), dtype=bool)
+    for foot in (int(Foot.LEFT), int(Foot.RIGHT)):
+        c0 = foot * cols
+        last: np.ndarray | None = None  # the foot's previous frame (repaired), a view
+        missed = 0
+        for slot in range(n):
+            if slot and segment[slot] != segment[slot - 1]:
+                last, missed = None, 0  # the daemon starts over after a long gap
+            view = frames[slot, :, c0 : c0 + cols]
+            if seen[slot, foot]:
+                missing = rows_missing.get((slot, foot))
+                if missing is not None and last is not None:
+                    view[missing] = last[missing]
+                    repaired[slot, foot] = True
+                last, missed = view, 0
+            else:
+                missed += 1
+                if last is not None and missed <= HOLD_FRAMES:
+                    view[:] = last
+                    repaired[slot, foot] = True
+    return repaired
 
 
 def _label_keypoints(label: Any) -> np.ndarray:
@@ -264,7 +312,17 @@ def _label_keypoints(label: Any) -> np.ndarray:
 
 # --- Cache -----------------------------------------------------------------
 
-_ARRAYS = ("frames", "valid", "seq", "segment", "has_label", "keypoints", "action", "progress")
+_ARRAYS = (
+    "frames",
+    "valid",
+    "repaired",
+    "seq",
+    "segment",
+    "has_label",
+    "keypoints",
+    "action",
+    "progress",
+)
 
 
 def _cache_path(path: Path, cache_dir: Path) -> Path:

@@ -295,28 +295,31 @@ def measure_throughput(
     """Training windows/s (forward + backward) the naive way and chunked, same batches.
 
     Naive: every window's T frames go through the CNN on their own, as
-    ``model(frames (B, T, H, 2W))`` does. Chunked: ``chunked_outputs``.
+    ``model(frames (B, T, H, 2W))`` does. Chunked: ``chunked_outputs``. The
+    two alternate batch by batch, so a machine whose load changes meanwhile
+    slows both alike.
     """
-    batches = plan_epoch(dataset, opts, 0)[:steps]
+    batches = plan_epoch(dataset, opts, 0)[: steps + 1]
     window = model.cfg.window
     model.train()
-    rates: dict[str, float] = {}
-    for way in ("naive", "chunked"):
-        windows, started = 0, time.perf_counter()
-        for batch in batches:
-            frames, targets = batch_tensors(dataset, batch)
+    seconds = {"naive": 0.0, "chunked": 0.0}
+    windows = 0
+    for i, batch in enumerate(batches):
+        frames, targets = batch_tensors(dataset, batch)
+        for way in seconds:
+            started = time.perf_counter()
             if way == "naive":
-                stacked = torch.cat(
-                    [unfold_frames(f, window, opts.stride) for f in frames]
-                )  # (B, T, H, 2W)
-                outputs = model(stacked)
+                stacked = [unfold_frames(f, window, opts.stride) for f in frames]
+                outputs = model(torch.cat(stacked))  # (B, T, H, 2W) in
             else:
                 outputs = chunked_outputs(model, frames, window, opts.stride)
             loss, _ = scotti_loss(outputs, targets, opts.loss_weights)
             model.zero_grad(set_to_none=True)
             loss.backward()  # type: ignore[no-untyped-call]
-            windows += int(targets.action.shape[0])
-        rates[way] = windows / max(1e-9, time.perf_counter() - started)
+            if i > 0:  # the first batch warms up allocators and kernels: not counted
+                seconds[way] += time.perf_counter() - started
+        windows += int(targets.action.shape[0]) if i > 0 else 0
+    rates = {way: windows / max(1e-9, s) for way, s in seconds.items()}
     rates["ratio"] = rates["chunked"] / max(1e-9, rates["naive"])
     return rates
 

@@ -195,6 +195,7 @@ def _run(args: argparse.Namespace) -> int:
         training_data=training_data,
     )
     if ckpt is not None:
+        _warn_changed_options(ckpt.get("options", {}), opts.to_dict())
         trainer.restore(ckpt)
         log.info(
             "resuming %s at epoch %d step %d",
@@ -209,6 +210,17 @@ def _run(args: argparse.Namespace) -> int:
             f.write(json.dumps(record) + "\n")
     log.info("%s: %s after %d epochs, checkpoint %s", out, status, trainer.state.epoch, resume_from)
     return 0
+
+
+def _warn_changed_options(before: dict[str, Any], now: dict[str, Any]) -> None:
+    """Resuming with other batching or augmentation is allowed, but no longer exact."""
+    ignore = {"epochs", "max_minutes", "progress_bar"}
+    changed = sorted(k for k in now if k not in ignore and k in before and before[k] != now[k])
+    if changed:
+        log.warning(
+            "resuming with changed %s: the run will not match an uninterrupted one",
+            ", ".join(changed),
+        )
 
 
 def _log_sessions(sessions: list[SessionArrays]) -> None:

@@ -65,7 +65,7 @@ class WindowDataset:
         """(max(N-T, 0),) bool: the window at this start is usable.
 
         Its target slot has a label, it stays in one segment, and (unless
-        ``allow_invalid``) every input frame arrived whole from both feet.
+        ``allow_invalid``) no input frame has a zero-filled foot (``frame_ok``).
         """
         t, n = self.window, len(s)
         if n <= t:

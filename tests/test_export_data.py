@@ -12,6 +12,7 @@ pytest.importorskip("torch")  # export/ is the [train] extra's room
 
 from scotti.export.augment import draw_shifts, shift_feet
 from scotti.export.data import (
+    HOLD_FRAMES,
     MAX_GAP,
     TrainingDataError,
     decode_session,
@@ -30,6 +31,8 @@ FRAMES = 200
 FIRST_SEQ = 65536 - 60  # wraps after 60 frames
 MISSING_RIGHT = 30  # the right foot's frame 30 never comes
 MISSING_ROWS = 50  # the left foot's frame 50 lacks rows 0..7 (its first packet)
+SILENT = range(120, 120 + HOLD_FRAMES + 4)  # the right foot is silent for 12 frames
+ZEROED = range(120 + HOLD_FRAMES, SILENT.stop)  # held for 8, then zero-filled
 T = 8
 
 
@@ -39,7 +42,7 @@ def lossy_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
         tmp_path_factory.mktemp("sessions") / "lossy.scotti",
         FRAMES,
         first_seq=FIRST_SEQ,
-        drop_foot=[(MISSING_RIGHT, 1)],
+        drop_foot=[(MISSING_RIGHT, 1), *((k, 1) for k in SILENT)],
         drop_rows=[(MISSING_ROWS, 0, 0)],
         garbage_every=17,
     )
@@ -63,26 +66,33 @@ def test_decode_joins_feet_by_seq_across_the_wrap(lossy_session: Path) -> None:
     left = s.frames[:, 0, 0].astype(np.int64)
     assert np.array_equal(np.delete(left, MISSING_ROWS), np.delete(k + 1, MISSING_ROWS))
     right = s.frames[:, 0, COLS].astype(np.int64)
-    assert np.array_equal(np.delete(right, MISSING_RIGHT), np.delete(k + 1, MISSING_RIGHT))
-    assert right[MISSING_RIGHT] == 0
-    assert not s.frames[MISSING_RIGHT, :, COLS:].any()
+    lost = [MISSING_RIGHT, *SILENT]
+    assert np.array_equal(np.delete(right, lost), np.delete(k + 1, lost))
     assert s.subject == "s1"
     assert s.counters["decode_errors"] > 0  # the garbage was seen and counted
 
 
-def test_missing_foot_and_rows_are_zero_and_marked_invalid(lossy_session: Path) -> None:
+def test_missing_rows_and_feet_are_repaired_as_the_daemon_does(lossy_session: Path) -> None:
     s = decode_session(lossy_session)
+    # Right frame 30 never came: the right foot's frame 29 is held in its place.
     assert s.valid[MISSING_RIGHT].tolist() == [True, False]
-    assert s.valid[MISSING_ROWS].tolist() == [False, True]
+    assert s.repaired[MISSING_RIGHT].tolist() == [False, True]
+    assert np.array_equal(s.frames[MISSING_RIGHT, :, COLS:], foot_counts(MISSING_RIGHT - 1, 1))
+    # Left frame 50 lost rows 0..7: they come from left frame 49, the rest is its own.
     left, right = s.frames[MISSING_ROWS, :, :COLS], s.frames[MISSING_ROWS, :, COLS:]
-    assert foot_counts(MISSING_ROWS, 0)[:8].any()
-    assert not left[:8].any()
-    kept = np.r_[8:ROWS]
-    assert np.array_equal(left[kept], foot_counts(MISSING_ROWS, 0)[kept])
+    assert s.valid[MISSING_ROWS].tolist() == [False, True]
+    assert s.repaired[MISSING_ROWS].tolist() == [True, False]
+    assert np.array_equal(left[:8], foot_counts(MISSING_ROWS - 1, 0)[:8])
+    assert np.array_equal(left[8:], foot_counts(MISSING_ROWS, 0)[8:])
     assert np.array_equal(right, foot_counts(MISSING_ROWS, 1))  # the other foot is whole
-    assert int(s.valid.sum()) == 2 * FRAMES - 2
-    assert s.counters["missing_right"] == 1
+    # A long silence: held for HOLD_FRAMES, then zeros and not ok.
+    held = s.frames[SILENT.start : ZEROED.start, :, COLS:]
+    assert (held == foot_counts(SILENT.start - 1, 1)).all()
+    assert not s.frames[ZEROED.start : ZEROED.stop, :, COLS:].any()
+    assert np.flatnonzero(~s.frame_ok).tolist() == list(ZEROED)
+    assert s.counters["missing_right"] == 1 + len(SILENT)
     assert s.counters["incomplete_frames"] == 1
+    assert s.counters["zero_filled"] == len(ZEROED)
 
 
 def test_labels_land_on_their_seq(lossy_session: Path) -> None:
@@ -99,10 +109,11 @@ def test_labels_land_on_their_seq(lossy_session: Path) -> None:
 
 
 def test_windows_predict_exactly_one_frame_ahead(lossy_session: Path) -> None:
-    ds = WindowDataset([decode_session(lossy_session)], window=T)
-    starts = ds.starts(0)
-    assert starts.size > 100
-    for i in starts:
+    s = decode_session(lossy_session)
+    ds = WindowDataset([s], window=T)
+    whole = [i for i in ds.starts(0) if s.valid[i : i + T].all()]  # no repaired frame in it
+    assert len(whole) > 100
+    for i in whole:
         frames, target = ds.window_at(0, int(i))
         assert np.array_equal(frames[:, 0, 0], np.arange(i, i + T) + 1)  # frames i .. i+T-1
         kp, action, _ = label_for(int(i) + T)  # the label of frame i+T
@@ -110,15 +121,16 @@ def test_windows_predict_exactly_one_frame_ahead(lossy_session: Path) -> None:
         assert target.action[0] == action
 
 
-def test_windows_with_an_invalid_frame_are_dropped_unless_allowed(lossy_session: Path) -> None:
+def test_windows_with_a_zero_filled_foot_are_dropped_unless_allowed(
+    lossy_session: Path,
+) -> None:
     s = decode_session(lossy_session)
     strict = set(WindowDataset([s], window=T).starts(0).tolist())
     loose = set(WindowDataset([s], window=T, allow_invalid=True).starts(0).tolist())
-    touching = {i for i in range(FRAMES - T) if i <= MISSING_RIGHT < i + T}
-    touching |= {i for i in range(FRAMES - T) if i <= MISSING_ROWS < i + T}
+    touching = {i for i in range(FRAMES - T) if set(range(i, i + T)) & set(ZEROED)}
     assert strict == set(range(FRAMES - T)) - touching
     assert loose == set(range(FRAMES - T))
-    assert MISSING_RIGHT - T in strict  # a missing frame may still be a window's target
+    assert ZEROED.start - T in strict  # a zero-filled frame may still be a window's target
 
 
 def test_a_long_outage_splits_segments_and_no_window_spans_it(tmp_path: Path) -> None:
