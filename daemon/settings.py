@@ -37,7 +37,7 @@ from pydantic_settings import (
 )
 
 EX_CONFIG: Final = 78  # sysexits.h: configuration error
-DEFAULT_MODEL_NAME: Final = "scotti.onnx"  # preferred among the shipped step graphs
+DEFAULT_MODEL_NAME: Final = "scotti-default.onnx"  # preferred among the shipped step graphs
 _TOPIC_FORBIDDEN: Final = re.compile(r"[+#/\x00-\x1f\s]")
 
 
