@@ -14,17 +14,20 @@ step and resumed from its checkpoint continues exactly as if never stopped.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from scotti.export.augment import draw_shifts, shift_feet
 from scotti.export.checkpoint import save_checkpoint
+from scotti.export.errors import ExportError
 from scotti.export.evaluate import chunked_outputs, evaluate, to_targets
 from scotti.export.losses import LossWeights, ScottiTargets, scotti_loss
 from scotti.export.model import Scotti
@@ -32,6 +35,10 @@ from scotti.export.windows import Chunk, WindowDataset
 from tqdm import tqdm
 
 log = logging.getLogger(__name__)
+
+
+class TrainingDivergedError(ExportError):
+    """The loss became NaN or infinite (learning rate too high, or broken labels)."""
 
 
 @dataclass(frozen=True)
@@ -129,7 +136,7 @@ class Trainer:
         test_set: WindowDataset | None,
         opts: TrainOptions,
         *,
-        run_dir: Any = None,
+        run_dir: Path | None = None,
         training_data: dict[str, Any] | None = None,
     ) -> None:
         self.model = model
@@ -158,6 +165,12 @@ class Trainer:
         frames, targets = batch_tensors(self.train_set, batch)
         outputs = chunked_outputs(self.model, frames, self.window, self.opts.stride)
         loss, _ = scotti_loss(outputs, targets, self.opts.loss_weights)
+        if not torch.isfinite(loss):
+            msg = (
+                f"loss is {float(loss.detach())} at step {self.state.global_step + 1}: lower --lr, "
+                f"or resume from the last checkpoint"
+            )
+            raise TrainingDivergedError(msg)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()  # type: ignore[no-untyped-call]
         if self.opts.grad_clip > 0:
@@ -241,6 +254,9 @@ class Trainer:
         )
         score = float(val.get("loss", record["train_loss"]))
         self.save("last.pt")
+        if self.run_dir is not None:
+            with (self.run_dir / "history.jsonl").open("w") as f:
+                f.writelines(json.dumps(r) + "\n" for r in st.history)
         if score < st.best_loss:
             st.best_loss = score
             self.save("best.pt")

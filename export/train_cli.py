@@ -205,9 +205,6 @@ def _run(args: argparse.Namespace) -> int:
         )
     out.mkdir(parents=True, exist_ok=True)
     status = trainer.fit()
-    with (out / "history.jsonl").open("w") as f:
-        for record in trainer.state.history:
-            f.write(json.dumps(record) + "\n")
     log.info("%s: %s after %d epochs, checkpoint %s", out, status, trainer.state.epoch, resume_from)
     return 0
 

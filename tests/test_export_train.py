@@ -16,7 +16,14 @@ from scotti.cli.main import main
 from scotti.export.data import load_session
 from scotti.export.evaluate import chunked_outputs, evaluate
 from scotti.export.model import Scotti, ScottiConfig
-from scotti.export.train import Trainer, TrainOptions, batch_tensors, plan_epoch, unfold_frames
+from scotti.export.train import (
+    Trainer,
+    TrainingDivergedError,
+    TrainOptions,
+    batch_tensors,
+    plan_epoch,
+    unfold_frames,
+)
 from scotti.export.windows import WindowDataset
 
 from tests.support.export_sessions import write_session
@@ -156,3 +163,14 @@ def test_cli_mistakes_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture
     assert "\n" not in err
     assert main(["train", str(tmp_path), "-o", str(tmp_path / "r"), "--config", "huge"]) == 2
     assert "preset" in capsys.readouterr().err
+
+
+def test_a_diverged_loss_stops_with_one_line(sessions_dir: Path) -> None:
+    ds = dataset(sessions_dir)
+    model = tiny_model()
+    with torch.no_grad():
+        for p in model.pose_head.parameters():
+            p.fill_(float("nan"))  # what an exploding step leaves behind
+    trainer = Trainer(model, ds, None, replace_progress(TrainOptions(epochs=1, batch=8)))
+    with pytest.raises(TrainingDivergedError, match="lower --lr"):
+        trainer.fit()
