@@ -119,7 +119,9 @@ def write_plots(report: dict[str, Any], directory: Path) -> list[str]:
     pm = report["precision_margin"]
     fig, ax = plt.subplots(figsize=(4.5, 3.5), dpi=120)
     ax.plot(pm["margins"], pm["precision"], label=f"model, APP {pm['app']:.3f}")
-    ax.plot([0, 1], [0, 1], "--", color="grey", label="chance (uniform error)")
+    m = [i / 100 for i in range(101)]
+    chance = [1 - (1 - x) ** 2 for x in m]  # uniform guess against uniform labels: APP 2/3
+    ax.plot(m, chance, "--", color="grey", label="random, uniform labels (APP 2/3)")
     ax.set(xlabel="margin", ylabel="precision", xlim=(0, 1), ylim=(0, 1.02))
     ax.set_title("Progress: precision-margin curve")
     ax.legend(loc="lower right", fontsize=8)

@@ -392,7 +392,7 @@ def _report(runtime: ScottiRuntime, replays: list[SessionReplay]) -> dict[str, A
             "embed_dim": runtime.embed_dim,
             "threads": runtime.threads,
         },
-        "sessions": [r.summary() for r in replays],
+        "sessions": [r.summary() | {"metrics": task_metrics(r.frames)} for r in replays],
         "subjects": sorted({r.subject for r in replays}),
         "step_ms": {
             "median": float(np.median(steps)) if steps.size else float("nan"),

@@ -74,6 +74,31 @@ def run(cmd: Sequence[str], log: Path | None = None, *, quote: bool = True) -> s
     return proc.stdout
 
 
+def run_parallel(cmds: Sequence[Sequence[str]], log: Path) -> list[str]:
+    """Run commands side by side (one per core); their stdouts in order."""
+    procs = []
+    for cmd in cmds:
+        COMMANDS.append(shown(cmd))
+        print(f"$ {shown(cmd)} &", flush=True)
+        procs.append(
+            subprocess.Popen(
+                list(cmd), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
+        )
+    outs = []
+    for cmd, proc in zip(cmds, procs, strict=True):
+        out, err = proc.communicate()
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with log.open("a") as f:
+            f.write(f"$ {shown(cmd)}\n{out}{err}\n")
+        if proc.returncode != 0:
+            tail = (err.strip() or out.strip()).splitlines()[-1:] or ["(no output)"]
+            msg = f"{shown(cmd)!r} failed with status {proc.returncode}: {tail[0]}"
+            raise ExperimentError(msg)
+        outs.append(out)
+    return outs
+
+
 # --- partitions -----------------------------------------------------------------
 
 
@@ -82,9 +107,10 @@ class Partition:
     name: str
     train: tuple[str, ...]  # subject ids (session file stems)
     test: tuple[str, ...]
+    corpus: Path = REALISTIC  # the directory holding the subjects' session files
 
-    def test_files(self, corpus: Path = REALISTIC) -> list[Path]:
-        return [session_file(corpus, s) for s in self.test]
+    def test_files(self) -> list[Path]:
+        return [session_file(self.corpus, s) for s in self.test]
 
 
 def session_file(corpus: Path, subject: str) -> Path:
@@ -101,7 +127,10 @@ def load_partitions(path: Path = PARTITIONS) -> list[Partition]:
     except (OSError, json.JSONDecodeError) as exc:
         msg = f"cannot read {path}: {exc}; run python experiments/corpus.py first"
         raise ExperimentError(msg) from None
-    return [Partition(p["name"], tuple(p["train"]), tuple(p["test"])) for p in raw["partitions"]]
+    corpus = ROOT / raw["corpus"]["realistic"]
+    return [
+        Partition(p["name"], tuple(p["train"]), tuple(p["test"]), corpus) for p in raw["partitions"]
+    ]
 
 
 # --- training within a budget ---------------------------------------------------

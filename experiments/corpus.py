@@ -15,13 +15,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any
 
 from common import CLEAN, PARTITIONS, REALISTIC, ExperimentError, run, scotti_command, write_json
 
 PARTITION_SEED = 2024  # which subjects land in which test set
 
 
-def partitions(subject_ids: list[str], folds: int = 3, seed: int = PARTITION_SEED) -> list[dict]:
+def partitions(
+    subject_ids: list[str], folds: int = 3, seed: int = PARTITION_SEED
+) -> list[dict[str, Any]]:
     """``folds`` partitions; partition k tests the k-th slice of a seeded shuffle."""
     import numpy as np
 

@@ -18,6 +18,7 @@ import argparse
 import json
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,7 @@ from common import (
     Partition,
     load_partitions,
     read_json,
-    run,
+    run_parallel,
     scotti_command,
     shown,
     utc_now,
@@ -40,33 +41,43 @@ from common import (
 from tables_doc import write_evaluation_doc
 from training import VARIANTS, RunSpec, export, measure, train
 
-GROUP = RUNS / "tables"
 
-
-def evaluate(partition: Partition, models: dict[str, Path], log: Path) -> list[dict[str, Any]]:
-    """One replay of the held-out sessions, every variant's window fed from it."""
-    out = GROUP / "eval" / f"{partition.name}.json"
-    stamps = {name: path.stat().st_mtime for name, path in models.items()}
-    if out.is_file():
-        cached = read_json(out)
-        if cached.get("stamps") == stamps:
-            return list(cached["reports"])
-    cmd = scotti_command(
-        "eval",
-        *partition.test_files(),
-        *(a for m in models.values() for a in ("--model", m)),
-        "--json",
-        "--threads",
-        "1",
-    )
-    started = time.monotonic()
-    reports = json.loads(run(cmd, log))
-    seconds = time.monotonic() - started
-    reports = reports if isinstance(reports, list) else [reports]
-    for name, report in zip(models, reports, strict=True):
-        report["variant"] = name
-    write_json(out, {"stamps": stamps, "seconds": seconds, "reports": reports})
-    return list(reports)
+def evaluate_all(
+    group: Path, jobs: list[tuple[Partition, dict[str, Path]]], log: Path
+) -> dict[str, list[dict[str, Any]]]:
+    """Per partition, one replay of its held-out sessions feeding every variant's window;
+    two partitions at a time (one core each); cached until a model changes."""
+    results: dict[str, list[dict[str, Any]]] = {}
+    todo = []
+    for partition, models in jobs:
+        cmd = scotti_command(
+            "eval",
+            *partition.test_files(),
+            *(a for m in models.values() for a in ("--model", m)),
+            "--json",
+            "--threads",
+            "1",
+        )
+        out = group / "eval" / f"{partition.name}.json"
+        stamps = {name: path.stat().st_mtime for name, path in models.items()}
+        if out.is_file() and read_json(out).get("stamps") == stamps:
+            COMMANDS.append(shown(cmd))
+            results[partition.name] = list(read_json(out)["reports"])
+        else:
+            todo.append((partition, models, cmd, out, stamps))
+    for start in range(0, len(todo), 2):
+        pair = todo[start : start + 2]
+        began = time.monotonic()
+        outs = run_parallel([cmd for _, _, cmd, _, _ in pair], log)
+        seconds = time.monotonic() - began
+        for (partition, models, _, out, stamps), text in zip(pair, outs, strict=True):
+            reports = json.loads(text)
+            reports = reports if isinstance(reports, list) else [reports]
+            for name, report in zip(models, reports, strict=True):
+                report["variant"] = name
+            write_json(out, {"stamps": stamps, "seconds": seconds, "reports": reports})
+            results[partition.name] = reports
+    return {p.name: results[p.name] for p, _ in jobs}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,48 +87,54 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--config", default="small", help="scotti train --config (preset or JSON)")
     parser.add_argument("--threads", type=int, default=2, help="torch threads per training run")
+    parser.add_argument("--jobs", type=int, default=1, help="training runs side by side")
     parser.add_argument("--doc", type=Path, default=DOCS / "evaluation.md")
+    parser.add_argument("--img", type=Path, default=IMG, help="where the doc's figures go")
+    parser.add_argument("--partitions", type=Path, default=PARTITIONS)
+    parser.add_argument("--group", default="tables", help="runs/GROUP holds runs and results")
     args = parser.parse_args(argv)
-    log = GROUP / "log.txt"
+    group = RUNS / args.group
+    log = group / "log.txt"
     try:
-        partitions = load_partitions()
+        partitions = load_partitions(args.partitions)
         runs = [(p, v) for p in partitions for v in VARIANTS]
         share = 60.0 * args.budget_minutes / len(runs)
-        rate_file = GROUP / "throughput.json"
+        rate_file = group / "throughput.json"
         if rate_file.is_file():
             rate, windows = read_json(rate_file)["rate"], read_json(rate_file)["windows"]
         else:
-            spec = RunSpec(GROUP / "bench", partitions[0], args.config, threads=args.threads)
+            spec = RunSpec(group / "bench", partitions[0], args.config, threads=args.threads)
             rate, windows = measure(spec, log)
             write_json(rate_file, {"rate": rate, "windows": windows, "config": args.config})
         print(f"training: {rate:.0f} windows/s measured, {share / 60:.1f} min per run", flush=True)
-        plans: dict[tuple[str, str], dict[str, Any]] = {}
-        for partition, variant in runs:
-            spec = RunSpec(
-                GROUP / f"{partition.name}-{variant}",
-                partition,
-                args.config,
-                variant,
-                threads=args.threads,
-            )
-            plans[partition.name, variant] = train(spec, share, rate, windows, log)
-        results: dict[str, list[dict[str, Any]]] = {}
+        specs = {
+            (p.name, v): RunSpec(group / f"{p.name}-{v}", p, args.config, v, threads=args.threads)
+            for p, v in runs
+        }
+        # --jobs 2 with --threads 1: two runs side by side, one core each.
+        with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+            futures = {
+                k: pool.submit(train, s, share, rate, windows, log) for k, s in specs.items()
+            }
+            plans = {k: f.result() for k, f in futures.items()}
+        jobs = []
         for partition in partitions:
             models = {
                 v: export(
-                    GROUP / f"{partition.name}-{v}",
-                    GROUP / "models" / f"{partition.name}-{v}.onnx",
+                    group / f"{partition.name}-{v}",
+                    group / "models" / f"{partition.name}-{v}.onnx",
                     log,
                 )
                 for v in VARIANTS
             }
-            results[partition.name] = evaluate(partition, models, log)
+            jobs.append((partition, models))
+        results = evaluate_all(group, jobs, log)
         invocation = shown([sys.executable, "experiments/paper_tables.py", *(argv or sys.argv[1:])])
         write_evaluation_doc(
             args.doc,
-            IMG,
+            args.img,
             partitions=partitions,
-            corpus=read_json(PARTITIONS)["corpus"],
+            corpus=read_json(args.partitions)["corpus"],
             plans=plans,
             results=results,
             invocation=invocation,

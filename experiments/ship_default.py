@@ -48,15 +48,24 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
         }
         for r in reports
     ]
+    subjects = [
+        {"subject": s["subject"], "frames": s["evaluated"], **{k: s["metrics"][k] for k in KEYS}}
+        for r in reports
+        for s in r["sessions"]
+    ]
+    # Several reports: the spread over partitions; one: the spread over its subjects.
+    over, spread = (per, "partitions") if len(per) > 1 else (subjects, "held-out subjects")
     summary = {}
     for k in KEYS:
-        mean, sd = mean_sd([p[k] for p in per if p[k] is not None])
+        mean, sd = mean_sd([p[k] for p in over if p[k] is not None])
         summary[k] = {"mean": mean, "sd": sd}
     return {
         "how": "scotti eval: held-out subjects' session files replayed through the daemon's "
         "streaming path; frames t-T..t-1 predict t",
         "partitions": per,
+        "per_subject": subjects,
         "summary": summary,
+        "spread_over": spread,
         "commands": commands,
     }
 
@@ -83,10 +92,10 @@ def card_md(card: dict[str, Any]) -> str:
         "",
     ]
     if ev:
-        n = len(ev["partitions"])
+        over = ev["partitions"] if ev["spread_over"] == "partitions" else ev["per_subject"]
         lines += [
-            f"Mean ± standard deviation over {n} partition(s); "
-            "per partition the held-out subjects it lists.",
+            f"Mean ± standard deviation over {len(over)} {ev['spread_over']} (pooled figures "
+            "per evaluation below).",
             "",
             "| metric | value |",
             "|---|---|",
@@ -100,11 +109,16 @@ def card_md(card: dict[str, Any]) -> str:
         }
         for k in KEYS:
             s, d, unit = scale[k]
-            lines.append(f"| {k} | {fmt([p[k] for p in ev['partitions']], d, s)}{unit} |")
+            lines.append(f"| {k} | {fmt([p[k] for p in over], d, s)}{unit} |")
         lines += [
             "",
             *(
-                f"- held out: {', '.join(p['subjects'])} ({p['frames']} frames)"
+                f"- held out {', '.join(p['subjects'])} ({p['frames']} frames), pooled: MPJPE "
+                f"{p['mpjpe_mm']:.1f} mm, MPJAE {p['mpjae_deg']:.2f} deg, accuracy "
+                f"{100 * p['action_accuracy']:.2f} %, progress MSE {p['progress_mse']:.4f}, "
+                f"APP {p['app']:.4f}; random baseline: accuracy "
+                f"{100 * p['random_baseline']['action_accuracy']:.2f} %, APP "
+                f"{p['random_baseline']['app']:.4f}"
                 for p in ev["partitions"]
             ),
         ]
@@ -169,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", required=True, help="what it was trained on, in words")
     parser.add_argument("--note", default="", help="one more paragraph for the card")
     parser.add_argument("--from", dest="source", default="", help="the checkpoint, for the card")
+    parser.add_argument("--out-dir", type=Path, default=MODELS, help="where to ship (models/)")
     args = parser.parse_args(argv)
 
     base = args.model
@@ -196,18 +211,19 @@ def main(argv: list[str] | None = None) -> int:
         },
         "flops": {"step": measured["step_flops"], "window": measured["window_flops"]},
     }
-    MODELS.mkdir(exist_ok=True)
-    dst_step, dst_window = MODELS / f"{NAME}.onnx", MODELS / f"{NAME}.window.onnx"
+    out = args.out_dir
+    out.mkdir(parents=True, exist_ok=True)
+    dst_step, dst_window = out / f"{NAME}.onnx", out / f"{NAME}.window.onnx"
     embed_card(step, dst_step, card)
     embed_card(window, dst_window, card)
     card["files"] = {
         kind: {"file": p.name, "bytes": p.stat().st_size, "sha256": _sha(p)}
         for kind, p in (("step", dst_step), ("window", dst_window))
     }
-    (MODELS / f"{NAME}.card.json").write_text(json.dumps(card, indent=2, sort_keys=True) + "\n")
-    (MODELS / f"{NAME}.card.md").write_text(card_md(card))
+    (out / f"{NAME}.card.json").write_text(json.dumps(card, indent=2, sort_keys=True) + "\n")
+    (out / f"{NAME}.card.md").write_text(card_md(card))
     runtime = ScottiRuntime(dst_step)  # the daemon's own check: contract, graph, names
-    print(f"shipped {dst_step} ({runtime!r}), card {MODELS / NAME}.card.json")
+    print(f"shipped {dst_step} ({runtime!r}), card {out / NAME}.card.json")
     total = sum(e["bytes"] for e in card["files"].values())
     print(
         f"  {total / 1e6:.2f} MB in all; step p99 at 1 thread "

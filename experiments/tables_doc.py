@@ -78,8 +78,9 @@ def write_evaluation_doc(
         f"{', '.join(corpus['effects'])}.",
         f"  Sessions in `{corpus['realistic']}`; the same subjects without effects in",
         f"  `{corpus['clean']}` (made by `python experiments/corpus.py`).",
-        "- Three subject-wise partitions of 10 training and 5 test subjects, test sets",
-        "  disjoint (`experiments/partitions.json`):",
+        f"- {len(partitions)} subject-wise partitions of {len(partitions[0].train)} training and "
+        f"{len(partitions[0].test)} test subjects, test sets disjoint",
+        "  (`experiments/partitions.json`):",
         *(f"  - {p.name}: test {', '.join(p.test)}" for p in partitions),
         "- Each prediction is made from frames t-T..t-1 and scored against the label of",
         "  frame t, replaying the test session files through the daemon's own path",
