@@ -27,9 +27,9 @@ from common import (
     DOCS,
     IMG,
     PARTITIONS,
+    ROOT,
     RUNS,
     ExperimentError,
-    Partition,
     load_partitions,
     read_json,
     run_parallel,
@@ -43,41 +43,41 @@ from training import VARIANTS, RunSpec, export, measure, train
 
 
 def evaluate_all(
-    group: Path, jobs: list[tuple[Partition, dict[str, Path]]], log: Path
+    group: Path, jobs: list[tuple[str, list[Path], dict[str, Path]]], log: Path
 ) -> dict[str, list[dict[str, Any]]]:
     """Per partition, one replay of its held-out sessions feeding every variant's window;
     two partitions at a time (one core each); cached until a model changes."""
     results: dict[str, list[dict[str, Any]]] = {}
     todo = []
-    for partition, models in jobs:
+    for key, files, models in jobs:
         cmd = scotti_command(
             "eval",
-            *partition.test_files(),
+            *files,
             *(a for m in models.values() for a in ("--model", m)),
             "--json",
             "--threads",
             "1",
         )
-        out = group / "eval" / f"{partition.name}.json"
+        out = group / "eval" / f"{key}.json"
         stamps = {name: path.stat().st_mtime for name, path in models.items()}
         if out.is_file() and read_json(out).get("stamps") == stamps:
             COMMANDS.append(shown(cmd))
-            results[partition.name] = list(read_json(out)["reports"])
+            results[key] = list(read_json(out)["reports"])
         else:
-            todo.append((partition, models, cmd, out, stamps))
+            todo.append((key, models, cmd, out, stamps))
     for start in range(0, len(todo), 2):
         pair = todo[start : start + 2]
         began = time.monotonic()
         outs = run_parallel([cmd for _, _, cmd, _, _ in pair], log)
         seconds = time.monotonic() - began
-        for (partition, models, _, out, stamps), text in zip(pair, outs, strict=True):
+        for (key, models, _, out, stamps), text in zip(pair, outs, strict=True):
             reports = json.loads(text)
             reports = reports if isinstance(reports, list) else [reports]
             for name, report in zip(models, reports, strict=True):
                 report["variant"] = name
             write_json(out, {"stamps": stamps, "seconds": seconds, "reports": reports})
-            results[partition.name] = reports
-    return {p.name: results[p.name] for p, _ in jobs}
+            results[key] = reports
+    return results
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -88,6 +88,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", default="small", help="scotti train --config (preset or JSON)")
     parser.add_argument("--threads", type=int, default=2, help="torch threads per training run")
     parser.add_argument("--jobs", type=int, default=1, help="training runs side by side")
+    parser.add_argument(
+        "--clean-check",
+        action="store_true",
+        help="also score the multi-task models on the clean copies of the held-out sessions",
+    )
     parser.add_argument("--doc", type=Path, default=DOCS / "evaluation.md")
     parser.add_argument("--img", type=Path, default=IMG, help="where the doc's figures go")
     parser.add_argument("--partitions", type=Path, default=PARTITIONS)
@@ -97,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     log = group / "log.txt"
     try:
         partitions = load_partitions(args.partitions)
+        corpus = read_json(args.partitions)["corpus"]
         runs = [(p, v) for p in partitions for v in VARIANTS]
         share = 60.0 * args.budget_minutes / len(runs)
         rate_file = group / "throughput.json"
@@ -127,14 +133,24 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 for v in VARIANTS
             }
-            jobs.append((partition, models))
-        results = evaluate_all(group, jobs, log)
+            jobs.append((partition.name, partition.test_files(), models))
+            if args.clean_check:  # the same held-out subjects and motions without effects
+                clean = [ROOT / corpus["clean"] / f.name for f in partition.test_files()]
+                jobs.append((f"{partition.name}-clean", clean, {"multi": models["multi"]}))
+        evaluated = evaluate_all(group, jobs, log)
+        results = {p.name: evaluated[p.name] for p in partitions}
+        clean_results = {
+            p.name: evaluated[f"{p.name}-clean"][0]
+            for p in partitions
+            if f"{p.name}-clean" in evaluated
+        }
         invocation = shown([sys.executable, "experiments/paper_tables.py", *(argv or sys.argv[1:])])
         write_evaluation_doc(
             args.doc,
             args.img,
             partitions=partitions,
-            corpus=read_json(args.partitions)["corpus"],
+            corpus=corpus,
+            clean=clean_results,
             plans=plans,
             results=results,
             invocation=invocation,
