@@ -48,6 +48,8 @@ from training import RunSpec, export, measure, train
 HERE = Path(__file__).resolve().parent
 LIMIT_P99_MS = 10.0
 CONTRACT_WINDOW = 40  # the daemon's T (models.contract.WINDOW)
+# Adam's step size by width: short budgets want it brisk, wide transformers want it gentler.
+LEARNING_RATE = {128: 1e-3, 256: 5e-4, 512: 3e-4}
 
 # name -> ScottiConfig fields (the rest from the paper's defaults: conv 16/32, dropout 0.1).
 CONFIGS: dict[str, dict[str, Any]] = {
@@ -90,7 +92,13 @@ def main(argv: list[str] | None = None) -> int:
             read_json(group / "throughput.json") if (group / "throughput.json").is_file() else {}
         )
         specs = {
-            name: RunSpec(group / name, partition, json.dumps(CONFIGS[name]), threads=args.threads)
+            name: RunSpec(
+                group / name,
+                partition,
+                json.dumps(CONFIGS[name]),
+                threads=args.threads,
+                lr=LEARNING_RATE[CONFIGS[name]["embed_dim"]],
+            )
             for name in args.configs
         }
         for name, spec in specs.items():
@@ -107,7 +115,9 @@ def main(argv: list[str] | None = None) -> int:
             }
             plans = {n: f.result() for n, f in futures.items()}
         models = {
-            n: export(group / n, group / "models" / f"{n}.onnx", log, int8=True) for n in specs
+            n: export(group / n, group / "models" / f"{n}.onnx", log, int8=True)
+            for n in specs
+            if (group / n / "last.pt").is_file()  # a run that failed before its first checkpoint
         }
         # int8 with the Conv layers quantized too: measured for latency only.
         conv = {}
@@ -224,7 +234,8 @@ def ship(
         "with the realistic sensor and transport effects. Config "
         f"{name}; {plan['trained_s'] / 60:.1f} min of training on this shared 2-core CPU "
         f"({plan.get('epochs_done', 0)}/{plan['epochs']} epochs at stride {plan['stride']}, "
-        "lr 1e-3); undertrained. Chosen by `python experiments/sweep.py` as the most accurate "
+        f"lr {LEARNING_RATE[CONFIGS[name]['embed_dim']]:g}); undertrained. Chosen by "
+        "`python experiments/sweep.py` as the most accurate "
         "model whose streaming step stays under 10 ms p99 on one thread."
     )
     evaluated = group / "eval.json"

@@ -54,6 +54,7 @@ class RunSpec:
     variant: str = "multi"
     threads: int = 2
     val_stride: int = 32  # validation is for the log only: keep it cheap
+    lr: float = LR
 
     def train_args(self, *, epochs: int, stride: int, minutes: float, resume: bool) -> list[str]:
         args = [
@@ -71,7 +72,7 @@ class RunSpec:
             "--val-stride",
             str(self.val_stride),
             "--lr",
-            str(LR),
+            str(self.lr),
             "--threads",
             str(self.threads),
             "--max-minutes",
@@ -96,7 +97,7 @@ def measure(spec: RunSpec, log: Path) -> tuple[float, int]:
             "train",
             *spec.train_args(epochs=1, stride=2, minutes=1, resume=False),
             "--benchmark",
-            "3",
+            "2",
         ),
         log,
         quote=False,
@@ -137,7 +138,7 @@ def train(spec: RunSpec, budget_s: float, rate: float, windows: int, log: Path) 
     """Train (or resume) until the planned epochs are done or this call's time is spent."""
     path = spec.run_dir / "plan.json"
     state = read_json(path) if path.is_file() else plan(spec, budget_s, rate, windows)
-    if state["status"] == "done":
+    if state["status"] == "done" or state["status"].startswith("failed"):
         return state
     left = state["budget_s"] - state["trained_s"]
     if left <= 5:
@@ -150,12 +151,18 @@ def train(spec: RunSpec, budget_s: float, rate: float, windows: int, log: Path) 
     )
     cmd = spec.command(args)
     started = time.monotonic()
-    run(cmd, log)
+    try:
+        run(cmd, log)
+        failed = None
+    except ExperimentError as exc:  # e.g. a diverging loss: the others go on, the doc says so
+        failed = str(exc)
     state["trained_s"] += time.monotonic() - started
     state["commands"].append(shown(cmd))
     history = _history(spec.run_dir)
     state["epochs_done"] = len(history)
     state["status"] = "done" if len(history) >= state["epochs"] else "stopped"
+    if failed is not None:
+        state["status"] = f"failed: {failed.rsplit(': ', 1)[-1]}"
     write_json(path, state)
     return state
 
