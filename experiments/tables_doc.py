@@ -152,8 +152,9 @@ def budget_section(plans: dict[tuple[str, str], dict[str, Any]]) -> list[str]:
     total = sum(p["trained_s"] for p in plans.values()) / 60
     return [
         f"Model config `{first['config']}` for all runs. Each run got an equal share of the",
-        f"budget ({first['budget_s'] / 60:.1f} min; `trained` is the wall time of its `scotti train`",
-        f"calls, data loading and validation included); {total:.0f} min in all, on this",
+        f"budget ({first['budget_s'] / 60:.1f} min; `trained` is the wall time of its",
+        f"`scotti train` calls, data loading and validation included); {total:.0f} min in all, on",
+        "this",
         "2-core machine. The epochs and the stride between training windows were chosen",
         f"from the measured throughput ({first['measured_windows_per_s']:.0f} windows/s) so",
         "that the learning-rate schedule ends within the share. **These models are",
