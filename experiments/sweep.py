@@ -250,7 +250,10 @@ def ship(
         "--eval",
         str(single),
         "--eval-command",
-        next((c for c in COMMANDS if " eval " in c), "scotti eval (cached)"),
+        next(
+            (c for c in COMMANDS if " eval " in c and Path(choice["path"]).name + " " in c + " "),
+            "scotti eval (see docs/accuracy-vs-latency.md)",
+        ),
         "--from",
         str(group / name / "last.pt"),
         "--data",
@@ -258,7 +261,8 @@ def ship(
         "--note",
         "Metrics: one training run, scored on the held-out subjects listed; the "
         "spread is over those subjects (per-subject figures), not over partitions. "
-        "docs/evaluation.md has the three-partition figures of the same size of model.",
+        "docs/evaluation.md has three-partition figures for the `small` config (E=128, "
+        "2 layers, T=40).",
     ]
     run(cmd, log)
 
