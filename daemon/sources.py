@@ -158,7 +158,10 @@ class SerialSource:
     async def _read(self, reader: asyncio.StreamReader) -> tuple[Chunk | None, str | None]:
         """One chunk, or the reason the connection is over."""
         try:
-            data = await asyncio.wait_for(reader.read(READ_SIZE), self.stall_s)
+            # asyncio.timeout, not wait_for: on 3.11 wait_for can swallow a cancel that
+            # lands as data arrives, and a flooded reader would then never stop.
+            async with asyncio.timeout(self.stall_s):
+                data = await reader.read(READ_SIZE)
         except TimeoutError:
             return None, f"no bytes from {self.port} for {self.stall_s:g} s (stalled)"
         except (serial.SerialException, OSError) as exc:
@@ -173,7 +176,8 @@ async def _close(writer: asyncio.StreamWriter) -> None:
     if not writer.transport.is_closing():  # closing already: a second close would fail
         writer.transport.abort()
     with contextlib.suppress(Exception):
-        await asyncio.wait_for(writer.wait_closed(), 2.0)
+        async with asyncio.timeout(2.0):
+            await writer.wait_closed()
 
 
 class ReplaySource:

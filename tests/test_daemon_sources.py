@@ -110,7 +110,7 @@ def test_unplug_disconnects_and_replug_reconnects_within_the_backoff(
         await asyncio.to_thread(board.replug)
         event, _ = await tap.next_event(within=2.0)
         assert event.kind == "connected"
-        assert time.monotonic() - start < 0.5  # within the 0.2 s cap, plus scheduling slack
+        assert time.monotonic() - start < 1.0  # the 0.2 s cap, plus slack for a loaded machine
         assert await tap.read_bytes(1000)
         await tap.close()
 
