@@ -40,7 +40,7 @@ from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import Foot, FrameRows
-from scotti.firmware_protocol.session import read_session
+from scotti.firmware_protocol.session import find_session_files, read_session
 from scotti.models import contract
 
 log = logging.getLogger(__name__)
@@ -372,24 +372,7 @@ def _write_cache(arrays: SessionArrays, cached: Path) -> None:
 
 def find_sessions(paths: Iterable[Path | str]) -> list[Path]:
     """Files given, plus every session file (by its magic) found under directories."""
-    found: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            found.extend(f for f in sorted(p.rglob("*")) if f.is_file() and _is_session(f))
-        elif p.is_file():
-            found.append(p)
-        else:
-            msg = f"{p}: no such file or directory"
-            raise TrainingDataError(msg)
-    if not found:
-        msg = "no session files found in " + ", ".join(map(str, paths))
-        raise TrainingDataError(msg)
-    return found
-
-
-def _is_session(path: Path) -> bool:
     try:
-        with path.open("rb") as f:
-            return f.read(8) == b"SCOTSESS"
-    except OSError:
-        return False
+        return find_session_files(paths)
+    except SessionError as exc:
+        raise TrainingDataError(str(exc)) from None

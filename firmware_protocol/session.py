@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -413,3 +413,33 @@ def iter_records(path: str | os.PathLike[str]) -> Iterator[Record]:
     with SessionReader(path) as reader:
         yield reader.header
         yield from reader
+
+
+def find_session_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
+    """Files as given, plus every session file (by its magic) under directories.
+
+    Raises ``SessionError`` (one line) for a path that does not exist, or when
+    nothing at all was found.
+    """
+    paths = list(paths)
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found.extend(f for f in sorted(p.rglob("*")) if f.is_file() and _is_session(f))
+        elif p.is_file():
+            found.append(p)
+        else:
+            msg = f"{p}: no such file or directory"
+            raise SessionError(msg)
+    if not found:
+        msg = "no session files found in " + ", ".join(map(str, paths))
+        raise SessionError(msg)
+    return found
+
+
+def _is_session(path: Path) -> bool:
+    try:
+        with path.open("rb") as f:
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False

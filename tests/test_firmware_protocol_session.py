@@ -20,6 +20,7 @@ from scotti.firmware_protocol.session import (
     SessionHeader,
     SessionReader,
     SessionWriter,
+    find_session_files,
     iter_records,
     read_session,
 )
@@ -190,6 +191,23 @@ def test_writer_refuses_writes_after_close_and_bad_paths(tmp_path: Path) -> None
         writer.write_packet(2, b"y")
     with pytest.raises(SessionError, match="cannot create"):
         SessionWriter(tmp_path / "missing-dir" / "a.scot", HEADER)
+
+
+def test_find_session_files_by_magic_and_bad_paths(tmp_path: Path) -> None:
+    (tmp_path / "b").mkdir()
+    (tmp_path / "empty").mkdir()
+    write_small(tmp_path / "a.scot")
+    write_small(tmp_path / "b" / "x.anything")
+    (tmp_path / "b" / "notes.txt").write_text("not a session")
+    (tmp_path / "b" / "cut").write_bytes(MAGIC[:4])
+    given = tmp_path / "b" / "notes.txt"  # a file named explicitly is taken as it is
+    found = find_session_files([tmp_path, given])
+    names = [p.relative_to(tmp_path).as_posix() for p in found]
+    assert names == ["a.scot", "b/x.anything", "b/notes.txt"]
+    with pytest.raises(SessionError, match=r"missing: no such file or directory$"):
+        find_session_files([tmp_path / "missing"])
+    with pytest.raises(SessionError, match=r"^no session files found in .*empty$"):
+        find_session_files([tmp_path / "empty"])
 
 
 def test_reader_streams_with_counters(tmp_path: Path) -> None:
