@@ -57,11 +57,11 @@ class Daemon:
         self._pressure_tap: messages.PressureTap | None = None
 
     async def run(self) -> int:
+        recorder = self._make_recorder()  # first: RecordingError before anything started
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self._on_signal, sig)
         source = self._make_source()
-        recorder = self._make_recorder()
         publisher = Publisher(
             self.settings.mqtt,
             info=messages.info(self.settings, self.runtime, _versions()),

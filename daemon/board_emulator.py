@@ -47,6 +47,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final, Literal
 
+from scotti.daemon.errors import DaemonError
+
 log = logging.getLogger(__name__)
 
 Speed = float | Literal["max"]
@@ -54,7 +56,7 @@ _POLL_S: Final = 0.02  # longest the thread waits before looking at requests aga
 _DEFAULT_GAP_NS: Final = 62_500_000  # pause between two loops when a session has one record
 
 
-class EmulatorError(Exception):
+class EmulatorError(DaemonError):
     """The emulator cannot start: bad link path, unreadable session."""
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from scotti.daemon.board_emulator import BoardEmulator, EmulatorError, parse_speed
+from scotti.daemon.errors import DaemonError
 from scotti.daemon.local_broker import BrokerError, Mosquitto, find_mosquitto, free_port
 from scotti.daemon.settings import EX_CONFIG, ConfigError, MqttSettings, default_model_path
 from scotti.daemon.viewer import run_viewer
@@ -35,7 +36,7 @@ from scotti.daemon.viewer import run_viewer
 DEVICE = "demo"
 
 
-class DemoError(Exception):
+class DemoError(DaemonError):
     """The demo cannot start (no scene, no broker); one line."""
 
 

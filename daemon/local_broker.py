@@ -15,10 +15,12 @@ from pathlib import Path
 from types import TracebackType
 from typing import Self
 
+from scotti.daemon.errors import DaemonError
+
 MOSQUITTO_PATHS = ("mosquitto", "/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto")
 
 
-class BrokerError(Exception):
+class BrokerError(DaemonError):
     """mosquitto missing or not accepting connections."""
 
 

@@ -1,8 +1,8 @@
 """``scotti-daemon``: command line, settings, model check, then the service.
 
 Exit status: 0 after a graceful stop (or the end of a replay); 78 (EX_CONFIG)
-for a bad setting or a model that does not fit the contract, with one line on
-stderr and no traceback; 1 when the service fails while running.
+for a bad setting, a model that does not fit the contract or a recording that
+cannot be created, with one line on stderr and no traceback; 1 when the service fails while running.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
+from scotti.daemon.errors import DaemonError
 from scotti.daemon.settings import EX_CONFIG, ConfigError, Settings, load_settings
 
 PROG = "scotti-daemon"
@@ -118,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     try:
         return asyncio.run(Daemon(settings, runtime).run())
+    except DaemonError as exc:  # cannot start (a recording that cannot be created)
+        return _fail("error", str(exc))
     except KeyboardInterrupt:  # a second Ctrl-C during the graceful stop
         return 130
 

@@ -16,13 +16,14 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from scotti.daemon.errors import DaemonError
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.session import SessionHeader, SessionWriter
 
 log = logging.getLogger(__name__)
 
 
-class RecordingError(Exception):
+class RecordingError(DaemonError):
     """The recording cannot start (directory missing, no permission); one line."""
 
 

@@ -35,13 +35,14 @@ from pydantic_settings import (
     PydanticBaseSettingsSource,
     SettingsConfigDict,
 )
+from scotti.daemon.errors import DaemonError
 
 EX_CONFIG: Final = 78  # sysexits.h: configuration error
 DEFAULT_MODEL_NAME: Final = "scotti-default.onnx"  # preferred among the shipped step graphs
 _TOPIC_FORBIDDEN: Final = re.compile(r"[+#/\x00-\x1f\s]")
 
 
-class ConfigError(Exception):
+class ConfigError(DaemonError):
     """A setting that cannot be used; the message is one line naming it."""
 
 

@@ -25,6 +25,7 @@ from typing import Final, Literal, Protocol, TypeAlias
 
 import serial
 import serial_asyncio_fast
+from scotti.daemon.errors import DaemonError
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +34,7 @@ READ_SIZE: Final = 4096  # bytes asked for per read; a 16 Hz pair of frames is ~
 _YIELD_EVERY: Final = 64  # replay at max speed gives the loop a turn every this many records
 
 
-class SourceError(Exception):
+class SourceError(DaemonError):
     """A source that cannot start at all (a replay file that is not a session)."""
 
 
@@ -75,7 +76,7 @@ class Backoff:
         self.attempt = 0
 
 
-class PortUnavailableError(Exception):
+class PortUnavailableError(DaemonError):
     """The port cannot be opened now; ``str()`` is the reason for ``status``."""
 
 
