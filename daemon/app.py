@@ -54,7 +54,6 @@ class Daemon:
         self._sd_status = ""
         self._stop = asyncio.Event()
         self._publisher: Publisher | None = None
-        self._pressure_tap: messages.PressureTap | None = None
 
     async def run(self) -> int:
         recorder = self._make_recorder()  # first: RecordingError before anything started
@@ -71,8 +70,6 @@ class Daemon:
         publisher.on_state_change = self._on_broker_state
         publisher.set_status(messages.status("degraded", ["starting"], None))
         pipeline = Pipeline(source, self.runtime, self.counters, recorder)
-        if self.settings.mqtt.pressure and "counts" not in Prediction.__dataclass_fields__:
-            self._pressure_tap = messages.PressureTap(pipeline.pairing)
         publish_stop = asyncio.Event()
         pub_task = asyncio.create_task(publisher.run(publish_stop), name="publisher")
         pipe_task = asyncio.create_task(
@@ -143,12 +140,8 @@ class Daemon:
         assert self._publisher is not None
         pressure = self.settings.mqtt.pressure_downsample if self.settings.mqtt.pressure else 0
 
-        counts = None
-        if pressure and self._pressure_tap is not None:
-            counts = self._pressure_tap.counts_for(prediction.left_seq, prediction.right_seq)
-
         def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
-            return messages.frame_payloads(prediction, latency_ms, pressure, counts)
+            return messages.frame_payloads(prediction, latency_ms, pressure)
 
         self._publisher.submit(
             FrameBatch(

@@ -26,7 +26,6 @@ from scotti.daemon.schemas import (
 from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_RATE_HZ, KEYPOINTS, NO_ACTION
 
 if TYPE_CHECKING:
-    from scotti.daemon.pairing import FootFrameLike, PairedFrame, Pairing
     from scotti.daemon.pipeline import PipelineState, Prediction
     from scotti.daemon.publisher import Publisher
     from scotti.daemon.settings import Settings
@@ -37,12 +36,9 @@ TOPIC_NAMES = ("status", "info", "pose", "action", "progress", "health", "pressu
 
 
 def frame_payloads(
-    p: Prediction,
-    latency_ms: float,
-    pressure_downsample: int = 0,
-    counts: np.ndarray | None = None,
+    p: Prediction, latency_ms: float, pressure_downsample: int = 0
 ) -> list[tuple[str, BaseModel]]:
-    """pose, action, progress (and pressure) of one prediction, same stamp."""
+    """pose, action, progress (and, when ``pressure_downsample``, pressure), same stamp."""
     stamp: dict[str, Any] = {
         "seq": p.seq,
         "device_seq": DeviceSeq(left=p.left_seq, right=p.right_seq),
@@ -73,47 +69,15 @@ def frame_payloads(
             Progress(**stamp, action=action, progress=progress, repetition=p.repetition),
         ),
     ]
-    if counts is None:
-        counts = getattr(p, "counts", None)
-    if pressure_downsample and counts is not None:
-        out.append(("pressure", pressure(stamp, np.asarray(counts), pressure_downsample)))
+    if pressure_downsample:
+        out.append(("pressure", pressure(stamp, p.counts, pressure_downsample)))
     return out
-
-
-class PressureTap:
-    """Stopgap until ``Prediction`` carries its input frame: keeps the newest paired
-    frames' counts by device seqs, read off the pipeline's pairing output.
-    """
-
-    def __init__(self, pairing: Pairing, keep: int = 64) -> None:
-        self._frames: dict[tuple[int, int], np.ndarray] = {}
-        self._keep = keep
-        push, flush = pairing.push, pairing.flush
-
-        def tapped_push(frame: FootFrameLike) -> list[PairedFrame]:
-            return self._remember(push(frame))
-
-        def tapped_flush() -> list[PairedFrame]:
-            return self._remember(flush())
-
-        pairing.push = tapped_push  # type: ignore[method-assign]
-        pairing.flush = tapped_flush  # type: ignore[method-assign]
-
-    def _remember(self, pairs: list[PairedFrame]) -> list[PairedFrame]:
-        for pair in pairs:
-            self._frames[pair.seqs] = pair.counts
-        while len(self._frames) > self._keep:
-            del self._frames[next(iter(self._frames))]
-        return pairs
-
-    def counts_for(self, left_seq: int, right_seq: int) -> np.ndarray | None:
-        return self._frames.get((left_seq, right_seq))
 
 
 def downsample(counts: np.ndarray, k: int) -> np.ndarray:
     """Mean over k x k blocks (edges padded by repetition), as uint16."""
     if k == 1:
-        return counts.astype(np.uint16)
+        return np.asarray(counts, dtype=np.uint16)  # no copy: the caller only reads it
     rows, cols = counts.shape
     padded = np.pad(counts, ((0, -rows % k), (0, -cols % k)), mode="edge").astype(np.float32)
     r, c = padded.shape
@@ -130,8 +94,8 @@ def pressure(stamp: Mapping[str, Any], counts: np.ndarray, k: int) -> Pressure:
         rows=left.shape[0],
         cols=left.shape[1],
         downsample=k,
-        left=left.astype("<u2").tobytes(),
-        right=right.astype("<u2").tobytes(),
+        left=left.astype("<u2", copy=False).tobytes(),
+        right=right.astype("<u2", copy=False).tobytes(),
     )
 
 

@@ -57,6 +57,9 @@ class Prediction:
     repetition: int  # repetitions completed in the current action
     flags: tuple[str, ...]  # "left_held", "right_filled", "rows_missing", ...
     inference_ms: float
+    # (H, 2W) uint16: the model input that made this prediction (the window's newest
+    # frame, left columns then right). A read-only view of the paired frame, not a copy.
+    counts: npt.NDArray[np.uint16]
 
 
 @dataclass(frozen=True)
@@ -232,6 +235,7 @@ class Pipeline:
             repetition=self.repetitions.update(action, progress),
             flags=pair.flags,
             inference_ms=result.inference_ms,
+            counts=_read_only(pair.counts),
         )
         self.counters.predictions += 1
         if last_byte:
@@ -265,3 +269,10 @@ class Pipeline:
         except Exception:  # a failing consumer never kills the reader
             self.counters.callback_errors += 1
             log.debug("pipeline callback failed", exc_info=True)
+
+
+def _read_only(array: npt.NDArray[np.uint16]) -> npt.NDArray[np.uint16]:
+    """A view that cannot be written through: consumers share the frame, never copy it."""
+    view = array.view()
+    view.flags.writeable = False
+    return view

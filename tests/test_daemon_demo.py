@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import os
 import subprocess
@@ -81,6 +82,37 @@ def test_downsample_means_blocks() -> None:
     assert downsample(counts, 3).shape == (11, 8)  # edges padded
 
 
+def test_pressure_payload_is_the_prediction_input_frame(
+    tmp_path: Path, tiny_model_path: Path
+) -> None:
+    """At downsample 1 the payload is exactly the frame that made the prediction."""
+    from scotti.daemon.counters import Counters
+    from scotti.daemon.messages import frame_payloads
+    from scotti.daemon.pipeline import Pipeline, Prediction
+    from scotti.daemon.sources import ReplaySource
+    from scotti.models.runtime import ScottiRuntime
+
+    session = write_synthetic_session(tmp_path / "p1.scotti", frames=44)
+    predictions: list[Prediction] = []
+    pipeline = Pipeline(
+        ReplaySource(session.path, speed="max"), ScottiRuntime(tiny_model_path), Counters()
+    )
+    asyncio.run(pipeline.run(predictions.append, lambda _: None, asyncio.Event()))
+    assert len(predictions) == 44 - 39
+    for prediction in predictions:
+        topics = dict(frame_payloads(prediction, 1.0, pressure_downsample=1))
+        assert set(topics) == {"pose", "action", "progress", "pressure"}
+        p = topics["pressure"]
+        assert isinstance(p, Pressure)
+        assert (p.rows, p.cols, p.downsample) == (32, 22, 1)
+        left = np.frombuffer(p.left, "<u2").reshape(32, 22)
+        right = np.frombuffer(p.right, "<u2").reshape(32, 22)
+        np.testing.assert_array_equal(left, synthetic_counts(Foot.LEFT, p.device_seq.left))
+        np.testing.assert_array_equal(right, synthetic_counts(Foot.RIGHT, p.device_seq.right))
+        np.testing.assert_array_equal(np.hstack([left, right]), prediction.counts)
+    assert "pressure" not in dict(frame_payloads(predictions[0], 1.0))
+
+
 @pytest.mark.mosquitto
 @pytest.mark.slow
 def test_pressure_topic_carries_the_downsampled_frames(
@@ -103,6 +135,9 @@ def test_pressure_topic_carries_the_downsampled_frames(
     left = np.frombuffer(p.left, "<u2").reshape(16, 11)
     expected = downsample(synthetic_counts(Foot.LEFT, p.device_seq.left), 2)
     np.testing.assert_array_equal(left, expected)
+    right = np.frombuffer(p.right, "<u2").reshape(16, 11)
+    expected = downsample(synthetic_counts(Foot.RIGHT, p.device_seq.right), 2)
+    np.testing.assert_array_equal(right, expected)
     assert pressure_grid(msgpack.unpackb(msgs[0].payload), "right") is not None
 
 

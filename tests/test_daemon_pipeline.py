@@ -165,3 +165,25 @@ def test_the_simulated_demo_source_runs_the_live_path(
     assert predictions[0].seq == runtime.window - 1
     assert states[-1].source == "connected"
     assert counters.snapshot()["frames_in"]["left"] >= runtime.window
+
+
+def test_each_prediction_carries_its_input_frame_read_only(
+    tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    from scotti.firmware_protocol.packets import Foot
+
+    from tests.support.sessions import synthetic_counts
+
+    session = write_synthetic_session(tmp_path / "c.scotti", frames=runtime.window + 6)
+    predictions, _, _ = run_pipeline(ReplaySource(session.path, speed="max"), runtime)
+    assert len(predictions) == 7
+    for p in predictions:
+        expected = np.concatenate(
+            [synthetic_counts(Foot.LEFT, p.left_seq), synthetic_counts(Foot.RIGHT, p.right_seq)],
+            axis=1,
+        )
+        assert p.counts.dtype == np.uint16
+        np.testing.assert_array_equal(p.counts, expected)  # the newest frame, left|right
+        assert not p.counts.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            p.counts[0, 0] = 1
