@@ -21,6 +21,7 @@ from scotti.firmware_protocol.framing import (
     StreamDecoder,
     decode_all,
     encode_packet,
+    encode_packets,
 )
 from scotti.firmware_protocol.packets import (
     MAX_PACKET_LEN,
@@ -78,6 +79,7 @@ __all__ = [
     "clock_delta_us",
     "decode_all",
     "encode_packet",
+    "encode_packets",
     "frame_blocks",
     "iter_records",
     "parse_packet",

@@ -12,6 +12,9 @@ both forms.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+import numpy as np
 from scotti.firmware_protocol.errors import BadCobsError
 
 MAX_BLOCK = 254  # data bytes carried by a 0xFF code, which has no implied zero after it
@@ -40,6 +43,45 @@ def encode(data: bytes) -> bytes:
         out.append(rest + 1)
         out += segment[start:]
     return bytes(out)
+
+
+def encode_batch(chunks: Sequence[bytes]) -> list[bytes]:
+    """``[encode(c) for c in chunks]``, byte for byte, vectorised with numpy.
+
+    Chunks of one length are encoded together: each 0x00 becomes the
+    distance to the next 0x00 (or the end) and a code byte goes in front. A
+    chunk with a run of 254+ non-zero bytes (which COBS splits into full
+    blocks) goes through ``encode`` itself. Several times faster than
+    ``encode`` on many short, zero-heavy chunks (rows of pressure samples).
+    """
+    out: list[bytes] = [b""] * len(chunks)
+    by_length: dict[int, list[int]] = {}
+    for i, chunk in enumerate(chunks):
+        by_length.setdefault(len(chunk), []).append(i)
+    for length, idx in by_length.items():
+        n = len(idx)
+        a = np.frombuffer(b"".join([chunks[i] for i in idx]), np.uint8).reshape(n, length)
+        pos = np.int16 if length < np.iinfo(np.int16).max else np.int64  # small: fast
+        cols = np.arange(length, dtype=pos)
+        is_zero = a == 0
+        # next_zero[:, j]: the first zero at or after j, ``length`` if none (j = 0..length)
+        marks = np.full((n, length + 1), length, dtype=pos)
+        marks[:, :-1] = np.where(is_zero, cols, pos(length))
+        next_zero = np.minimum.accumulate(marks[:, ::-1], axis=1)[:, ::-1]
+        block = next_zero[:, 1:] - cols  # at a zero: the code that replaces it
+        codes = np.where(is_zero, block, a)
+        first = next_zero[:, 0] + 1  # the leading code byte
+        full = (block > MAX_BLOCK) & is_zero  # a block after a zero needs splitting
+        simple = (first <= MAX_BLOCK) & ~full.any(axis=1)
+        enc = np.empty((n, length + 1), np.uint8)
+        enc[:, 0] = first
+        enc[:, 1:] = codes
+        flat = enc.tobytes()
+        width = length + 1
+        for row, i in enumerate(idx):
+            simple_row = simple[row]
+            out[i] = flat[row * width : (row + 1) * width] if simple_row else encode(chunks[i])
+    return out
 
 
 def decode(frame: bytes) -> bytes:

@@ -12,12 +12,12 @@ receiver's uptime, batteries and signal strengths.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
 import numpy as np
-from scotti.firmware_protocol.framing import encode_packet
+from scotti.firmware_protocol.framing import encode_packets
 from scotti.firmware_protocol.packets import (
     CLOCK_MODULUS,
     SEQ_MODULUS,
@@ -41,7 +41,6 @@ CHUNK_FRAMES: Final = 1024  # frames rendered at once (64 s at 16 Hz)
 _GEOMETRY: Final = (FRAME_ROWS, FRAME_COLS, SAMPLE_BITS)
 _CHUNKS_KEPT: Final = 3  # rendered chunks kept while packets of older frames may still come
 _BATCH: Final = 4096  # packets encoded at once
-_COBS_SHORT_BLOCK: Final = 254  # longest COBS code that implies a zero after its block
 
 
 @dataclass(frozen=True)
@@ -161,44 +160,6 @@ class CountsStream:
         )
 
 
-def encode_batch(packets: Sequence[FrameRows | BoardStatus]) -> list[bytes]:
-    """``[encode_packet(p) for p in packets]``, byte for byte, vectorised.
-
-    COBS over many packets of one length at once: each 0x00 becomes the
-    distance to the next 0x00 (or the end), a code byte goes in front, the
-    delimiter behind. Packets with a run of 254+ non-zero bytes (which COBS
-    splits into full blocks) go through ``encode_packet`` itself.
-    tests/test_sim_writer.py proves the equality on whole sessions.
-    """
-    raws = [p.to_bytes() for p in packets]
-    out: list[bytes] = [b""] * len(raws)
-    by_length: dict[int, list[int]] = {}
-    for i, raw in enumerate(raws):
-        by_length.setdefault(len(raw), []).append(i)
-    for length, idx in by_length.items():
-        a = np.frombuffer(b"".join([raws[i] for i in idx]), np.uint8).reshape(len(idx), length)
-        cols = np.arange(length, dtype=np.int16)  # packets are < 2048 bytes
-        is_zero = a == 0
-        # next_zero[:, j]: first zero at or after j (length if none)
-        marks = np.where(is_zero, cols, np.int16(length))
-        next_zero = np.minimum.accumulate(marks[:, ::-1], axis=1)
-        next_zero = next_zero[:, ::-1]
-        after = np.concatenate([next_zero[:, 1:], np.full((len(idx), 1), length, np.int16)], 1)
-        codes = np.where(is_zero, after - cols, a)
-        first = next_zero[:, 0] + 1
-        long_block = ((after - cols > _COBS_SHORT_BLOCK) & is_zero).any(axis=1)
-        short = (first <= _COBS_SHORT_BLOCK) & ~long_block
-        enc = np.zeros((len(idx), length + 2), np.uint8)  # code + data + delimiter
-        enc[:, 0] = first
-        enc[:, 1:-1] = codes
-        flat = enc.tobytes()
-        width = length + 2
-        for row, i in enumerate(idx):
-            ok = short[row]
-            out[i] = flat[row * width : (row + 1) * width] if ok else encode_packet(packets[i])
-    return out
-
-
 def session_rng(seed: int) -> np.random.Generator:
     """The writer's own stream (host origin, clocks, receiver), apart from the effects'."""
     return np.random.default_rng(np.random.SeedSequence([seed, 0x5E55]))
@@ -277,7 +238,7 @@ def write_session(
     with SessionWriter(path, header, flush_each=False) as writer:
         for start in range(0, len(order), _BATCH):
             batch = order[start : start + _BATCH].tolist()
-            for i, data in zip(batch, encode_batch(emit.packets(batch)), strict=True):
+            for i, data in zip(batch, encode_packets(emit.packets(batch)), strict=True):
                 t = emit.t_ns[i]
                 while next_label < frames and label_t[next_label] <= t:
                     writer.write_label(_label(truth, next_label, seq_start, label_t[next_label]))

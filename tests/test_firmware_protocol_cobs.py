@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -53,3 +54,53 @@ def test_round_trip_has_no_zero_and_bounded_overhead(data: bytes) -> None:
     assert 0 not in encoded
     assert len(encoded) <= cobs.max_encoded_len(len(data))
     assert cobs.decode(encoded) == data
+
+
+# Edge inputs for the vectorised encoder: full blocks (254 non-zero bytes) and one
+# more, at the start, between zeros and at the end; zeros only; nothing at all.
+_EDGES = [
+    b"",
+    bytes(1),
+    bytes(300),
+    _RUN_254,
+    _RUN_254 + b"\x01",
+    bytes(range(1, 256)),  # 255 non-zero bytes
+    b"\x00" + _RUN_254,
+    b"\x00" + _RUN_254 + b"\x00",
+    b"\x00" + _RUN_254[:-1] + b"\x00",  # 253: the longest block that needs no split
+    b"\x07" * 253,
+    b"\x07" * 600,
+    b"\x00\x00" + b"\x07" * 510 + b"\x00",
+]
+
+
+def test_batch_encoding_equals_encode_on_edges() -> None:
+    assert cobs.encode_batch(_EDGES) == [cobs.encode(c) for c in _EDGES]
+    assert cobs.encode_batch([]) == []
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.one_of(
+            st.binary(max_size=600),  # mostly non-zero: long runs, split blocks
+            st.lists(st.sampled_from([0, 0, 0, 1, 255]), max_size=600).map(bytes),
+        ),
+        max_size=12,
+    ),
+    st.integers(0, 3),
+)
+def test_batch_encoding_equals_encode(chunks: list[bytes], copies: int) -> None:
+    # Copies make several chunks of one length, encoded together in one array.
+    batch = chunks * (copies + 1)
+    assert cobs.encode_batch(batch) == [cobs.encode(c) for c in batch]
+
+
+@pytest.mark.parametrize("length", [1, 2, 62, 253, 254, 255, 256, 509, 1100])
+def test_batch_encoding_equals_encode_on_random_chunks_of_one_length(length: int) -> None:
+    rng = np.random.default_rng(length)
+    zero_share = rng.uniform(0.0, 1.0, (64, 1)) ** 3  # from no zeros to nearly all zeros
+    data = rng.integers(1, 256, (64, length), dtype=np.uint8)
+    data[rng.uniform(size=(64, length)) < zero_share] = 0
+    chunks = [row.tobytes() for row in data]
+    assert cobs.encode_batch(chunks) == [cobs.encode(c) for c in chunks]

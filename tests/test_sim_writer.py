@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scotti.firmware_protocol.framing import encode_packet
+from scotti.firmware_protocol.framing import encode_packet, encode_packets
 from scotti.firmware_protocol.packets import (
     CLOCK_MODULUS,
     BoardStatus,
@@ -17,7 +17,7 @@ from scotti.firmware_protocol.packets import (
 )
 from scotti.models.contract import NO_ACTION
 from scotti.sim.effects.schedule import build_schedule
-from scotti.sim.writer import encode_batch, render_counts, write_session
+from scotti.sim.writer import render_counts, write_session
 
 from tests.support.sim_session import decode_session
 from tests.support.sim_synthetic import jump, synthetic_input, walking
@@ -127,4 +127,4 @@ def test_batch_encoding_equals_encode_packet(clean: Path) -> None:
         BoardStatus(7, 1000, 2, 0, InsoleStatus(3900, 88, -60, True, 5), InsoleStatus()),
     ]
     packets: list[FrameRows | BoardStatus] = [*blocks, *odd]
-    assert encode_batch(packets) == [encode_packet(p) for p in packets]
+    assert encode_packets(packets) == [encode_packet(p) for p in packets]
