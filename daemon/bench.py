@@ -84,8 +84,11 @@ async def collect(broker: Mosquitto, seconds: float, warmup: float) -> list[dict
                 last_byte = pose["predicted_for_mono_ns"] - PERIOD_NS
                 out.append({"publish": pose["latency_ms"], "receipt": (received - last_byte) / 1e6})
 
+        # asyncio.timeout, not wait_for: on 3.11 wait_for can swallow its own cancel when
+        # a message arrives at that moment, and the read loop would then never end.
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(read(), seconds + warmup)
+            async with asyncio.timeout(seconds + warmup):
+                await read()
     return out
 
 
