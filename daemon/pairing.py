@@ -30,7 +30,13 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 from scotti.firmware_protocol.wrap import clock_delta_us, seq_delta
-from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS
+from scotti.models.contract import (
+    FRAME_COLS,
+    FRAME_RATE_HZ,
+    FRAME_ROWS,
+    SILENT_FOOT_HOLD_FRAMES,
+    WINDOW_RESTART_GAP_FRAMES,
+)
 
 LEFT: Final = 0
 RIGHT: Final = 1
@@ -61,8 +67,10 @@ class FootFrameLike(Protocol):
 class PairingConfig:
     rate_hz: float = FRAME_RATE_HZ
     reorder_frames: int = 2  # moments to wait for a late or missing frame
-    hold_s: float = 0.5  # a silent foot is held this long, then filled and reported silent
-    gap_s: float = 1.0  # a longer gap of both feet restarts the window
+    # a silent foot is held this long, then filled and reported silent (0.5 s)
+    hold_s: float = SILENT_FOOT_HOLD_FRAMES / FRAME_RATE_HZ
+    # a longer gap of both feet restarts the window (1 s)
+    gap_s: float = WINDOW_RESTART_GAP_FRAMES / FRAME_RATE_HZ
 
     @property
     def period_us(self) -> float:

@@ -47,9 +47,9 @@ log = logging.getLogger(__name__)
 
 # Bump when the decoded arrays change meaning: old cache files are then ignored.
 CACHE_VERSION = 2
-# As the daemon's pairing defaults (hold_s 0.5 s, gap_s 1.0 s at 16 Hz):
-HOLD_FRAMES = 8  # a missing foot frame is replaced by the foot's previous one this long
-MAX_GAP = 16  # a longer run of slots with no data at all starts a new segment
+# What the daemon's pairing does live (models.contract), so training sees the same:
+HOLD_FRAMES = contract.SILENT_FOOT_HOLD_FRAMES  # a missing foot frame: previous one, this long
+MAX_GAP = contract.WINDOW_RESTART_GAP_FRAMES  # a longer run of empty slots: new segment
 SEQ_MODULUS = 1 << 16
 
 

@@ -25,6 +25,12 @@ MAX_COUNT: Final = (1 << SAMPLE_BITS) - 1  # largest count the protocol allows
 WINDOW: Final = 40  # T, frames in the window (2.5 s at 16 Hz)
 FRAME_RATE_HZ: Final = 16.0
 
+# --- Repair of missing input, the same live (daemon pairing) and in training --
+# A silent foot's last frame is repeated this many frames (0.5 s), then zeros go in.
+SILENT_FOOT_HOLD_FRAMES: Final = 8
+# A gap longer than this (1 s) with no frame restarts the window: no history is invented.
+WINDOW_RESTART_GAP_FRAMES: Final = 16
+
 # --- Keypoints: COCO-WholeBody body and feet without the face (19) ---------
 KEYPOINTS: Final[tuple[str, ...]] = (
     "nose",

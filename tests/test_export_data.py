@@ -195,6 +195,13 @@ def test_a_single_subject_is_split_in_time(tmp_path: Path) -> None:
     assert split.test[0].seq[0] == s.seq[80]
 
 
+def test_repair_policy_is_what_the_daemon_feeds_the_model_live() -> None:
+    from scotti.daemon.pairing import PairingConfig
+
+    live = PairingConfig()
+    assert (live.hold_frames, live.gap_frames) == (HOLD_FRAMES, MAX_GAP) == (8, 16)
+
+
 def test_find_sessions_by_magic_and_bad_paths(tmp_path: Path) -> None:
     write_session(tmp_path / "x.anything", 10)
     (tmp_path / "notes.txt").write_text("not a session")
