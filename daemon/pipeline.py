@@ -97,6 +97,7 @@ class Pipeline:
         self._connected = False
         self._disconnect_reason = "not connected yet"
         self._warming = (0, self.window.needed)
+        self._warming_from_seq = 0  # results of older frames say nothing about the window now
         self._model_error: str | None = None
         self._state: PipelineState | None = None
         self._on_prediction: Callable[[Prediction], None] = lambda _: None
@@ -169,6 +170,7 @@ class Pipeline:
         await self._end_of_stream()
         self.decoder.reset()
         self.pairing.reset()
+        self._window_empty()
 
     async def _end_of_stream(self) -> None:
         for frame in self.assembler.flush():
@@ -183,9 +185,17 @@ class Pipeline:
     async def _submit(self, pair: PairedFrame) -> None:
         if not self.source.live:
             await self.worker.wait_below(self.worker.max_queue)  # a replay can wait
+        if pair.restart:
+            self._window_empty()
         self.counters.dropped_frames += self.worker.submit(InferenceJob(self._seq, pair))
         self._seq += 1
         self.counters.observe_queue(self.worker.in_flight)
+
+    def _window_empty(self) -> None:
+        """The window starts over with the next frame: say so now, not at its result
+        (a replugged receiver must not read as warmed up until T new frames are in)."""
+        self._warming = (0, self.window.needed)
+        self._warming_from_seq = self._seq
 
     # --- results out (event loop thread) ---------------------------------------------
 
@@ -201,7 +211,8 @@ class Pipeline:
         if output is None:
             self._update_state()
             return
-        self._warming = (output.frames_in_window, output.needed)
+        if result.job.seq >= self._warming_from_seq:
+            self._warming = (output.frames_in_window, output.needed)
         step = output.result
         if step is not None:
             self._predict(result, step.pose, step.action_probs, step.progress)

@@ -75,6 +75,13 @@ def test_unplug_and_replug_the_board(
     seqs = [p["seq"] for p in payloads(got.snapshot(), "pose")]
     assert seqs == sorted(seqs)  # seq keeps counting across the unplug
     assert len(set(seqs)) == len(seqs)
+    # Back from the replug, the window is empty: warming up first, never a stale "online".
+    st = states(got.snapshot())
+    cut = max(i for i, (_, r) in enumerate(st) if "receiver disconnected" in " ".join(r))
+    after = st[cut + 1 :]
+    online = next(i for i, (s, _) in enumerate(after) if s == "online")
+    assert online > 0
+    assert all(s == "degraded" and "warming up" in r for s, r in after[:online]), after
 
 
 @pytest.mark.mosquitto

@@ -187,3 +187,34 @@ def test_each_prediction_carries_its_input_frame_read_only(
         assert not p.counts.flags.writeable
         with pytest.raises(ValueError, match="read-only"):
             p.counts[0, 0] = 1
+
+
+def test_after_a_replug_the_state_warms_up_from_zero_before_reading_ready(
+    board_factory: Callable[..., BoardEmulator], tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    t = runtime.window
+    session = write_synthetic_session(tmp_path / "replug.scotti", frames=2 * t + 10)
+    board = board_factory(session, speed=8.0)
+    source = SerialSource(str(board.link), backoff=Backoff(initial_s=0.02, cap_s=0.2))
+    unplugged_at: int | None = None  # how many states had been seen at the unplug
+
+    def until(predictions: list[Prediction], states: list[PipelineState]) -> bool:
+        nonlocal unplugged_at
+        if len(predictions) == 3 and unplugged_at is None:
+            unplugged_at = len(states)
+            board.unplug()
+            board.replug()
+        return len(predictions) >= 4
+
+    predictions, states, _ = run_pipeline(source, runtime, until=until)
+    assert unplugged_at is not None
+    assert len(predictions) >= 4
+    assert states[unplugged_at - 1].warming == (t, t)  # warmed up before the unplug
+    after = states[unplugged_at:]
+    cut = next(i for i, s in enumerate(after) if s.source == "disconnected")
+    assert after[cut].warming == (0, t)  # the window is empty from the cut on
+    back = [s for s in after[cut:] if s.source == "connected"]
+    assert back, "never reconnected"
+    assert back[0].warming == (0, t)  # reconnected: still empty, not the old (T, T)
+    ready = next(i for i, s in enumerate(back) if s.warming == (t, t))
+    assert [s.warming[0] for s in back[:ready]] == sorted(s.warming[0] for s in back[:ready])
