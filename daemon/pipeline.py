@@ -160,6 +160,7 @@ class Pipeline:
             counters.connects += 1
             counters.reconnects = max(0, counters.connects - 1)
             self._connected = True
+            self._window_empty()  # pairing was reset at any earlier cut: T new frames to go
             return
         if self._connected:
             counters.disconnects += 1
@@ -170,7 +171,6 @@ class Pipeline:
         await self._end_of_stream()
         self.decoder.reset()
         self.pairing.reset()
-        self._window_empty()
 
     async def _end_of_stream(self) -> None:
         for frame in self.assembler.flush():

@@ -212,7 +212,6 @@ def test_after_a_replug_the_state_warms_up_from_zero_before_reading_ready(
     assert states[unplugged_at - 1].warming == (t, t)  # warmed up before the unplug
     after = states[unplugged_at:]
     cut = next(i for i, s in enumerate(after) if s.source == "disconnected")
-    assert after[cut].warming == (0, t)  # the window is empty from the cut on
     back = [s for s in after[cut:] if s.source == "connected"]
     assert back, "never reconnected"
     assert back[0].warming == (0, t)  # reconnected: still empty, not the old (T, T)
