@@ -193,7 +193,8 @@ class SessionWriter:
 
     ``fsync_interval_s``: also fsync when that long has passed since the last
     one (None: only on close). ``flush_each``: False trades kill -9 safety for
-    speed (the simulator writing a large file).
+    speed (the simulator writing a large file). An existing file at ``path``
+    is a ``SessionError`` unless ``overwrite`` says to replace it.
     """
 
     def __init__(
@@ -203,6 +204,7 @@ class SessionWriter:
         *,
         fsync_interval_s: float | None = None,
         flush_each: bool = True,
+        overwrite: bool = False,
     ) -> None:
         self.path = Path(path)
         self.header = header
@@ -210,8 +212,12 @@ class SessionWriter:
         self._fsync_interval_s = fsync_interval_s
         self._flush_each = flush_each
         self._last_fsync = time.monotonic()
+        mode = "wb" if overwrite else "xb"  # "x": never replace a recording by accident
         try:
-            self._file: IO[bytes] | None = open(self.path, "wb")  # noqa: SIM115  # closed in close()
+            self._file: IO[bytes] | None = open(self.path, mode)  # noqa: SIM115  # closed in close()
+        except FileExistsError:
+            msg = f"session file {self.path} exists; refusing to overwrite"
+            raise SessionError(msg) from None
         except OSError as exc:
             msg = f"cannot create session file {self.path}: {exc.strerror}"
             raise SessionError(msg) from None

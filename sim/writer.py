@@ -235,7 +235,8 @@ def write_session(
     emit = _Emitter(schedule, stream, statuses, seq_start)
     truth = sim.labels
     next_label = 0
-    with SessionWriter(path, header, flush_each=False) as writer:
+    # Re-running a scene replaces its file (same inputs, same bytes): users re-run sims.
+    with SessionWriter(path, header, flush_each=False, overwrite=True) as writer:
         for start in range(0, len(order), _BATCH):
             batch = order[start : start + _BATCH].tolist()
             for i, data in zip(batch, encode_packets(emit.packets(batch)), strict=True):

@@ -210,6 +210,18 @@ def test_find_session_files_by_magic_and_bad_paths(tmp_path: Path) -> None:
         find_session_files([tmp_path / "empty"])
 
 
+def test_writer_refuses_an_existing_file_unless_told_to_overwrite(tmp_path: Path) -> None:
+    path = tmp_path / "a.scot"
+    write_small(path)
+    before = path.read_bytes()
+    with pytest.raises(SessionError, match=r"a\.scot exists; refusing to overwrite$"):
+        SessionWriter(path, HEADER)
+    assert path.read_bytes() == before
+    with SessionWriter(path, HEADER, overwrite=True) as writer:
+        writer.write_packet(5, b"new")
+    assert read_session(path).packets == [PacketRecord(5, b"new")]
+
+
 def test_reader_streams_with_counters(tmp_path: Path) -> None:
     path = tmp_path / "s.scot"
     write_small(path)

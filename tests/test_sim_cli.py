@@ -43,6 +43,8 @@ def test_scene_to_session_is_bit_identical_on_rerun(
     assert a.read_bytes() == b.read_bytes()
     assert main(["sim", str(scene), "-o", str(c), "--seed", "5"]) == 0
     assert c.read_bytes() != a.read_bytes()
+    assert main(["sim", str(scene), "-o", str(c)]) == 0  # re-running replaces the file
+    assert c.read_bytes() == a.read_bytes()
     session = read_session(a)
     assert session.header.source == "simulated"
     assert session.header.scene is not None

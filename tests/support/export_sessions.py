@@ -72,7 +72,7 @@ def write_session(
     """
     header = SessionHeader(source="simulated", subject={"id": subject} if subject else None)
     t0 = 1_000_000_000
-    with SessionWriter(path, header) as w:
+    with SessionWriter(path, header, overwrite=True) as w:  # tests rewrite a file in place
         for k in range(frames):
             seq = (first_seq + k + (seq_jump[1] if k >= seq_jump[0] > 0 else 0)) % (1 << 16)
             t_ns = t0 + k * 62_500_000
