@@ -14,7 +14,7 @@ import enum
 import struct
 import zlib
 from dataclasses import dataclass, field
-from typing import Any, Final, TypeAlias
+from typing import Any, Final, TypeAlias, TypeVar
 
 import numpy as np
 from scotti.firmware_protocol.errors import (
@@ -150,11 +150,7 @@ class FrameRows:
     @classmethod
     def from_bytes(cls, packet: bytes) -> FrameRows:
         """Parse one whole packet (version .. crc); raises a ``DecodeError``."""
-        result = parse_packet(packet)
-        if not isinstance(result, FrameRows):
-            msg = f"expected FRAME_ROWS, got packet type {packet[1]:#04x}"
-            raise MalformedError(msg)
-        return result
+        return _parse_as(packet, FrameRows, "FRAME_ROWS")
 
     @classmethod
     def _from_body(cls, body: bytes) -> FrameRows:
@@ -269,11 +265,7 @@ class BoardStatus:
     @classmethod
     def from_bytes(cls, packet: bytes) -> BoardStatus:
         """Parse one whole packet (version .. crc); raises a ``DecodeError``."""
-        result = parse_packet(packet)
-        if not isinstance(result, BoardStatus):
-            msg = f"expected BOARD_STATUS, got packet type {packet[1]:#04x}"
-            raise MalformedError(msg)
-        return result
+        return _parse_as(packet, BoardStatus, "BOARD_STATUS")
 
     @classmethod
     def _from_body(cls, body: bytes) -> BoardStatus:
@@ -297,6 +289,16 @@ class BoardStatus:
 
 
 Packet: TypeAlias = FrameRows | BoardStatus
+_P = TypeVar("_P", FrameRows, BoardStatus)
+
+
+def _parse_as(packet: bytes, kind: type[_P], name: str) -> _P:
+    """``parse_packet``, and a ``MalformedError`` unless it is a ``kind`` packet."""
+    result = parse_packet(packet)
+    if not isinstance(result, kind):
+        msg = f"expected {name}, got packet type {packet[1]:#04x}"
+        raise MalformedError(msg)
+    return result
 
 
 def parse_packet(packet: bytes) -> Packet:

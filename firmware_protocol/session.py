@@ -18,7 +18,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Final, Literal, TypeAlias
+from typing import IO, Any, Final, Literal, Self, TypeAlias
 
 import msgpack
 import numpy as np
@@ -188,7 +188,25 @@ def _pack(record: dict[str, Any]) -> bytes:
     return len(body).to_bytes(LEN_BYTES, "little") + body
 
 
-class SessionWriter:
+class _ClosedOnExit:
+    """``with`` support for the writer and the reader: ``close()`` on the way out."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class SessionWriter(_ClosedOnExit):
     """Appends records to a new session file; one OS write and flush per record.
 
     ``fsync_interval_s``: also fsync when that long has passed since the last
@@ -257,17 +275,6 @@ class SessionWriter:
             self._file.close()
             self._file = None
 
-    def __enter__(self) -> SessionWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
     def _write(self, record: dict[str, Any]) -> None:
         if self._file is None:
             msg = f"session file {self.path} is closed"
@@ -286,7 +293,7 @@ class SessionWriter:
         self.records += 1
 
 
-class SessionReader:
+class SessionReader(_ClosedOnExit):
     """Streams the records of a session file; the header is read on open.
 
     Iterating yields ``PacketRecord`` and ``LabelRecord`` in file order. When
@@ -374,17 +381,6 @@ class SessionReader:
 
     def close(self) -> None:
         self._file.close()
-
-    def __enter__(self) -> SessionReader:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 @dataclass
