@@ -174,7 +174,10 @@ class SerialSource:
 
 async def _close(writer: asyncio.StreamWriter) -> None:
     """Close without flushing (the port may be gone) and wait until it is closed."""
-    if not writer.transport.is_closing():  # closing already: a second close would fail
+    # The library closes the transport itself when a read fails (unplug). Its abort() is
+    # not idempotent: a second one schedules a second connection-lost task that fails on
+    # the protocol already gone, and asyncio logs "Task exception was never retrieved".
+    if not writer.transport.is_closing():
         writer.transport.abort()
     with contextlib.suppress(Exception):
         async with asyncio.timeout(2.0):

@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 import errno
 import itertools
+import logging
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -288,3 +289,34 @@ def test_an_unknown_scene_is_one_line() -> None:
                 pass
 
     run(body)
+
+
+def test_unplug_and_replug_log_no_error(
+    board_factory: Factory, synthetic_session: SyntheticSession, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The serial library's close path must leave no task exception unretrieved."""
+    import gc
+
+    board = board_factory(synthetic_session, speed=8.0, loop=True)
+    caplog.set_level(logging.DEBUG)
+
+    async def body() -> None:
+        tap = Tap(SerialSource(str(board.link), backoff=fast_backoff()))
+        assert (await tap.next_event())[0].kind == "connected"
+        for _ in range(3):
+            await tap.read_bytes(500)
+            await asyncio.to_thread(board.unplug)
+            assert (await tap.next_event(within=2.0))[0].kind == "disconnected"
+            await asyncio.to_thread(board.replug)
+            while (await tap.next_event(within=3.0))[0].kind != "connected":
+                pass
+        await tap.read_bytes(500)
+        await tap.close()
+        await asyncio.sleep(0.1)  # the library's close tasks finish
+        gc.collect()  # an unretrieved task exception is logged when the task is collected
+
+    run(body)
+    gc.collect()
+    errors = [r for r in caplog.records if r.levelno >= logging.ERROR]
+    assert errors == [], [r.getMessage() for r in errors]
+    assert any("opened" in r.getMessage() for r in caplog.records)  # the logs were captured
