@@ -63,7 +63,9 @@ class Daemon:
         source = self._make_source()
         publisher = Publisher(
             self.settings.mqtt,
-            info=messages.info(self.settings, self.runtime, _versions()),
+            info=messages.info(
+                self.settings, self.runtime, _versions(), recorder.path if recorder else None
+            ),
             will=messages.status("offline", ["connection lost (last will)"], None),
         )
         self._publisher = publisher

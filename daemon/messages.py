@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -126,8 +127,19 @@ def status(
     )
 
 
-def info(settings: Settings, runtime: ScottiRuntime, versions: dict[str, str]) -> Info:
+def info(
+    settings: Settings,
+    runtime: ScottiRuntime,
+    versions: dict[str, str],
+    recording: Path | None = None,
+) -> Info:
+    """``recording``: the file actually recorded to (a new name when ``--record`` existed)."""
     mqtt = settings.mqtt
+    effective = settings.summary()
+    if recording is not None:
+        effective["record"] = str(recording)
+        if settings.record is not None and recording != settings.record:
+            effective["record_requested"] = str(settings.record)
     return Info(
         device_id=mqtt.device_id,
         versions=versions,
@@ -147,7 +159,7 @@ def info(settings: Settings, runtime: ScottiRuntime, versions: dict[str, str]) -
         window=runtime.window,
         format=mqtt.format,
         topics={name: mqtt.topic(name) for name in TOPIC_NAMES},
-        settings=settings.summary(),
+        settings=effective,
         host_wall_ns=time.time_ns(),
     )
 

@@ -7,13 +7,16 @@ to fsync every ``fsync_interval_s`` and on close.
 
 A recording never stops the daemon: if the disk fills or the file goes away,
 recording stops, the error is logged once and counted, the daemon goes on.
-An existing file is never overwritten: the recorder takes the next free name
-(``walk.scotti`` -> ``walk.1.scotti``) and says so in ``path``.
+An existing file is never overwritten: the recorder takes a new name beside it,
+stamped with the UTC start time (``walk.scotti`` -> ``walk.20261121T135630.scotti``,
+then ``walk.20261121T135630.1.scotti``), logs it and says so in ``path``.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
+from datetime import UTC, datetime
 from pathlib import Path
 
 from scotti.daemon.errors import DaemonError
@@ -27,14 +30,33 @@ class RecordingError(DaemonError):
     """The recording cannot start (directory missing, no permission); one line."""
 
 
-def free_path(path: Path) -> Path:
-    """``path`` itself, or ``stem.N.suffix`` with the first N that does not exist yet."""
-    if not path.exists():
-        return path
+def candidate_paths(path: Path, now: datetime) -> Iterator[Path]:
+    """``path``, then ``stem.<UTC yyyymmddThhmmss>suffix``, then that with ``.1``, ``.2``..."""
+    yield path
+    stamp = now.astimezone(UTC).strftime("%Y%m%dT%H%M%S")
+    yield path.with_name(f"{path.stem}.{stamp}{path.suffix}")
     n = 1
-    while (candidate := path.with_name(f"{path.stem}.{n}{path.suffix}")).exists():
+    while True:
+        yield path.with_name(f"{path.stem}.{stamp}.{n}{path.suffix}")
         n += 1
-    return candidate
+
+
+def _open_new(
+    requested: Path, header: SessionHeader, fsync_interval_s: float
+) -> tuple[Path, SessionWriter]:
+    """A writer on the first free candidate name; never one on an existing file."""
+    for path in candidate_paths(requested, datetime.now(UTC)):
+        if path.exists():
+            continue
+        try:
+            # SessionWriter opens with "x": a file made since the check is refused, not
+            # replaced, and the next name is tried.
+            return path, SessionWriter(path, header, fsync_interval_s=fsync_interval_s)
+        except SessionError as exc:
+            if path.exists():
+                continue
+            raise RecordingError(str(exc)) from None
+    raise AssertionError("unreachable: candidate_paths never ends")
 
 
 class Recorder:
@@ -44,20 +66,17 @@ class Recorder:
         self, path: Path | str, *, device: str = "receiver", fsync_interval_s: float = 5.0
     ) -> None:
         self.requested = Path(path)
-        self.path = free_path(self.requested)
         self.records = 0
         self.bytes = 0
         self.failed: str | None = None  # why recording stopped early, if it did
-        try:
-            self._writer: SessionWriter | None = SessionWriter(
-                self.path,
-                SessionHeader(source="recorded", device=device),
-                fsync_interval_s=fsync_interval_s,
-            )
-        except SessionError as exc:
-            raise RecordingError(str(exc)) from None
+        self.path, writer = _open_new(
+            self.requested, SessionHeader(source="recorded", device=device), fsync_interval_s
+        )
+        self._writer: SessionWriter | None = writer
         if self.path != self.requested:
-            log.warning("%s exists; recording to %s", self.requested, self.path)
+            log.info("recording to %s (%s exists: never overwritten)", self.path, self.requested)
+        else:
+            log.info("recording to %s", self.path)
 
     def tap(self, t_ns: int, data: bytes) -> None:
         """Append one chunk as it came off the port (garbage included)."""
