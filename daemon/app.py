@@ -32,6 +32,7 @@ from scotti.daemon.recording import Recorder
 from scotti.daemon.schemas import Status
 from scotti.daemon.settings import Settings
 from scotti.daemon.sources import ReplaySource, SerialSource, Source
+from scotti.daemon.waiting import wait_event
 from scotti.models.runtime import ScottiRuntime
 
 log = logging.getLogger(__name__)
@@ -203,8 +204,7 @@ class Daemon:
     async def _health_loop(self) -> None:
         interval = self.settings.mqtt.health_interval_s
         while not self._stop.is_set():
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._stop.wait(), interval)
+            await wait_event(self._stop, interval)
             if self._publisher is not None and not self._stop.is_set():
                 self._publisher.set_health(self._health())
 

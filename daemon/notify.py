@@ -10,11 +10,12 @@ business, never a reason for the daemon to stop.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import os
 import socket
 from collections.abc import Mapping
+
+from scotti.daemon.waiting import wait_event
 
 log = logging.getLogger(__name__)
 
@@ -65,8 +66,7 @@ class Notifier:
             return
         while not stop.is_set():
             self.watchdog()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), self.watchdog_interval_s)
+            await wait_event(stop, self.watchdog_interval_s)
 
     def close(self) -> None:
         if self._sock is not None:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import contextlib
 import logging
 import ssl
 import time
@@ -30,6 +29,7 @@ from pydantic import BaseModel
 from scotti.daemon.counters import LatencyRing
 from scotti.daemon.schemas import CONTENT_TYPES, Health, Info, Status, encode
 from scotti.daemon.settings import MqttSettings
+from scotti.daemon.waiting import Backoff, wait_event
 
 log = logging.getLogger(__name__)
 
@@ -135,12 +135,12 @@ class Publisher:
     # --- the connection loop ---------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
         """Publish until ``stop``; then drain the queue, call ``on_drained``, disconnect."""
-        backoff = BACKOFF_START_S
+        backoff = Backoff(BACKOFF_START_S, cap_s=self.settings.reconnect_max_s, jitter=0.0)
         while True:
             try:
                 async with self._client:
                     self.stats.connects += 1
-                    backoff = BACKOFF_START_S
+                    backoff.reset()
                     self._set_state("connected", self.settings.broker)
                     self._status_dirty = self._health_dirty = True
                     await self._publish(self.settings.topic("info"), self._info, True)
@@ -152,9 +152,7 @@ class Publisher:
             if stop.is_set():
                 self._set_state("stopped", "")
                 return
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), backoff)
-            backoff = min(2 * backoff, self.settings.reconnect_max_s)
+            await wait_event(stop, backoff.next_delay())
 
     async def _pump(self, stop: asyncio.Event) -> None:
         while True:

@@ -16,7 +16,6 @@ import asyncio
 import contextlib
 import errno
 import logging
-import random
 import time
 from collections.abc import AsyncGenerator, AsyncIterator
 from dataclasses import dataclass
@@ -26,6 +25,7 @@ from typing import Final, Literal, Protocol, TypeAlias
 import serial
 import serial_asyncio_fast
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.waiting import Backoff
 
 log = logging.getLogger(__name__)
 
@@ -55,25 +55,6 @@ class Source(Protocol):
     live: bool
 
     def stream(self) -> AsyncGenerator[SourceItem, None]: ...
-
-
-@dataclass
-class Backoff:
-    """Exponential backoff, capped, with jitter (so many daemons do not retry in step)."""
-
-    initial_s: float = 0.05
-    cap_s: float = 5.0
-    factor: float = 2.0
-    jitter: float = 0.5  # each delay is shortened by up to this fraction at random
-    attempt: int = 0
-
-    def next_delay(self) -> float:
-        delay = min(self.cap_s, self.initial_s * self.factor**self.attempt)
-        self.attempt += 1
-        return delay * (1.0 - self.jitter * random.random())
-
-    def reset(self) -> None:
-        self.attempt = 0
 
 
 class PortUnavailableError(DaemonError):

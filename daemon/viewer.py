@@ -24,6 +24,7 @@ import aiomqtt
 import msgpack
 import numpy as np
 from scotti.daemon.settings import ConfigError, MqttSettings
+from scotti.daemon.waiting import wait_event
 from scotti.models.contract import MAX_COUNT
 
 # xterm-256 colours from cold to hot (blue, cyan, green, yellow, red).
@@ -191,8 +192,7 @@ async def run_viewer(
                     with contextlib.suppress(asyncio.CancelledError):
                         await reader
             except aiomqtt.MqttError:
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stop.wait(), 0.5)
+                await wait_event(stop, 0.5)
     finally:
         stop.set()
         await drawer
@@ -214,8 +214,7 @@ async def _draw(state: ViewState, stop: asyncio.Event, out: TextIO, fps: float) 
         while not stop.is_set():
             out.write("\x1b[H" + render(state).replace("\n", "\x1b[K\n") + "\x1b[K\x1b[J")
             out.flush()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), 1 / fps)
+            await wait_event(stop, 1 / fps)
     finally:
         out.write("\x1b[?25h\x1b[?1049l")  # cursor back, main screen back
         out.flush()

@@ -11,8 +11,9 @@ import pytest
 from scotti.daemon.board_emulator import BoardEmulator
 from scotti.daemon.counters import Counters
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
-from scotti.daemon.sources import Backoff, ReplaySource, SerialSource, Source
+from scotti.daemon.sources import ReplaySource, SerialSource, Source
 from scotti.daemon.sources_sim import SimulatedSource
+from scotti.daemon.waiting import Backoff
 from scotti.models.contract import NUM_ACTIONS, NUM_KEYPOINTS
 from scotti.models.runtime import ScottiRuntime
 

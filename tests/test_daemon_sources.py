@@ -15,7 +15,6 @@ import pytest
 import serial
 from scotti.daemon.board_emulator import BoardEmulator
 from scotti.daemon.sources import (
-    Backoff,
     ReplaySource,
     SerialSource,
     Source,
@@ -25,6 +24,7 @@ from scotti.daemon.sources import (
     explain_open_error,
 )
 from scotti.daemon.sources_sim import SimulatedSource
+from scotti.daemon.waiting import Backoff
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
 
