@@ -34,7 +34,6 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import logging
-import math
 import os
 import queue
 import select
@@ -48,27 +47,16 @@ from pathlib import Path
 from typing import Final, Literal
 
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.speed import Speed
 
 log = logging.getLogger(__name__)
 
-Speed = float | Literal["max"]
 _POLL_S: Final = 0.02  # longest the thread waits before looking at requests again
 _DEFAULT_GAP_NS: Final = 62_500_000  # pause between two loops when a session has one record
 
 
 class EmulatorError(DaemonError):
     """The emulator cannot start: bad link path, unreadable session."""
-
-
-def parse_speed(text: str) -> Speed:
-    """``1``, ``4``, ``0.5`` or ``max``; raises ``ValueError`` on anything else."""
-    if text.strip().lower() == "max":
-        return "max"
-    value = float(text)
-    if not value > 0 or math.isinf(value):
-        msg = f"speed must be a positive number or 'max', got {text!r}"
-        raise ValueError(msg)
-    return value
 
 
 @dataclass

@@ -27,10 +27,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
-from scotti.daemon.board_emulator import BoardEmulator, EmulatorError, parse_speed
+from scotti.daemon.board_emulator import BoardEmulator, EmulatorError
 from scotti.daemon.errors import DaemonError
 from scotti.daemon.local_broker import BrokerError, Mosquitto, find_mosquitto, free_port
 from scotti.daemon.settings import EX_CONFIG, ConfigError, MqttSettings, default_model_path
+from scotti.daemon.speed import parse_speed
 from scotti.daemon.viewer import run_viewer
 
 DEVICE = "demo"

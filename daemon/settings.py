@@ -36,6 +36,7 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.speed import Speed, parse_speed
 
 EX_CONFIG: Final = 78  # sysexits.h: configuration error
 DEFAULT_MODEL_NAME: Final = "scotti-default.onnx"  # preferred among the shipped step graphs
@@ -62,14 +63,6 @@ def _check_topic_level(value: str, what: str) -> str:
     return value
 
 
-Speed = float | Literal["max"]
-
-
-def parse_speed(text: str) -> Speed:
-    """``1``, ``8``, ``0.5`` or ``max`` (replay and simulated board rate)."""
-    return "max" if text.strip().lower() == "max" else float(text)
-
-
 class SourceSettings(BaseModel):
     """Where the bytes come from: exactly one of port, replay, simulate."""
 
@@ -83,14 +76,7 @@ class SourceSettings(BaseModel):
     @field_validator("speed", mode="before")
     @classmethod
     def _speed(cls, v: object) -> Speed:
-        try:
-            speed = parse_speed(v) if isinstance(v, str) else float(v)  # type: ignore[arg-type]
-        except (TypeError, ValueError):
-            speed = 0.0
-        if speed != "max" and not 0 < speed < float("inf"):
-            msg = f"speed must be a positive number or 'max', got {v!r}"
-            raise ValueError(msg)
-        return speed
+        return parse_speed(v)
 
     @model_validator(mode="after")
     def _exactly_one(self) -> SourceSettings:

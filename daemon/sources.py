@@ -25,11 +25,11 @@ from typing import Final, Literal, Protocol, TypeAlias
 import serial
 import serial_asyncio_fast
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.speed import Speed
 from scotti.daemon.waiting import Backoff
 
 log = logging.getLogger(__name__)
 
-Speed: TypeAlias = float | Literal["max"]
 READ_SIZE: Final = 4096  # bytes asked for per read; a 16 Hz pair of frames is ~3 KB
 _YIELD_EVERY: Final = 64  # replay at max speed gives the loop a turn every this many records
 

@@ -16,7 +16,8 @@ from importlib import resources
 from pathlib import Path
 
 from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.sources import SerialSource, SourceError, SourceEvent, SourceItem, Speed
+from scotti.daemon.sources import SerialSource, SourceError, SourceEvent, SourceItem
+from scotti.daemon.speed import Speed
 from scotti.daemon.waiting import Backoff
 
 

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import serial
-from scotti.daemon.board_emulator import BoardEmulator, EmulatorError, Speed, parse_speed
+from scotti.daemon.board_emulator import BoardEmulator, EmulatorError
+from scotti.daemon.speed import Speed, parse_speed
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import Foot, FrameRows
 
@@ -147,6 +148,15 @@ def test_parse_speed() -> None:
     assert parse_speed("2.5") == 2.5
     for bad in ("0", "-1", "fast", "inf"):
         with pytest.raises(ValueError, match=r"."):
+            parse_speed(bad)
+
+
+def test_one_parse_speed_for_text_and_numbers_with_one_message() -> None:
+    assert parse_speed(" MAX ") == "max"
+    assert parse_speed(8) == 8.0
+    assert parse_speed(0.5) == 0.5
+    for bad in ("nan", 0, -2.0, float("inf"), None, "x"):
+        with pytest.raises(ValueError, match=r"^speed must be a positive number or 'max', got "):
             parse_speed(bad)
 
 

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 from pydantic import BaseModel
-from scotti.daemon.settings import ConfigError, load_settings, parse_speed, sanitise_device_id
+from scotti.daemon.settings import ConfigError, load_settings, sanitise_device_id
+from scotti.daemon.speed import parse_speed
 
 PORT = {"source": {"port": "/dev/ttyACM0"}}
 
