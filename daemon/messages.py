@@ -24,6 +24,7 @@ from scotti.daemon.schemas import (
     Progress,
     Status,
 )
+from scotti.firmware_protocol.framing import DecoderCounters
 from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_RATE_HZ, KEYPOINTS, NO_ACTION
 
 if TYPE_CHECKING:
@@ -176,14 +177,15 @@ def _latency(summary: Mapping[str, Any] | None) -> Latency:
     )
 
 
-# Decoder counters that are packets thrown away (the rest count bytes or good packets).
-BAD_PACKET_KEYS = ("bad_cobs", "too_long", "bad_crc", "bad_version", "unknown_type", "malformed")
-
-
-def _total(value: Any, keys: tuple[str, ...] | None = None) -> int:
+def _total(value: Any) -> int:
     if isinstance(value, Mapping):
-        return sum(int(v) for k, v in value.items() if keys is None or k in keys)
+        return sum(int(v) for v in value.values())
     return int(value or 0)
+
+
+def dropped_packets(decoder: Mapping[str, int] | None) -> int:
+    """The decoder's own count of packets thrown away (its dict also counts good ones)."""
+    return DecoderCounters(**decoder).errors if decoder else 0
 
 
 def health(snapshot: Mapping[str, Any], publisher: Publisher, uptime_s: float) -> Health:
@@ -196,7 +198,7 @@ def health(snapshot: Mapping[str, Any], publisher: Publisher, uptime_s: float) -
         host_mono_ns=time.monotonic_ns(),
         last_seq=stats.last_seq,
         frames_in={k: int(v) for k, v in snapshot.get("frames_in", {}).items()},
-        bad_packets=_total(snapshot.get("bad_packets"), BAD_PACKET_KEYS),
+        bad_packets=dropped_packets(snapshot.get("bad_packets")),
         gaps=_total(snapshot.get("gaps")),
         predictions=_total(snapshot.get("predictions")),
         published=stats.published,

@@ -84,3 +84,24 @@ def test_check_mode_reports_stale_files(tmp_path: Path) -> None:
     assert schemas.main(["--docs", str(tmp_path), "--write"]) == 0
     assert schemas.main(["--docs", str(tmp_path), "--check"]) == 0
     assert (tmp_path / "schemas" / "pose.schema.json").exists()
+
+
+def test_health_bad_packets_is_the_decoders_own_count_of_dropped_packets() -> None:
+    from scotti.daemon.messages import dropped_packets
+    from scotti.firmware_protocol.framing import StreamDecoder, encode_packet
+    from scotti.firmware_protocol.packets import Foot
+
+    from tests.support.sessions import frame_packets, synthetic_counts
+
+    decoder = StreamDecoder()
+    good = b"".join(
+        encode_packet(p) for p in frame_packets(Foot.LEFT, 0, 0, synthetic_counts(0, 0))
+    )
+    bad_crc = bytearray(good[: len(good) // 4])
+    bad_crc[5] ^= 0xFF
+    decoder.feed(good + b"\x01\x02\x00" + bytes(bad_crc) + good)
+    counters = decoder.counters
+    assert counters.packets == 8
+    assert counters.errors >= 2
+    assert dropped_packets(counters.as_dict()) == counters.errors  # good packets not counted
+    assert dropped_packets({}) == dropped_packets(None) == 0
