@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib
 import logging
 import platform
 import signal
 import time
 from importlib import metadata
-from typing import Any, Literal, cast
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel
@@ -32,6 +31,7 @@ from scotti.daemon.recording import Recorder
 from scotti.daemon.schemas import Status
 from scotti.daemon.settings import Settings
 from scotti.daemon.sources import ReplaySource, SerialSource, Source
+from scotti.daemon.sources_sim import SimulatedSource
 from scotti.daemon.waiting import wait_event
 from scotti.models.runtime import ScottiRuntime
 
@@ -121,11 +121,8 @@ class Daemon:
             return SerialSource(src.port)
         if src.replay is not None:
             return ReplaySource(src.replay, speed=src.speed)
-        # The simulated board (a scene on a pty, read through the serial source) is
-        # daemon-core's; looked up at run time so the service does not depend on it.
         assert src.simulate is not None
-        sources_sim = importlib.import_module("scotti.daemon.sources_sim")
-        return cast(Source, sources_sim.SimulatedSource(src.simulate, speed=src.speed))
+        return SimulatedSource(src.simulate, speed=src.speed)  # a scene on an emulated board
 
     def _make_recorder(self) -> Recorder | None:
         if self.settings.record is None:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import importlib.util
 import logging
 import os
 import signal
@@ -23,22 +22,16 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import AsyncIterator
-from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
-from scotti.daemon.board_emulator import BoardEmulator, EmulatorError
 from scotti.daemon.errors import DaemonError
-from scotti.daemon.local_broker import BrokerError, Mosquitto, find_mosquitto, free_port
+from scotti.daemon.local_broker import Mosquitto, find_mosquitto, free_port
 from scotti.daemon.settings import EX_CONFIG, ConfigError, MqttSettings, default_model_path
-from scotti.daemon.speed import parse_speed
+from scotti.daemon.sources_sim import resolve_scene
 from scotti.daemon.viewer import run_viewer
 
 DEVICE = "demo"
-
-
-class DemoError(DaemonError):
-    """The demo cannot start (no scene, no broker); one line."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -93,15 +86,9 @@ async def run_demo(args: argparse.Namespace, model: Path) -> int:
     if args.duration > 0:
         loop.call_later(args.duration, stop.set)
     log_path = Path(tempfile.gettempdir()) / f"scotti-demo-daemon-{os.getpid()}.log"
-    workdir = Path(tempfile.mkdtemp(prefix="scotti-demo-"))
-    board = None
     async with local_broker(args.broker) as (url, protocol):
         cmd = [sys.executable, "-m", "scotti.daemon.main", "--model", str(model), "--broker", url]
-        if importlib.util.find_spec("scotti.daemon.sources_sim") is not None:
-            cmd += ["--simulate", args.scene, "--speed", args.speed]
-        else:  # the same thing spelled out: the scene on an emulated board, read as a port
-            board = await asyncio.to_thread(_board_for_scene, args.scene, args.speed, workdir)
-            cmd += ["--port", str(board.link)]
+        cmd += ["--simulate", args.scene, "--speed", args.speed]
         cmd += ["--device-id", DEVICE, "--pressure"]
         env = {**os.environ, "SCOTTI_MQTT_PROTOCOL": protocol, "SCOTTI_LOG_LEVEL": "info"}
         with log_path.open("wb") as log:
@@ -114,8 +101,6 @@ async def run_demo(args: argparse.Namespace, model: Path) -> int:
         state = await run_viewer(settings, stop, device=DEVICE)
         watcher.cancel()
         code = await _stop_daemon(daemon)
-        if board is not None:
-            await asyncio.to_thread(board.stop)
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.remove_signal_handler(sig)
     print(f"demo: {state.frames_seen} frames shown; daemon exit {code}; its log: {log_path}")
@@ -124,28 +109,6 @@ async def run_demo(args: argparse.Namespace, model: Path) -> int:
         print("\n".join(f"  {line}" for line in tail), file=sys.stderr)
         return 1
     return 0
-
-
-def _board_for_scene(scene: str, speed: str, workdir: Path) -> BoardEmulator:
-    """Render ``scene`` to a session and play it, looping, on a pty board."""
-    from scotti.sim import SimError
-    from scotti.sim.corpus import render_scene
-    from scotti.sim.scene import load_scene
-
-    path = Path(scene)
-    if not path.is_file():
-        path = Path(str(resources.files("scotti.sim"))) / "scenes" / f"{scene}.toml"
-    print(f"demo: rendering scene {path.name} ...", flush=True)
-    session = workdir / "scene.scotti"
-    try:
-        render_scene(load_scene(path), session)
-        board = BoardEmulator.from_session(
-            session, workdir / "ttySCOTTI", speed=parse_speed(speed), loop=True
-        )
-        board.start()
-    except (SimError, EmulatorError, ValueError) as exc:
-        raise DemoError(str(exc).splitlines()[0]) from None
-    return board
 
 
 async def _stop_when_exits(daemon: asyncio.subprocess.Process, stop: asyncio.Event) -> None:
@@ -171,8 +134,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"demo: {exc}", file=sys.stderr)
         return EX_CONFIG
     try:
+        resolve_scene(args.scene)  # a wrong scene name is one line here, not a daemon's log
         return asyncio.run(run_demo(args, model))
-    except (BrokerError, DemoError) as exc:
+    except DaemonError as exc:  # no such scene (SourceError), no broker (BrokerError)
         print(f"demo: {exc}", file=sys.stderr)
         return 1
 

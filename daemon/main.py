@@ -11,7 +11,6 @@ import argparse
 import asyncio
 import logging
 import sys
-from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
@@ -97,9 +96,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         settings: Settings = load_settings(cli_overrides(args), args.config)
         model_path = settings.model.resolved_path()
-        if settings.source.kind == "simulate" and not find_spec("scotti.daemon.sources_sim"):
-            msg = "source.simulate: this build has no simulated board source"
-            raise ConfigError(msg)
     except ConfigError as exc:
         return _fail("config error", str(exc))
     configure_logging(settings.log_level)

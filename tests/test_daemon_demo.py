@@ -161,3 +161,13 @@ def test_demo_runs_for_a_duration_and_ends_cleanly(tiny_model_path: Path) -> Non
     shown = int(summary.split()[1])
     assert shown > 20
     assert "daemon exit 0" in summary
+
+
+def test_demo_with_an_unknown_scene_is_one_line(
+    tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from scotti.daemon import demo
+
+    assert demo.main(["--scene", "no-such-scene", "--model", str(tiny_model_path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["demo: scene 'no-such-scene': no such file and no shipped scene of that name"]
