@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import BaseModel
 from scotti.daemon.schemas import (
+    TOPICS,
     Action,
     DeviceSeq,
     Health,
@@ -34,7 +35,6 @@ if TYPE_CHECKING:
     from scotti.models.runtime import ScottiRuntime
 
 POSE_FRAME = "metres; origin on the floor under the mid-hip, z up, x forward, y to the left"
-TOPIC_NAMES = ("status", "info", "pose", "action", "progress", "health", "pressure")
 
 
 def frame_payloads(
@@ -159,7 +159,7 @@ def info(
         frame_rate_hz=FRAME_RATE_HZ,
         window=runtime.window,
         format=mqtt.format,
-        topics={name: mqtt.topic(name) for name in TOPIC_NAMES},
+        topics={name: mqtt.topic(name) for name in TOPICS},  # every payload schema's topic
         settings=effective,
         host_wall_ns=time.time_ns(),
     )

@@ -167,6 +167,8 @@ def test_the_daemon_records_beside_an_existing_file_and_names_it_in_info(
     assert actual != existing
     assert actual.parent == tmp_path
     assert info["settings"]["record_requested"] == str(existing)
+    names = ("status", "info", "pose", "action", "progress", "health", "pressure")
+    assert info["topics"] == {n: f"scotti/rec/{n}" for n in names}
     recorded = read_session(actual)
     assert b"".join(p.data for p in recorded.packets) == session.data
     assert f"INFO scotti.daemon.recording: recording to {actual}" in daemon.log
