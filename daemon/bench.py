@@ -25,6 +25,7 @@ import aiomqtt
 import numpy as np
 import psutil
 from scotti.daemon.board_emulator import BoardEmulator
+from scotti.daemon.counters import latency_summary
 from scotti.daemon.local_broker import Mosquitto
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.firmware_protocol.framing import encode_packet
@@ -60,10 +61,10 @@ def board_records(seconds: float, seed: int = 0) -> list[tuple[int, bytes]]:
 
 
 def percentiles(values: list[float]) -> str:
-    if not values:
+    s = latency_summary(values)
+    if not s["n"]:
         return "no samples"
-    p50, p90, p99 = np.percentile(values, [50, 90, 99])
-    return f"p50 {p50:6.2f}  p90 {p90:6.2f}  p99 {p99:6.2f}  max {max(values):6.2f} ms"
+    return f"p50 {s['p50']:6.2f}  p90 {s['p90']:6.2f}  p99 {s['p99']:6.2f}  max {s['max']:6.2f} ms"
 
 
 async def collect(broker: Mosquitto, seconds: float, warmup: float) -> list[dict[str, float]]:

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scotti.daemon.pairing import FOOT_NAMES, PairingCounters
 
 
@@ -29,17 +30,22 @@ class LatencyRing:
         self._count = min(self._count + 1, len(self._values))
 
     def summary(self) -> dict[str, float | int]:
-        if not self._count:
-            return {"n": 0, "p50": 0.0, "p90": 0.0, "p99": 0.0, "max": 0.0}
-        values = self._values[: self._count]
-        p50, p90, p99 = np.percentile(values, [50, 90, 99])
-        return {
-            "n": self._count,
-            "p50": round(float(p50), 3),
-            "p90": round(float(p90), 3),
-            "p99": round(float(p99), 3),
-            "max": round(float(values.max()), 3),
-        }
+        return latency_summary(self._values[: self._count])
+
+
+def latency_summary(values: npt.ArrayLike) -> dict[str, float | int]:
+    """n, p50, p90, p99 and max of latencies in ms (zeros when there are none)."""
+    ms = np.asarray(values, dtype=np.float64)
+    if not ms.size:
+        return {"n": 0, "p50": 0.0, "p90": 0.0, "p99": 0.0, "max": 0.0}
+    p50, p90, p99 = np.percentile(ms, [50, 90, 99])
+    return {
+        "n": int(ms.size),
+        "p50": round(float(p50), 3),
+        "p90": round(float(p90), 3),
+        "p99": round(float(p99), 3),
+        "max": round(float(ms.max()), 3),
+    }
 
 
 @dataclass

@@ -42,3 +42,18 @@ def test_collect_ends_on_time_under_a_flood_of_poses(mosquitto: Mosquitto) -> No
     got, took = asyncio.run(body())
     assert got > 0  # it did read the flood after the warm-up
     assert took < 5.0  # and still stopped: the timeout was not swallowed
+
+
+def test_bench_percentiles_and_the_health_ring_summarise_alike() -> None:
+    from scotti.daemon.bench import percentiles
+    from scotti.daemon.counters import LatencyRing
+
+    values = [1.0, 2.0, 3.0, 10.0]
+    ring = LatencyRing(8)
+    for v in values:
+        ring.add(v)
+    s = ring.summary()
+    assert s == {"n": 4, "p50": 2.5, "p90": 7.9, "p99": 9.79, "max": 10.0}
+    assert percentiles(values) == "p50   2.50  p90   7.90  p99   9.79  max  10.00 ms"
+    assert percentiles([]) == "no samples"
+    assert LatencyRing().summary()["n"] == 0
