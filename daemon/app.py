@@ -57,11 +57,13 @@ class Daemon:
         self._publisher: Publisher | None = None
 
     async def run(self) -> int:
-        recorder = self._make_recorder()  # first: RecordingError before anything started
+        # First, before anything has started: a scene or recording that cannot be
+        # used is a one-line error (SourceError, RecordingError).
+        source = self._make_source()
+        recorder = self._make_recorder()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self._on_signal, sig)
-        source = self._make_source()
         publisher = Publisher(
             self.settings.mqtt,
             info=messages.info(

@@ -33,6 +33,17 @@ def resolve_scene(scene: str | Path) -> Path:
     raise SourceError(msg)
 
 
+def check_scene(scene_path: Path) -> None:
+    """Parse and validate a scene now, so a broken one stops the daemon at start."""
+    from scotti.sim import SimError
+    from scotti.sim.scene import load_scene
+
+    try:
+        load_scene(scene_path)
+    except SimError as exc:
+        raise SourceError(str(exc)) from None
+
+
 def render_scene_file(scene_path: Path, session_path: Path) -> None:
     """Render a scene into a session file (runs in a worker thread: it takes seconds)."""
     from scotti.sim import SimError
@@ -60,6 +71,10 @@ class SimulatedSource:
         backoff: Backoff | None = None,
     ) -> None:
         self.scene = scene
+        # Resolved and validated here, not when streaming starts: an unknown or
+        # broken scene is a one-line error at start, like any other bad setting.
+        self.scene_path = resolve_scene(scene)
+        check_scene(self.scene_path)
         self.speed = speed
         self.loop = loop
         self.stall_s = stall_s
@@ -71,7 +86,7 @@ class SimulatedSource:
         return self.stream()
 
     async def stream(self) -> AsyncGenerator[SourceItem, None]:
-        scene_path = resolve_scene(self.scene)
+        scene_path = self.scene_path
         with tempfile.TemporaryDirectory(prefix="scotti-sim-") as tmp:
             session = Path(tmp) / "scene.scotti"
             yield SourceEvent("disconnected", f"rendering scene {scene_path.stem}")

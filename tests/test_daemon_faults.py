@@ -224,6 +224,13 @@ def test_config_error_is_one_line_exit_78(
     assert_one_line(run_daemon(*args, env=env), starts)
 
 
+def test_unknown_scene_is_one_line_exit_78(tmp_path: Path) -> None:
+    record = tmp_path / "never.scotti"
+    out = run_daemon("--simulate", "no-such-scene", "--record", str(record))
+    assert_one_line(out, "scotti-daemon: error: scene 'no-such-scene': no such file")
+    assert not record.exists()  # refused before anything was started or created
+
+
 def test_model_that_does_not_fit_the_contract(tiny_model_path: Path, tmp_path: Path) -> None:
     model = onnx.load(str(tiny_model_path))
     for prop in model.metadata_props:

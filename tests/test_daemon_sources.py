@@ -282,13 +282,13 @@ def test_simulated_source_plays_a_scene_through_a_pty(tmp_path: Path) -> None:
     run(body)
 
 
-def test_an_unknown_scene_is_one_line() -> None:
-    async def body() -> None:
-        with pytest.raises(SourceError, match="no shipped scene"):
-            async for _ in SimulatedSource("no-such-scene").stream():
-                pass
-
-    run(body)
+def test_an_unknown_or_broken_scene_is_refused_when_the_source_is_made(tmp_path: Path) -> None:
+    with pytest.raises(SourceError, match="no shipped scene"):
+        SimulatedSource("no-such-scene")
+    broken = tmp_path / "broken.toml"
+    broken.write_text('[subject]\nheight_m = 1.7\nmass_kg = 70\n[[script]]\naction = "dance"\n')
+    with pytest.raises(SourceError, match=r"broken\.toml line 5: script\[0\]\.action"):
+        SimulatedSource(broken)
 
 
 def test_unplug_and_replug_log_no_error(
