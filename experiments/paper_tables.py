@@ -119,8 +119,11 @@ def main(argv: list[str] | None = None) -> int:
         }
         # --jobs 2 with --threads 1: two runs side by side, one core each.
         with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+            # Runs side by side slow each other down: on this machine two at once ran at about
+            # half the rate one alone measured (the sweep's log), so plan with rate / jobs.
             futures = {
-                k: pool.submit(train, s, share, rate, windows, log) for k, s in specs.items()
+                k: pool.submit(train, s, share, rate / args.jobs, windows, log)
+                for k, s in specs.items()
             }
             plans = {k: f.result() for k, f in futures.items()}
         jobs = []
