@@ -140,6 +140,9 @@ def train(spec: RunSpec, budget_s: float, rate: float, windows: int, log: Path) 
     state = read_json(path) if path.is_file() else plan(spec, budget_s, rate, windows)
     if state["status"] == "done" or state["status"].startswith("failed"):
         return state
+    # A larger budget than the run was planned with continues it (same epochs and stride:
+    # the schedule resumes where it stopped); a smaller one never takes time back.
+    state["budget_s"] = max(state["budget_s"], budget_s)
     left = state["budget_s"] - state["trained_s"]
     if left <= 5:
         state["status"] = "budget spent"
