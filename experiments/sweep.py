@@ -29,6 +29,7 @@ from common import (
     DOCS,
     IMG,
     PARTITIONS,
+    ROOT,
     RUNS,
     ExperimentError,
     load_partitions,
@@ -143,7 +144,9 @@ def main(argv: list[str] | None = None) -> int:
             partition=partition,
             eval_subjects=args.eval_subjects,
             invocation=invocation,
-            commands=COMMANDS + sorted({c for p in plans.values() for c in p["commands"]}),
+            commands=list(
+                dict.fromkeys(COMMANDS + sorted({c for p in plans.values() for c in p["commands"]}))
+            ),
             written=utc_now(),
         )
         print(f"wrote {args.doc}; default: {choice['label'] if choice else 'none'}")
@@ -255,7 +258,7 @@ def ship(
             "scotti eval (see docs/accuracy-vs-latency.md)",
         ),
         "--from",
-        str(group / name / "last.pt"),
+        str((group / name / "last.pt").relative_to(ROOT)),
         "--data",
         data,
         "--note",

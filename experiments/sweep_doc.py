@@ -81,6 +81,10 @@ def rows_of(
     return rows
 
 
+def _median(row: dict[str, Any], threads: int = 1) -> float:
+    return float(row["latency"][str(threads)]["step_median_ms"])
+
+
 def p99(row: dict[str, Any], threads: int = 1) -> float:
     return float(row["latency"][str(threads)]["step_p99_ms"])
 
@@ -293,15 +297,45 @@ def advice(rows: list[dict[str, Any]], choice: dict[str, Any] | None, limit_ms: 
             f"instead of 40 (2.5 s): {t20[0]['label']}, at the accuracy the table shows. The "
             "daemon's contract fixes T=40 today, so it is measured here but cannot be shipped."
         )
+    fp32 = [r for r in rows if r["precision"] == "fp32"]
+    gains = {
+        r["config"]: r["latency"]["1"]["step_median_ms"] / r["latency"]["2"]["step_median_ms"]
+        for r in fp32
+    }
+    helped = [f"{c} {g:.2f}x" for c, g in gains.items() if g > 1.1]
     lines.append(
-        "- **A spare core**: `threads = 2` in the daemon's model settings helps the wide models "
-        "(compare the two latency columns); for the small ones the second thread buys little."
+        "- **A spare core**: `threads = 2` in the daemon's model settings (step median, one "
+        "thread against two): "
+        + (", ".join(helped) if helped else "no config gained more than 10 %")
+        + "; the others gain nothing worth a core."
     )
-    lines.append(
-        "- **int8**: 4x smaller files and a faster step for the wide models at a small, "
-        "measured cost in accuracy (see above); the CNN stays fp32 because quantizing Conv "
-        "did not pay (the int8+conv rows)."
-    )
+    by = {(r["config"], r["precision"]): r for r in rows}
+    q = [(r, by[r["config"], "int8"]) for r in fp32 if (r["config"], "int8") in by]
+    scored_pairs = [(a, b) for a, b in q if a["metrics"] and b["metrics"]]
+    if scored_pairs:
+        worst = max(
+            abs(b["metrics"]["action_accuracy"] - a["metrics"]["action_accuracy"])
+            for a, b in scored_pairs
+        )
+        speed = ", ".join(f"{a['config']} {_median(a) / _median(b):.1f}x" for a, b in q)
+        lines.append(
+            f"- **int8** (MatMul/Gemm): files about {q[0][0]['size_mb'] / q[0][1]['size_mb']:.1f}x "
+            f"smaller, step faster by {speed} (one thread); accuracy moved by at most "
+            f"{100 * worst:.2f} points on the held-out subjects."
+        )
+    conv = [(by[c, "int8"], r) for (c, p), r in by.items() if p == "int8+conv"]
+    for plain, both in conv:
+        lines.append(
+            f"- **int8 Conv too** ({plain['config']}): step {_median(both):.2f} ms "
+            f"against {_median(plain):.2f} ms with fp32 Conv, window "
+            f"recompute {both['latency']['1']['window_median_ms']:.2f} ms against "
+            f"{plain['latency']['1']['window_median_ms']:.2f} ms: "
+            + (
+                "it does not pay, so Conv stays fp32."
+                if both["latency"]["1"]["step_median_ms"] >= plain["latency"]["1"]["step_median_ms"]
+                else "it pays here."
+            )
+        )
     return lines
 
 
@@ -318,11 +352,12 @@ def pareto_plot(rows: list[dict[str, Any]], img: Path, limit_ms: float) -> Path:
         (axes[0], "action_accuracy", "action accuracy (%)", 100.0),
         (axes[1], "mpjpe_mm", "MPJPE (mm, lower is better)", 1.0),
     ):
+        configs = sorted({r["config"] for r in scored})
+        colours = {c: f"C{i}" for i, c in enumerate(configs)}
         for r in scored:
             x, y = p99(r), r["metrics"][key] * scale
             marker = "o" if r["precision"] == "fp32" else "s"
-            ax.scatter([x], [y], marker=marker, s=30)
-            ax.annotate(r["label"], (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
+            ax.scatter([x], [y], marker=marker, s=36, color=colours[r["config"]], label=r["label"])
         lower = key == "mpjpe_mm"
         front, best = [], None
         for r in sorted(scored, key=p99):
@@ -337,7 +372,7 @@ def pareto_plot(rows: list[dict[str, Any]], img: Path, limit_ms: float) -> Path:
         ax.axvline(limit_ms, color="red", ls="--", lw=1, label=f"{limit_ms:.0f} ms p99")
         ax.set_xscale("log")
         ax.set(xlabel="streaming step p99 (ms, 1 thread, log)", ylabel=label)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=6, ncol=2)
     fig.suptitle("Accuracy against latency (circles fp32, squares int8)", fontsize=9)
     fig.tight_layout()
     out = img / "accuracy-vs-latency.png"
