@@ -16,8 +16,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from scotti.daemon.evaluation import EvaluationError, evaluate_models, find_session_files
+from scotti.daemon.evaluation import EvaluationError, evaluate_models
 from scotti.firmware_protocol.errors import SessionError
+from scotti.firmware_protocol.session import find_session_files
 from scotti.models.contract import ACTIONS
 from scotti.models.errors import ModelError
 from scotti.models.runtime import ScottiRuntime

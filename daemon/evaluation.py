@@ -15,13 +15,14 @@ No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
+from scotti.daemon.errors import DaemonError
 from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.daemon.window import Window
 from scotti.firmware_protocol.assembly import FrameAssembler
@@ -35,11 +36,10 @@ from scotti.models.runtime import ScottiRuntime
 
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
-SESSION_MAGIC: Final = b"SCOTSESS"
 RANDOM_SEED: Final = 0  # the random baseline's draws, fixed so that reruns agree
 
 
-class EvaluationError(Exception):
+class EvaluationError(DaemonError):
     """A mistake in what was asked to evaluate: one line for the user."""
 
 
@@ -133,23 +133,6 @@ class SessionReplay:
             "degraded_pairs": self.degraded_pairs,
         }
         return out
-
-
-def find_session_files(paths: Iterable[str | Path]) -> list[Path]:
-    """Files as given, plus every session file (by its magic) under directories."""
-    found: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            found.extend(f for f in sorted(p.rglob("*")) if f.is_file() and _is_session(f))
-        elif p.is_file():
-            found.append(p)
-        else:
-            msg = f"{p}: no such file or directory"
-            raise EvaluationError(msg)
-    if not found:
-        msg = "no session files found in " + ", ".join(map(str, paths))
-        raise EvaluationError(msg)
-    return found
 
 
 def replay_session(
@@ -295,14 +278,6 @@ def _subject_of(subject: dict[str, Any] | None) -> str | None:
         if key in subject:
             return str(subject[key])
     return None
-
-
-def _is_session(path: Path) -> bool:
-    try:
-        with path.open("rb") as f:
-            return f.read(len(SESSION_MAGIC)) == SESSION_MAGIC
-    except OSError:
-        return False
 
 
 # --- scores ------------------------------------------------------------------

@@ -14,9 +14,6 @@ from scotti.daemon.errors import DaemonError
 
 from tests.support.sessions import SyntheticSession
 
-# Owned by the evaluation engineer and rooted elsewhere for now (see the cleanup report).
-NOT_YET_ROOTED = {"scotti.daemon.evaluation.EvaluationError"}
-
 
 def daemon_exception_classes() -> list[type[BaseException]]:
     found: list[type[BaseException]] = []
@@ -36,13 +33,13 @@ def test_every_daemon_exception_derives_from_daemon_error() -> None:
         "scotti.daemon.sources.SourceError",
         "scotti.daemon.recording.RecordingError",
         "scotti.daemon.board_emulator.EmulatorError",
+        "scotti.daemon.evaluation.EvaluationError",
     } <= names
     stray = sorted(
         n
         for c in classes
         if not issubclass(c, DaemonError)
         for n in [f"{c.__module__}.{c.__qualname__}"]
-        if n not in NOT_YET_ROOTED
     )
     assert stray == []
 
