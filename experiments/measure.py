@@ -132,6 +132,16 @@ def describe(models: list[Path], threads: list[int], steps: int) -> dict[str, di
     return result
 
 
+def conv_int8(src: Path, dst: Path) -> Path:
+    """int8 dynamic quantization with Conv included (scotti export leaves Conv fp32)."""
+    if dst.is_file() and dst.stat().st_mtime > src.stat().st_mtime:
+        return dst
+    from scotti.export.quantize import quantize_int8
+
+    quantize_int8(src, dst, ops=("Conv", "MatMul", "Gemm"))
+    return dst
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python experiments/measure.py", description=__doc__)
     parser.add_argument("models", nargs="+", type=Path)
@@ -144,30 +154,3 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
-
-
-def conv_int8(src: Path, dst: Path) -> Path:
-    """int8 dynamic quantization with Conv included (scotti export leaves Conv fp32)."""
-    if dst.is_file() and dst.stat().st_mtime > src.stat().st_mtime:
-        return dst
-    import tempfile
-
-    from onnxruntime.quantization import QuantType, quantize_dynamic
-    from scotti.export.quantize import drop_initializer_value_info
-
-    proto = onnx.load(str(src))
-    metadata = [(p.key, p.value) for p in proto.metadata_props]
-    drop_initializer_value_info(proto)
-    with tempfile.TemporaryDirectory() as tmp:
-        clean = Path(tmp) / "clean.onnx"
-        onnx.save(proto, str(clean))
-        quantize_dynamic(
-            clean, dst, op_types_to_quantize=["Conv", "MatMul", "Gemm"], weight_type=QuantType.QInt8
-        )
-    out = onnx.load(str(dst))
-    del out.metadata_props[:]
-    for key, value in metadata:
-        entry = out.metadata_props.add()
-        entry.key, entry.value = key, value
-    onnx.save(out, str(dst))
-    return dst

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import logging
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import onnx
 from onnxruntime.quantization import QuantType, quantize_dynamic
 from scotti.export.errors import ExportError
 
-QUANTIZED_OPS = ["MatMul", "Gemm"]
+QUANTIZED_OPS: tuple[str, ...] = ("MatMul", "Gemm")
 
 
 def drop_initializer_value_info(proto: onnx.ModelProto) -> int:
@@ -32,8 +33,12 @@ def drop_initializer_value_info(proto: onnx.ModelProto) -> int:
     return dropped
 
 
-def quantize_int8(src: Path, dst: Path) -> None:
-    """src (fp32 graph with metadata) -> dst (int8 MatMul/Gemm, same metadata)."""
+def quantize_int8(src: Path, dst: Path, ops: Sequence[str] = QUANTIZED_OPS) -> None:
+    """src (fp32 graph with metadata) -> dst (int8 ``ops``, same metadata).
+
+    ``ops`` other than the default are for measurement (e.g. Conv too, to show
+    whether it pays); ``scotti export --int8`` always uses the default.
+    """
     proto = onnx.load(str(src))
     metadata = [(p.key, p.value) for p in proto.metadata_props]
     drop_initializer_value_info(proto)
@@ -47,7 +52,7 @@ def quantize_int8(src: Path, dst: Path) -> None:
             quantize_dynamic(
                 clean,
                 dst,
-                op_types_to_quantize=QUANTIZED_OPS,
+                op_types_to_quantize=list(ops),
                 weight_type=QuantType.QInt8,
             )
     except Exception as exc:  # onnxruntime raises assorted types
