@@ -126,7 +126,7 @@ def write_evaluation_doc(
         "",
         "```",
         *sorted({c for plan in plans.values() for c in plan.get("commands", [])}),
-        *[c for c in commands if " train " not in c and "train_variant" not in c],
+        *[c for c in commands if " train " not in c],
         "```",
         "",
     ]

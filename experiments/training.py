@@ -1,4 +1,4 @@
-"""Budgeted, resumable training runs through ``scotti train`` (or its loss-weight wrapper).
+"""Budgeted, resumable training runs through ``scotti train``.
 
 A run lives in runs/<group>/<name>/ with ``plan.json``: the epochs and
 stride chosen from the measured throughput so that the LR schedule ends
@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +31,6 @@ from common import (
 )
 
 CACHE = RUNS / ".session-cache"
-VARIANT = Path(__file__).resolve().parent / "train_variant.py"
 EPOCHS = 3  # epochs a budget is cut into: the schedule's warmup and decay both happen
 MAX_STRIDE = 40  # T: a larger stride would skip frames entirely
 LR = 1e-3  # short budgets want a brisk learning rate (Adam, warmup + cosine)
@@ -87,7 +85,7 @@ class RunSpec:
         weights = VARIANTS[self.variant]
         if weights is None:
             return scotti_command("train", *args)
-        return [sys.executable, str(VARIANT), "--loss-weights", weights, *args]
+        return scotti_command("train", *args, "--loss-weights", weights)
 
 
 def measure(spec: RunSpec, log: Path) -> tuple[float, int]:

@@ -19,6 +19,7 @@ import torch
 from scotti.export.checkpoint import load_checkpoint
 from scotti.export.data import SessionArrays, find_sessions, load_session
 from scotti.export.errors import ExportError
+from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.train import Trainer, TrainOptions, measure_throughput
 from scotti.export.windows import WindowDataset, split_by_subject
@@ -64,6 +65,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr", type=float, default=d.lr)
     parser.add_argument("--weight-decay", type=float, default=d.weight_decay)
     parser.add_argument("--max-shift", type=int, default=d.max_shift, help="augmentation, taxels")
+    w = d.loss_weights
+    parser.add_argument(
+        "--loss-weights",
+        default=f"{w.pose:g},{w.action:g},{w.progress:g}",
+        metavar="POSE,ACTION,PROGRESS",
+        help="weights of the three losses (paper: 0.01,1,1); 0 switches a task off",
+    )
     parser.add_argument("--seed", type=int, default=d.seed)
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument("--max-minutes", type=float, default=0.0, help="0 = no time limit")
@@ -112,6 +120,21 @@ def parse_config(text: str) -> ScottiConfig:
     return ScottiConfig.from_dict(values)
 
 
+def parse_loss_weights(text: str) -> LossWeights:
+    """'POSE,ACTION,PROGRESS' -> LossWeights; each >= 0 and not all 0."""
+    try:
+        pose, action, progress = (float(x) for x in text.split(","))
+    except ValueError:
+        msg = f"--loss-weights wants three numbers POSE,ACTION,PROGRESS, got {text!r}"
+        raise TrainCliError(msg) from None
+    values = (pose, action, progress)
+    # not (x >= 0) also catches NaN, which would poison every step.
+    if any(not (x >= 0.0) or x == float("inf") for x in values) or sum(values) == 0.0:
+        msg = f"--loss-weights must be finite, >= 0 and not all 0, got {text!r}"
+        raise TrainCliError(msg)
+    return LossWeights(pose=pose, action=action, progress=progress)
+
+
 def _options(args: argparse.Namespace) -> TrainOptions:
     for name in ("epochs", "batch", "chunk", "stride", "val_stride", "threads"):
         if getattr(args, name) < 1:
@@ -126,6 +149,7 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         lr=args.lr,
         weight_decay=args.weight_decay,
         max_shift=args.max_shift,
+        loss_weights=parse_loss_weights(args.loss_weights),
         seed=args.seed,
         max_minutes=args.max_minutes,
         progress_bar=not args.no_progress and sys.stderr.isatty(),

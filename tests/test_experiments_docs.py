@@ -7,13 +7,11 @@ their pieces run on small synthetic inputs: reports made by the real
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 from scotti.daemon.evaluation import FrameSet, score, task_metrics
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
@@ -23,7 +21,6 @@ import common  # noqa: E402
 import corpus  # noqa: E402
 import sweep_doc  # noqa: E402
 import tables_doc  # noqa: E402
-import train_variant  # noqa: E402
 import training  # noqa: E402
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -61,14 +58,6 @@ def test_a_plan_fits_its_budget() -> None:
         # Planned epochs fit in 60 % of the budget, unless even one cannot.
         assert seen <= 0.6 * budget_s * 100 * 1.01 or plan["epochs"] == 1
     assert plan["loss_weights"] == "0.01,1,1"
-
-
-def test_loss_weights_are_parsed_or_refused() -> None:
-    w = train_variant.parse_weights("0,1,0")
-    assert (w.pose, w.action, w.progress) == (0.0, 1.0, 0.0)
-    for bad in ("1,2", "a,b,c", "0,0,0", "-1,1,1"):
-        with pytest.raises(argparse.ArgumentTypeError):
-            train_variant.parse_weights(bad)
 
 
 def _frames(n: int, seed: int, quality: float) -> FrameSet:

@@ -165,6 +165,27 @@ def test_cli_mistakes_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture
     assert "preset" in capsys.readouterr().err
 
 
+def test_cli_loss_weights_make_a_single_task_run(
+    sessions_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "action-only"
+    args = [str(sessions_dir), "-o", str(run), "--config", json.dumps(TINY), "--epochs", "1"]
+    args += ["--batch", "8", "--chunk", "4", "--test-subjects", "b"]
+    assert main(["train", *args, "--loss-weights", "0,1,0"]) == 0
+    ckpt = torch.load(run / "last.pt", weights_only=True)
+    assert ckpt["options"]["loss_weights"] == {"pose": 0.0, "action": 1.0, "progress": 0.0}
+    val = ckpt["metrics"]["val"]
+    # The validation loss is the weighted one: with pose and progress off it is the CE alone.
+    assert val["loss"] == pytest.approx(val["loss_action"], rel=1e-5)
+    assert val["loss_pose"] > 0
+
+    for bad in ("1,2", "a,b,c", "0,0,0", "-1,1,1", "nan,1,1", "inf,1,1"):
+        assert main(["train", *args, "-o", str(tmp_path / "r"), f"--loss-weights={bad}"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("scotti train: --loss-weights")
+        assert "\n" not in err
+
+
 def test_a_diverged_loss_stops_with_one_line(sessions_dir: Path) -> None:
     ds = dataset(sessions_dir)
     model = tiny_model()
