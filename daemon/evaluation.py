@@ -9,6 +9,10 @@ the frame after the newest one in its window. The first T labelled frames of
 a session therefore have no prediction (the window warms up on T frames and
 the first prediction is for frame T).
 
+``every=K`` > 1 scores every K-th prediction time instead, through the window
+graph in batches (``daemon.eval_sampling``): same decoding, assembly, pairing
+and restarts, a fraction of the model time.
+
 No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
 """
 
@@ -23,6 +27,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.eval_sampling import Prediction, SampledTrack, window_timing
 from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.daemon.window import Window
 from scotti.firmware_protocol.assembly import FrameAssembler
@@ -32,7 +37,7 @@ from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionR
 from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models import metrics
 from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.runtime import ScottiRuntime, load_pair, window_graph_for
 
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
@@ -115,14 +120,16 @@ class SessionReplay:
     subject: str  # the header's subject id, else the file's stem (as training names it)
     labels: int = 0  # label records in the file
     pairs: int = 0  # paired frames the window took
-    predictions: int = 0  # steps past the warm-up
+    predictions: int = 0  # predictions made (with --every K: the scored ones)
     evaluated: int = 0  # predictions whose time has a label
     unlabelled: int = 0  # predictions for a time without a label (the last one, gaps)
     window_restarts: int = 0
     decode_errors: int = 0
     degraded_pairs: int = 0  # pairs with a held, filled or patched foot
-    step_ms: list[float] = field(default_factory=list, repr=False)
+    step_ms: list[float] = field(default_factory=list, repr=False)  # step graph only
+    window_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)
     frames: FrameSet = field(default_factory=FrameSet.empty, repr=False)
+    made: list[Prediction] = field(default_factory=list, repr=False)  # in time order
 
     def summary(self) -> dict[str, Any]:
         keys = ("path", "subject", "labels", "pairs", "predictions", "evaluated", "unlabelled")
@@ -136,18 +143,45 @@ class SessionReplay:
 
 
 def replay_session(
-    path: str | Path, runtime: ScottiRuntime, pairing: PairingConfig | None = None
+    path: str | Path,
+    runtime: ScottiRuntime,
+    pairing: PairingConfig | None = None,
+    *,
+    every: int = 1,
 ) -> SessionReplay:
     """Replay one session file through the daemon's path; score against its labels."""
-    return replay_session_models(path, [runtime], pairing)[0]
+    return replay_session_models(path, [runtime], pairing, every=every)[0]
+
+
+def window_graphs(runtimes: Sequence[ScottiRuntime]) -> list[ScottiRuntime]:
+    """The window graph next to each step graph (``--every K``), checked to match it."""
+    out = []
+    for runtime in runtimes:
+        path = window_graph_for(runtime.path)
+        if not path.is_file():
+            msg = f"--every needs the window graph {path}, which does not exist"
+            raise EvaluationError(msg)
+        out.append(load_pair(runtime.path, runtime.threads)[1])
+    return out
 
 
 def replay_session_models(
-    path: str | Path, runtimes: Sequence[ScottiRuntime], pairing: PairingConfig | None = None
+    path: str | Path,
+    runtimes: Sequence[ScottiRuntime],
+    pairing: PairingConfig | None = None,
+    *,
+    every: int = 1,
+    windows: Sequence[ScottiRuntime] | None = None,
 ) -> list[SessionReplay]:
     """One replay, several models: the bytes are decoded, assembled and paired once,
     and every paired frame goes into each model's own window (nothing is shared
-    between the models but the pairs). One ``SessionReplay`` per runtime."""
+    between the models but the pairs). One ``SessionReplay`` per runtime.
+
+    ``every`` > 1: every ``every``-th prediction through the window graphs
+    ``windows`` (default: those next to ``runtimes``) instead of the step graph."""
+    if every < 1:
+        msg = f"--every must be at least 1, got {every}"
+        raise EvaluationError(msg)
     decoder = StreamDecoder()
     assembler = FrameAssembler()
     pairs = Pairing(pairing)
@@ -155,7 +189,12 @@ def replay_session_models(
     clock = _SeqClock()
     with SessionReader(path) as reader:
         subject = _subject_of(reader.header.subject) or Path(path).stem
-        tracks = [_Track(Window(r), SessionReplay(str(path), subject)) for r in runtimes]
+        tracks: list[_Track | SampledTrack]
+        if every == 1:
+            tracks = [_Track(Window(r), SessionReplay(str(path), subject)) for r in runtimes]
+        else:
+            graphs = window_graphs(runtimes) if windows is None else windows
+            tracks = [SampledTrack(w, every, SessionReplay(str(path), subject)) for w in graphs]
 
         def take(pair: PairedFrame) -> None:
             ext = clock.unwrap(pair.seqs[0] if pair.seqs[0] >= 0 else pair.seqs[1])
@@ -178,10 +217,12 @@ def replay_session_models(
         for pair in pairs.flush():
             take(pair)
     for track in tracks:
+        track.finish()
         out = track.out
         out.labels = len(labels)
-        out.predictions = len(track.made)
-        out.window_restarts = track.window.restarts
+        out.made = track.made
+        out.predictions = len(out.made)
+        out.window_restarts = track.restarts
         out.decode_errors = decoder.counters.errors
         out.frames, out.unlabelled = _align(track.made, labels)
         out.evaluated = len(out.frames)
@@ -194,7 +235,7 @@ class _Track:
 
     window: Window
     out: SessionReplay
-    made: list[_Made] = field(default_factory=list)
+    made: list[Prediction] = field(default_factory=list)
 
     def take(self, pair: PairedFrame, ext: int | None) -> None:
         if pair.restart:
@@ -205,15 +246,14 @@ class _Track:
         self.out.pairs += 1
         self.out.degraded_pairs += bool(pair.flags)
         if result is not None and ext is not None:
-            self.made.append(_Made(ext + 1, result.pose, result.action_probs, result.progress))
+            self.made.append(Prediction(ext + 1, result.pose, result.action_probs, result.progress))
 
+    @property
+    def restarts(self) -> int:
+        return self.window.restarts
 
-@dataclass(frozen=True)
-class _Made:
-    ext: int  # unwrapped seq of the time the prediction is for
-    pose: F32
-    probs: F32
-    progress: float
+    def finish(self) -> None:
+        """Nothing is pending: every step ran as its pair came."""
 
 
 class _SeqClock:
@@ -234,7 +274,7 @@ class _SeqClock:
         return self._ext
 
 
-def _align(made: list[_Made], labels: list[LabelRecord]) -> tuple[FrameSet, int]:
+def _align(made: list[Prediction], labels: list[LabelRecord]) -> tuple[FrameSet, int]:
     """Match predictions to labels by unwrapped seq; returns the frames and the misses."""
     if not made or not labels:
         return FrameSet.empty(), len(made)
@@ -337,28 +377,49 @@ def score(frames: FrameSet) -> dict[str, Any]:
 
 
 def evaluate_sessions(
-    paths: Sequence[str | Path], runtime: ScottiRuntime, pairing: PairingConfig | None = None
+    paths: Sequence[str | Path],
+    runtime: ScottiRuntime,
+    pairing: PairingConfig | None = None,
+    *,
+    every: int = 1,
 ) -> dict[str, Any]:
     """Replay every session, pool their frames, and score them (JSON-ready)."""
-    return evaluate_models(paths, [runtime], pairing)[0]
+    return evaluate_models(paths, [runtime], pairing, every=every)[0]
 
 
 def evaluate_models(
     paths: Sequence[str | Path],
     runtimes: Sequence[ScottiRuntime],
     pairing: PairingConfig | None = None,
+    *,
+    every: int = 1,
 ) -> list[dict[str, Any]]:
     """``evaluate_sessions`` for several models over one replay of each session."""
-    per_session = [replay_session_models(p, runtimes, pairing) for p in paths]
+    if every < 1:
+        msg = f"--every must be at least 1, got {every}"
+        raise EvaluationError(msg)
+    windows = window_graphs(runtimes) if every > 1 else None
+    per_session = [
+        replay_session_models(p, runtimes, pairing, every=every, windows=windows) for p in paths
+    ]
     return [
-        _report(runtime, [replays[i] for replays in per_session])
+        _report(
+            runtime,
+            [replays[i] for replays in per_session],
+            every,
+            windows[i] if windows else None,
+        )
         for i, runtime in enumerate(runtimes)
     ]
 
 
-def _report(runtime: ScottiRuntime, replays: list[SessionReplay]) -> dict[str, Any]:
+def _report(
+    runtime: ScottiRuntime,
+    replays: list[SessionReplay],
+    every: int,
+    window_graph: ScottiRuntime | None,
+) -> dict[str, Any]:
     frames = FrameSet.concat([r.frames for r in replays])
-    steps = np.array([ms for r in replays for ms in r.step_ms], dtype=np.float64)
     report: dict[str, Any] = {
         "model": {
             "path": str(runtime.path),
@@ -367,13 +428,25 @@ def _report(runtime: ScottiRuntime, replays: list[SessionReplay]) -> dict[str, A
             "embed_dim": runtime.embed_dim,
             "threads": runtime.threads,
         },
+        "every": every,
+        "graph": "step" if window_graph is None else "window",
         "sessions": [r.summary() | {"metrics": task_metrics(r.frames)} for r in replays],
         "subjects": sorted({r.subject for r in replays}),
-        "step_ms": {
+    }
+    if window_graph is None:
+        steps = np.array([ms for r in replays for ms in r.step_ms], dtype=np.float64)
+        report["step_ms"] = {
             "median": float(np.median(steps)) if steps.size else float("nan"),
             "p99": float(np.percentile(steps, 99)) if steps.size else float("nan"),
             "steps": int(steps.size),
-        },
-    }
+        }
+    else:
+        report["model"]["window_graph"] = {
+            "path": str(window_graph.path),
+            "sha256": window_graph.sha256,
+        }
+        # Batched throughput, not the latency of one streaming step: named apart on purpose.
+        batches = [b for r in replays for b in r.window_batches]
+        report["window_ms_per_prediction"] = window_timing(batches)
     report |= score(frames)
     return report

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -139,3 +140,72 @@ def test_several_models_on_one_replay_match_one_at_a_time(
     for report in both:
         assert report["metrics"] == alone["metrics"]
         assert report["confusion"] == alone["confusion"]
+
+
+# --- --every K: sampled prediction times through the window graph ------------------
+
+
+@pytest.fixture
+def gapped_session(tmp_path: Path) -> Path:
+    # Both feet silent for 20 frames (> 1 s): the window restarts mid-session.
+    silent = {(k, foot) for k in range(60, 80) for foot in (0, 1)}
+    return write_session(tmp_path / "gap.session", 150, first_seq=65_500, drop_foot=silent)
+
+
+def test_every_k_samples_the_streaming_predictions_through_the_window_graph(
+    gapped_session: Path, runtime: ScottiRuntime
+) -> None:
+    full = replay_session(gapped_session, runtime)
+    sampled = replay_session(gapped_session, runtime, every=3)
+    assert full.window_restarts == sampled.window_restarts == 1
+    assert (full.pairs, full.labels) == (sampled.pairs, sampled.labels)
+    expected = full.made[2::3]  # the 3rd, 6th, ... prediction since the session began
+    assert [m.ext for m in sampled.made] == [m.ext for m in expected]
+    assert sampled.predictions == len(expected) > 10
+    for got, want in zip(sampled.made, expected, strict=True):
+        np.testing.assert_allclose(got.pose, want.pose, atol=1e-4)
+        np.testing.assert_allclose(got.probs, want.probs, atol=1e-4)
+        assert got.progress == pytest.approx(want.progress, abs=1e-4)
+    assert sampled.step_ms == []  # the step graph never ran
+    assert sum(n for _, n in sampled.window_batches) == sampled.predictions
+
+
+def test_cli_every_reports_what_was_done(
+    session: Path, tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    model = str(tiny_model_path)
+    assert main(["eval", str(session), "--model", model, "--json", "--every", "4"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["every"], report["graph"]) == (4, "window")
+    assert "step_ms" not in report
+    assert report["window_ms_per_prediction"]["windows"] == report["metrics"]["frames"]
+    assert report["metrics"]["frames"] == (FRAMES - 40 + 1) // 4
+    assert report["model"]["window_graph"]["path"].endswith("scotti-tiny.window.onnx")
+
+    assert main(["eval", str(session), "--model", model, "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["every"], report["graph"]) == (1, "step")
+    assert report["step_ms"]["steps"] == FRAMES
+
+    assert main(["eval", str(session), "--model", model, "--every", "4"]) == 0
+    assert "1 prediction in 4, window graph" in capsys.readouterr().out
+
+
+def test_every_below_one_is_one_line(
+    session: Path, tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["eval", str(session), "--model", str(tiny_model_path), "--every", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--every must be at least 1" in err
+    assert err.count("\n") == 1
+
+
+def test_every_without_a_window_graph_is_one_line(
+    session: Path, tiny_model_path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    alone = tmp_path / "alone.onnx"
+    shutil.copyfile(tiny_model_path, alone)
+    assert main(["eval", str(session), "--model", str(alone), "--every", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "alone.window.onnx" in err
+    assert err.count("\n") == 1
