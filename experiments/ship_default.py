@@ -41,6 +41,7 @@ def _sha(path: Path) -> str:
 def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict[str, Any]:
     per = [
         {
+            "partition": r.get("partition"),  # set by the sweep: which partition scored it
             "subjects": r["subjects"],
             "frames": r["metrics"]["frames"],
             **{k: r["metrics"][k] for k in KEYS},
@@ -57,11 +58,22 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
     over, spread = (per, "partitions") if len(per) > 1 else (subjects, "held-out subjects")
     summary = {}
     for k in KEYS:
-        mean, sd = mean_sd([p[k] for p in over if p[k] is not None])
-        summary[k] = {"mean": mean, "sd": sd}
+        values = [p[k] for p in over if p[k] is not None]
+        mean, sd = mean_sd(values)
+        summary[k] = {"mean": mean, "sd": sd, "n": len(values)}
+    every = max(int(r.get("every", 1)) for r in reports)
+    how = (
+        "scotti eval: held-out subjects' session files replayed through the daemon's "
+        "streaming path; frames t-T..t-1 predict t"
+    )
+    if every > 1:
+        how += (
+            f"; every {every}th prediction time scored, through the window graph in batches "
+            "(the step graph's weights; the export proves the two graphs agree)"
+        )
     return {
-        "how": "scotti eval: held-out subjects' session files replayed through the daemon's "
-        "streaming path; frames t-T..t-1 predict t",
+        "how": how,
+        "every": every,
         "partitions": per,
         "per_subject": subjects,
         "summary": summary,
@@ -112,8 +124,11 @@ def card_md(card: dict[str, Any]) -> str:
             lines.append(f"| {k} | {fmt([p[k] for p in over], d, s)}{unit} |")
         lines += [
             "",
+            f"How: {ev['how']}.",
+            "",
             *(
-                f"- held out {', '.join(p['subjects'])} ({p['frames']} frames), pooled: MPJPE "
+                f"- {p.get('partition') or 'held out'}: {', '.join(p['subjects'])} "
+                f"({p['frames']} frames scored), pooled: MPJPE "
                 f"{p['mpjpe_mm']:.1f} mm, MPJAE {p['mpjae_deg']:.2f} deg, accuracy "
                 f"{100 * p['action_accuracy']:.2f} %, progress MSE {p['progress_mse']:.4f}, "
                 f"APP {p['app']:.4f}; random baseline: accuracy "
@@ -178,7 +193,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python experiments/ship_default.py", description=__doc__)
     parser.add_argument("model", type=Path, help="exported fp32 step graph (NAME.onnx)")
     parser.add_argument("--int8", action="store_true", help="ship the int8 copies")
-    parser.add_argument("--eval", type=Path, nargs="*", default=[], help="scotti eval --json files")
+    parser.add_argument(
+        "--eval", type=Path, nargs="+", action="extend", default=[], help="scotti eval --json files"
+    )
     parser.add_argument("--eval-command", action="append", default=[], help="quoted in the card")
     parser.add_argument("--data", required=True, help="what it was trained on, in words")
     parser.add_argument("--note", default="", help="one more paragraph for the card")

@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from common import Partition, mean_sd, table
+from common import Partition, fmt, mean_sd, table
 
 TASKS = (  # key, lower is better
     ("mpjpe_mm", True),
@@ -15,6 +15,7 @@ TASKS = (  # key, lower is better
     ("progress_mse", True),
     ("app", False),
 )
+KEYS = (*(k for k, _ in TASKS), "mpjae_deg")  # what a row carries per partition
 SIZE_LIMIT_MB = 20.0
 DAEMON_WINDOW = 40  # models.contract.WINDOW: the only T the daemon's runtime accepts
 
@@ -29,35 +30,47 @@ def _card(step: Path) -> dict[str, Any]:
     )
 
 
-def _spread(report: dict[str, Any], key: str) -> float:
-    """Standard deviation of a metric over the held-out subjects (per-session figures)."""
-    return mean_sd(
-        [s["metrics"][key] for s in report["sessions"] if s["metrics"][key] is not None]
-    )[1]
+def scoring(every: int) -> str:
+    """How the held-out prediction times were scored, in words."""
+    if every == 1:
+        return "every prediction time scored through the streaming step graph"
+    return (
+        f"every {every}th prediction time scored, through the window graph in batches (the "
+        "step graph's weights: the export proves the two graphs agree)"
+    )
 
 
 def rows_of(
-    models: dict[str, Path],
+    models: dict[str, dict[str, Path]],
+    timed: dict[str, Path],
     conv: dict[str, Path],
-    plans: dict[str, dict[str, Any]],
+    plans: dict[str, dict[str, dict[str, Any]]],
     evaluated: dict[str, Any],
     latency: dict[str, Any],
 ) -> list[dict[str, Any]]:
+    """One row per config and precision. ``models``: config -> partition -> fp32 step graph;
+    ``timed``: config -> the step graph whose latency, size and card stand for the config;
+    ``evaluated``: eval reports by step-graph path. Metrics are the mean over the partitions
+    that have a report, ``spread`` their sample SD, ``n`` how many."""
     rows = []
-    for name, fp32 in models.items():
+    for name, fp32 in timed.items():
         card = _card(fp32)
         cfg = card["config"]
-        variants = [("fp32", fp32), ("int8", _int8(fp32))]
+        runs = plans[name]
+        variants = [("fp32", fp32, models[name]), ("int8", _int8(fp32), _int8s(models[name]))]
         if name in conv:
-            variants.append(("int8+conv", conv[name]))
-        for precision, path in variants:
+            variants.append(("int8+conv", conv[name], {}))  # latency only
+        for precision, path, by_partition in variants:
             lat = latency[str(path)]
-            report = evaluated.get(str(path))
+            reports = {
+                part: evaluated[str(q)] for part, q in by_partition.items() if str(q) in evaluated
+            }
             row: dict[str, Any] = {
                 "label": f"{name} {precision}",
                 "config": name,
                 "precision": precision,
                 "path": str(path),
+                "paths": {part: str(q) for part, q in by_partition.items()},
                 "E": cfg["embed_dim"],
                 "layers": cfg["layers"],
                 "T": cfg["window"],
@@ -66,19 +79,26 @@ def rows_of(
                 "step_mflops": lat["step_flops"] / 1e6,
                 "window_mflops": lat["window_flops"] / 1e6,
                 "latency": lat["latency"],
-                "trained_min": plans[name]["trained_s"] / 60,
-                "epochs": f"{plans[name].get('epochs_done', 0)}/{plans[name]['epochs']}",
-                "stride": plans[name]["stride"],
+                "trained_min": mean_sd([r["trained_s"] / 60 for r in runs.values()])[0],
+                "epochs": ", ".join(
+                    f"{r.get('epochs_done', 0)}/{r['epochs']}" for r in runs.values()
+                ),
+                "stride": sorted({r["stride"] for r in runs.values()}),
+                "n": len(reports),
                 "metrics": None,
             }
-            if report is not None:
-                row["metrics"] = {k: report["metrics"][k] for k, _ in TASKS} | {
-                    "mpjae_deg": report["metrics"]["mpjae_deg"],
-                    "frames": report["metrics"]["frames"],
-                }
-                row["spread"] = {k: _spread(report, k) for k, _ in TASKS}
+            if reports:
+                per = {part: {k: r["metrics"][k] for k in KEYS} for part, r in reports.items()}
+                row["per_partition"] = per
+                row["metrics"] = {k: mean_sd([m[k] for m in per.values()])[0] for k in KEYS}
+                row["metrics"]["frames"] = sum(r["metrics"]["frames"] for r in reports.values())
+                row["spread"] = {k: mean_sd([m[k] for m in per.values()])[1] for k in KEYS}
             rows.append(row)
     return rows
+
+
+def _int8s(models: dict[str, Path]) -> dict[str, Path]:
+    return {part: _int8(path) for part, path in models.items()}
 
 
 def _median(row: dict[str, Any], threads: int = 1) -> float:
@@ -123,6 +143,13 @@ def _f(x: Any, digits: int, scale: float = 1.0) -> str:
     return f"{x * scale:.{digits}f}"
 
 
+def _figure(row: dict[str, Any], key: str, digits: int, scale: float = 1.0) -> str:
+    """``mean ± sd`` over the partitions (the mean alone for one), or a dash."""
+    if not row["metrics"]:
+        return "-"
+    return fmt([p[key] for p in row["per_partition"].values()], digits, scale)
+
+
 def write_sweep_doc(
     doc: Path,
     img: Path,
@@ -130,8 +157,9 @@ def write_sweep_doc(
     rows: list[dict[str, Any]],
     choice: dict[str, Any] | None,
     limit_ms: float,
-    partition: Partition,
-    eval_subjects: int,
+    partitions: list[Partition],
+    every: int,
+    share_min: float,
     invocation: str,
     commands: list[str],
     written: str,
@@ -140,7 +168,6 @@ def write_sweep_doc(
     plot = pareto_plot(rows, img, limit_ms)
     body = []
     for r in rows:
-        m, s = r["metrics"], r.get("spread", {})
         lat1, lat2 = r["latency"]["1"], r["latency"]["2"]
         body.append(
             [
@@ -152,12 +179,11 @@ def write_sweep_doc(
                 f"{r['size_mb']:.1f}",
                 f"{r['step_mflops']:.0f}",
                 f"{r['window_mflops']:.0f}",
-                f"{_f(m and m['mpjpe_mm'], 1)} ± {_f(s.get('mpjpe_mm'), 1)}" if m else "-",
-                f"{_f(m and m['action_accuracy'], 1, 100)} ± {_f(s.get('action_accuracy'), 1, 100)}"
-                if m
-                else "-",
-                f"{_f(m and m['progress_mse'], 4)}" if m else "-",
-                f"{_f(m and m['app'], 4)}" if m else "-",
+                _figure(r, "mpjpe_mm", 1),
+                _figure(r, "action_accuracy", 1, 100),
+                _figure(r, "progress_mse", 4),
+                _figure(r, "app", 4),
+                str(r["n"]) if r["metrics"] else "-",
                 f"{lat1['step_median_ms']:.2f} / {lat1['step_p99_ms']:.2f}",
                 f"{lat2['step_median_ms']:.2f} / {lat2['step_p99_ms']:.2f}",
                 f"{lat1['window_median_ms']:.2f}",
@@ -178,10 +204,11 @@ def write_sweep_doc(
         "accuracy %",
         "progress MSE",
         "APP",
+        "n",
         "step ms median / p99, 1 thread",
         "step ms, 2 threads",
         "recompute ms median, 1 thread",
-        "trained min (epochs)",
+        "trained min per run (epochs per partition)",
         "mean rank",
     ]
     lines = [
@@ -189,30 +216,11 @@ def write_sweep_doc(
         "",
         f"Written by `{invocation}` ({written}). Every number was printed by the commands",
         "listed at the end, on this shared 2-core machine. Simulated subjects, not the paper's",
-        "data (see docs/evaluation.md for the three-partition evaluation).",
+        "data (docs/evaluation.md has the paper's tables on the same partitions).",
         "",
         "## How it was measured",
         "",
-        f"- Training: each config on partition {partition.name}'s {len(partition.train)} training",
-        "  subjects with an equal share of the budget (the `trained min (epochs)` column: wall",
-        "  time of its `scotti train` calls, data loading and validation included;",
-        "  epochs and window stride were planned from each config's measured training",
-        "  throughput). **Every model here is undertrained**, the large ones most of all:",
-        "  in the same minutes a wide model sees far fewer windows than a narrow one. The",
-        "  accuracy columns compare what each config learns *in this budget*; with hours of",
-        "  training the ordering of the wide models could change.",
-        f"- Accuracy: `scotti eval` on {eval_subjects} of {partition.name}'s held-out subjects "
-        f"({', '.join(partition.test[:eval_subjects])}),",
-        "  replayed through the daemon's streaming path; ± is the spread over those subjects.",
-        "  int8 rows are the same weights quantized (MatMul/Gemm, dynamic).",
-        "- Latency: `ScottiRuntime.step` as the daemon calls it (one new frame + the cached",
-        "  T-1 embeddings, batch 1), after a warm-up, models taking turns call by call;",
-        "  `recompute` is one call of the window graph over all T frames, what a",
-        "  non-streaming daemon would pay every frame. p99 on a machine shared with other",
-        "  processes is an upper figure.",
-        "- FLOPs: 2 x multiply-adds of the Conv/MatMul/Gemm nodes of the ONNX graphs.",
-        "- `mean rank`: the mean of a model's ranks over MPJPE, accuracy, progress MSE",
-        '  and APP (1 = best); it is how "most accurate" is decided below.',
+        *method(partitions, every, share_min),
         "",
         *table(header, body),
         "",
@@ -237,6 +245,38 @@ def write_sweep_doc(
     doc.write_text("\n".join(lines))
 
 
+def method(partitions: list[Partition], every: int, share_min: float) -> list[str]:
+    n, lead = len(partitions), partitions[0]
+    return [
+        f"- Partitions: {n} subject-wise partitions (`experiments/partitions.json`), each "
+        f"{len(lead.train)} training and {len(lead.test)} held-out subjects:",
+        *(f"  - {p.name}: held out {', '.join(p.test)}" for p in partitions),
+        f"- Training: each config once on each partition's training subjects, {share_min:.1f}"
+        " min of budget per run (the `trained min per run` column: the mean over the",
+        "  partitions of the wall time of a run's `scotti train` calls, data loading and",
+        "  validation included; epochs and window stride were planned from each config's",
+        "  measured training throughput). **Every model here is undertrained**, the large ones",
+        "  most of all: in the same minutes a wide model sees far fewer windows than a narrow",
+        "  one. The accuracy columns compare what each config learns *in this budget*; with",
+        "  hours of training the ordering of the wide models could change.",
+        f"- Accuracy: `scotti eval` on each partition's {len(lead.test)} held-out subjects, "
+        "replayed through the",
+        f"  daemon's decoding, assembly and pairing, {scoring(every)}. Every figure is the",
+        f"  **mean over the {n} partitions ± their sample SD** (`n`: partitions scored); each",
+        "  partition's figure is pooled over its held-out subjects. int8 rows are the same",
+        "  weights quantized (MatMul/Gemm, dynamic), scored the same way.",
+        "- Latency: the streaming step graph, `ScottiRuntime.step` as the daemon calls it (one",
+        "  new frame + the cached T-1 embeddings, batch 1), after a warm-up, models taking turns",
+        f"  call by call, measured once per config and precision on its {lead.name} model (the",
+        "  weights do not change the cost); `recompute` is one call of the window graph over",
+        "  all T frames, what a non-streaming daemon would pay every frame. p99 on a machine",
+        "  shared with other processes is an upper figure.",
+        "- FLOPs: 2 x multiply-adds of the Conv/MatMul/Gemm nodes of the ONNX graphs.",
+        "- `mean rank`: the mean of a model's ranks over the means of MPJPE, accuracy, progress",
+        '  MSE and APP (1 = best); it is how "most accurate" is decided below.',
+    ]
+
+
 def findings(rows: list[dict[str, Any]], limit_ms: float) -> list[str]:
     out = ["## What the table shows", ""]
     by = {(r["config"], r["precision"]): r for r in rows}
@@ -256,7 +296,7 @@ def findings(rows: list[dict[str, Any]], limit_ms: float) -> list[str]:
             if r["metrics"] and q["metrics"]:
                 d_acc = 100 * (q["metrics"]["action_accuracy"] - r["metrics"]["action_accuracy"])
                 d_mm = q["metrics"]["mpjpe_mm"] - r["metrics"]["mpjpe_mm"]
-                line += f" (accuracy {d_acc:+.2f} points, MPJPE {d_mm:+.1f} mm against fp32)"
+                line += f" (mean accuracy {d_acc:+.2f} points, MPJPE {d_mm:+.1f} mm against fp32)"
         c = by.get((config, "int8+conv"))
         if c:
             line += f"; with Conv quantized too {c['latency']['1']['step_median_ms']:.2f} ms"
@@ -275,7 +315,9 @@ def advice(rows: list[dict[str, Any]], choice: dict[str, Any] | None, limit_ms: 
             f"- **The default** (`models/scotti-default.onnx`): **{choice['label']}**, the most "
             f"accurate model here whose streaming step stays under {limit_ms:.0f} ms p99 on one "
             f"thread ({p99(choice):.2f} ms) and within {SIZE_LIMIT_MB:.0f} MB "
-            f"({choice['size_mb']:.1f} MB). Take it unless one of the needs below is yours."
+            f"({choice['size_mb']:.1f} MB); accuracy {_figure(choice, 'action_accuracy', 1, 100)} "
+            f"%, MPJPE {_figure(choice, 'mpjpe_mm', 1)} mm over the partitions. Take it unless "
+            "one of the needs below is yours."
         )
     else:
         lines.append(f"- No model met {limit_ms:.0f} ms p99 on one thread within the size limit.")
@@ -286,7 +328,8 @@ def advice(rows: list[dict[str, Any]], choice: dict[str, Any] | None, limit_ms: 
     )
     lines.append(
         f"- **Best figures regardless of cost**: **{best['label']}** (mean rank "
-        f"{rank[best['label']]:.1f}; p99 {p99(best):.2f} ms at one thread, "
+        f"{rank[best['label']]:.1f}; accuracy {_figure(best, 'action_accuracy', 1, 100)} %; "
+        f"p99 {p99(best):.2f} ms at one thread, "
         f"{p99(best, 2):.2f} ms at two). At this training budget; a longer run is the first thing "
         "to try before paying for a wider model."
     )
@@ -321,7 +364,7 @@ def advice(rows: list[dict[str, Any]], choice: dict[str, Any] | None, limit_ms: 
         lines.append(
             f"- **int8** (MatMul/Gemm): files about {q[0][0]['size_mb'] / q[0][1]['size_mb']:.1f}x "
             f"smaller, step faster by {speed} (one thread); accuracy moved by at most "
-            f"{100 * worst:.2f} points on the held-out subjects."
+            f"{100 * worst:.2f} points in the mean over the partitions."
         )
     conv = [(by[c, "int8"], r) for (c, p), r in by.items() if p == "int8+conv"]
     for plain, both in conv:
@@ -356,8 +399,19 @@ def pareto_plot(rows: list[dict[str, Any]], img: Path, limit_ms: float) -> Path:
         colours = {c: f"C{i}" for i, c in enumerate(configs)}
         for r in scored:
             x, y = p99(r), r["metrics"][key] * scale
+            sd = r.get("spread", {}).get(key, 0.0) * scale
             marker = "o" if r["precision"] == "fp32" else "s"
-            ax.scatter([x], [y], marker=marker, s=36, color=colours[r["config"]], label=r["label"])
+            ax.errorbar(
+                [x],
+                [y],
+                yerr=[sd if math.isfinite(sd) else 0.0],
+                fmt=marker,
+                ms=6,
+                capsize=2,
+                lw=0.8,
+                color=colours[r["config"]],
+                label=r["label"],
+            )
         lower = key == "mpjpe_mm"
         front, best = [], None
         for r in sorted(scored, key=p99):
@@ -373,7 +427,10 @@ def pareto_plot(rows: list[dict[str, Any]], img: Path, limit_ms: float) -> Path:
         ax.set_xscale("log")
         ax.set(xlabel="streaming step p99 (ms, 1 thread, log)", ylabel=label)
         ax.legend(fontsize=6, ncol=2)
-    fig.suptitle("Accuracy against latency (circles fp32, squares int8)", fontsize=9)
+    fig.suptitle(
+        "Accuracy (mean ± SD over the partitions) against latency (circles fp32, squares int8)",
+        fontsize=9,
+    )
     fig.tight_layout()
     out = img / "accuracy-vs-latency.png"
     fig.savefig(out)

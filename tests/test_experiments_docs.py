@@ -7,11 +7,13 @@ their pieces run on small synthetic inputs: reports made by the real
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from scotti.daemon.evaluation import FrameSet, score, task_metrics
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
@@ -19,6 +21,7 @@ sys.path.insert(0, str(EXPERIMENTS))
 
 import common  # noqa: E402
 import corpus  # noqa: E402
+import ship_default  # noqa: E402
 import sweep_doc  # noqa: E402
 import tables_doc  # noqa: E402
 import training  # noqa: E402
@@ -153,6 +156,7 @@ def test_the_evaluation_doc_holds_the_tables_and_figures(tmp_path: Path) -> None
 
 def _row(label: str, t: int, p99: float, acc: float, mb: float) -> dict[str, Any]:
     lat = {"step_median_ms": p99 / 2, "step_p99_ms": p99, "window_median_ms": p99}
+    metrics = _metrics(acc)
     return {
         "label": label,
         "config": label,
@@ -160,13 +164,20 @@ def _row(label: str, t: int, p99: float, acc: float, mb: float) -> dict[str, Any
         "T": t,
         "size_mb": mb,
         "latency": {"1": lat, "2": lat},
-        "metrics": {
-            "mpjpe_mm": 100 - acc * 10,
-            "action_accuracy": acc,
-            "progress_mse": 0.1 - acc / 20,
-            "app": 0.6 + acc / 5,
-            "mpjae_deg": 5.0,
-        },
+        "metrics": metrics,
+        "per_partition": {"p1": metrics, "p2": metrics},
+    }
+
+
+def _metrics(acc: float, mm: float | None = None) -> dict[str, Any]:
+    """Task figures that all get better with ``acc`` (MPJPE from ``mm`` when given)."""
+    return {
+        "mpjpe_mm": 100 - acc * 10 if mm is None else mm,
+        "action_accuracy": acc,
+        "progress_mse": 0.1 - acc / 20,
+        "app": 0.6 + acc / 5,
+        "mpjae_deg": 5.0,
+        "frames": 100,
     }
 
 
@@ -187,3 +198,120 @@ def test_the_default_is_the_most_accurate_that_fits(tmp_path: Path) -> None:
     advice = "\n".join(sweep_doc.advice(rows, choice, 10.0))
     assert "**good**" in advice
     assert "**fast**" in advice
+
+
+PARTS = ("p1", "p2", "p3")
+
+
+def _sweep(
+    tmp_path: Path, accuracy: dict[str, tuple[float, ...]], p99: dict[str, float]
+) -> list[dict[str, Any]]:
+    """Rows as the sweep builds them: per config, one model per partition (fp32 + int8,
+    int8 a point worse), eval reports with the given per-partition accuracies, and the
+    latency and card of the first partition's model."""
+    models, timed, plans, evaluated, latency = {}, {}, {}, {}, {}
+    for name, accs in accuracy.items():
+        paths = {p: tmp_path / f"{name}-{p}.onnx" for p in PARTS[: len(accs)]}
+        models[name] = paths
+        timed[name] = paths["p1"]
+        config = {"embed_dim": 128, "layers": 2, "window": 40}
+        paths["p1"].with_name(f"{name}-p1.card.json").write_text(
+            json.dumps({"config": config, "parameters": 1000})
+        )
+        for precision, delta in (("", 0.0), (".int8", -0.01)):
+            lat = {"step_median_ms": p99[name] / 2, "step_p99_ms": p99[name]}
+            lat["window_median_ms"] = p99[name]
+            latency[str(paths["p1"]).replace(".onnx", f"{precision}.onnx")] = {
+                "bytes": 2e6,
+                "step_flops": 1e6,
+                "window_flops": 5e6,
+                "latency": {"1": lat, "2": lat},
+            }
+            for (part, path), acc in zip(paths.items(), accs, strict=True):
+                report = {"metrics": _metrics(acc + delta, mm=100 + 10 * PARTS.index(part))}
+                evaluated[str(path).replace(".onnx", f"{precision}.onnx")] = report
+        plans[name] = {
+            p: {"trained_s": 60.0 * (1 + i), "epochs": 3, "epochs_done": 3, "stride": 8}
+            for i, p in enumerate(paths)
+        }
+    return sweep_doc.rows_of(models, timed, {}, plans, evaluated, latency)
+
+
+def test_sweep_rows_are_the_mean_and_spread_over_partitions(tmp_path: Path) -> None:
+    rows = _sweep(tmp_path, {"A": (0.6, 0.7, 0.8), "B": (0.5, 0.9)}, {"A": 1.0, "B": 2.0})
+    by = {r["label"]: r for r in rows}
+    assert set(by) == {"A fp32", "A int8", "B fp32", "B int8"}
+    a, q = by["A fp32"], by["A int8"]
+    assert a["n"] == 3
+    assert a["metrics"]["action_accuracy"] == pytest.approx(0.7)
+    assert a["spread"]["action_accuracy"] == pytest.approx(0.1)  # sample SD, not population
+    assert a["metrics"]["mpjpe_mm"] == pytest.approx(110.0)  # 100, 110, 120
+    assert a["spread"]["mpjpe_mm"] == pytest.approx(10.0)
+    assert a["metrics"]["frames"] == 300
+    assert q["metrics"]["action_accuracy"] == pytest.approx(0.69)  # int8's own reports
+    assert a["per_partition"]["p3"]["action_accuracy"] == 0.8
+    assert a["trained_min"] == pytest.approx(2.0)  # mean of 1, 2, 3 minutes
+    assert a["epochs"] == "3/3, 3/3, 3/3"
+    assert by["B fp32"]["n"] == 2
+    assert by["B fp32"]["spread"]["action_accuracy"] == pytest.approx(0.2828, abs=1e-4)
+
+
+def test_the_default_is_chosen_on_the_means_not_one_partition(tmp_path: Path) -> None:
+    # "lucky" has the best p1 figures, "steady" the best mean over the three partitions.
+    rows = _sweep(
+        tmp_path,
+        {"lucky": (0.95, 0.4, 0.4), "steady": (0.75, 0.75, 0.75), "slow": (0.9, 0.9, 0.9)},
+        {"lucky": 1.0, "steady": 3.0, "slow": 12.0},
+    )
+    choice = sweep_doc.choose_default(rows, 10.0)
+    assert choice is not None
+    assert choice["label"] == "steady fp32"
+    assert choice["paths"]["p1"].endswith("steady-p1.onnx")  # what --ship ships
+
+
+def test_the_sweep_doc_shows_mean_and_spread(tmp_path: Path) -> None:
+    rows = _sweep(tmp_path, {"A": (0.6, 0.7, 0.8), "B": (0.8, 0.85, 0.9)}, {"A": 1.0, "B": 2.0})
+    choice = sweep_doc.choose_default(rows, 10.0)
+    assert choice is not None
+    parts = [common.Partition(p, ("a", "b"), (f"{p}-t1", f"{p}-t2")) for p in PARTS]
+    doc = tmp_path / "doc.md"
+    sweep_doc.write_sweep_doc(
+        doc,
+        tmp_path / "img",
+        rows=rows,
+        choice=choice,
+        limit_ms=10.0,
+        partitions=parts,
+        every=8,
+        share_min=2.5,
+        invocation="python experiments/sweep.py --budget-minutes 1",
+        commands=["scotti eval x --model y --every 8"],
+        written="now",
+    )
+    text = doc.read_text()
+    assert (tmp_path / "img" / "accuracy-vs-latency.png").read_bytes()[:8] == PNG
+    table_rows = [ln for ln in text.splitlines() if ln.startswith("| B | fp32 |")]
+    assert len(table_rows) == 1
+    assert "| 85.0 ± 5.0 |" in table_rows[0]  # accuracy %, mean ± SD over p1..p3
+    assert "| 110.0 ± 10.0 |" in table_rows[0]  # MPJPE mm
+    assert "mean over the 3 partitions" in text
+    assert "p2: held out p2-t1, p2-t2" in text
+    assert "every 8th prediction time scored, through the window graph" in text
+    assert "2.5 min of budget per run" in text
+    assert "**The default** (`models/scotti-default.onnx`): **B fp32**" in text
+    assert "scotti eval x --model y --every 8" in text
+
+
+def test_the_shipped_card_carries_every_partition(tmp_path: Path) -> None:
+    reports = []
+    for k, p in enumerate(PARTS):
+        report = _report(_frames(300, k, 0.5 + 0.1 * k), "multi", f"A-{p}")
+        reports.append(report | {"partition": p, "every": 8})
+    block = ship_default.evaluation_block(reports, ["scotti eval a", "scotti eval b"])
+    assert block["spread_over"] == "partitions"
+    assert [p["partition"] for p in block["partitions"]] == list(PARTS)
+    accs = [r["metrics"]["action_accuracy"] for r in reports]
+    mean, sd = common.mean_sd(accs)
+    assert block["summary"]["action_accuracy"] == {"mean": mean, "sd": sd, "n": 3}
+    assert sd > 0
+    assert "every 8th prediction time" in block["how"]
