@@ -37,9 +37,12 @@ def build_tiny() -> Scotti:
         for module in model.modules():
             if isinstance(module, nn.Linear | nn.Conv2d):
                 module.reset_parameters()  # torch's fan-in uniform, biases included
-            elif isinstance(module, nn.LayerNorm):
+            elif isinstance(module, nn.LayerNorm | nn.BatchNorm1d):
                 module.weight.uniform_(0.5, 1.5)
                 module.bias.uniform_(-0.2, 0.2)
+            if isinstance(module, nn.BatchNorm1d):  # running stats other than the identity
+                module.running_mean.normal_(0.0, 0.05)
+                module.running_var.uniform_(0.005, 0.02)  # amplifies, as trained ones do
         nn.init.normal_(model.class_token, std=1.0)
         nn.init.normal_(model.positions, std=0.5)
         nn.init.normal_(model.pool_weights, std=1.0)
