@@ -162,10 +162,10 @@ def budget_section(plans: dict[tuple[str, str], dict[str, Any]]) -> list[str]:
         "last planned epoch: their schedule was cut). **These models are",
         "undertrained**: a few minutes of CPU each, a small fraction of one pass over every",
         "window of the training subjects. Read the figures as what this budget buys, not as",
-        "what the architecture can do. docs/accuracy-vs-latency.md trains the same size of",
-        "model (E128-L2-T40) longer on partition p1: compare before drawing conclusions,",
-        "in particular about Table 3 (a task the budget has not reached yet looks the same",
-        "as a task that sharing hurts).",
+        "what the architecture can do. docs/accuracy-vs-latency.md trains the same model",
+        "(E128-L2-T40) on the same partitions with its own budget per run: compare before",
+        "drawing conclusions, in particular about Table 3 (a task the budget has not",
+        "reached yet looks the same as a task that sharing hurts).",
         "",
         *table(
             [
