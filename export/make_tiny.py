@@ -41,7 +41,8 @@ def build_tiny() -> Scotti:
                 module.weight.uniform_(0.5, 1.5)
                 module.bias.uniform_(-0.2, 0.2)
             if isinstance(module, nn.BatchNorm1d):  # running stats other than the identity
-                assert module.running_mean is not None and module.running_var is not None
+                assert module.running_mean is not None
+                assert module.running_var is not None
                 module.running_mean.normal_(0.0, 0.05)
                 module.running_var.uniform_(0.005, 0.02)  # amplifies, as trained ones do
         nn.init.normal_(model.class_token, std=1.0)
