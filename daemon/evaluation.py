@@ -37,7 +37,7 @@ from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionR
 from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models import metrics
 from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS
-from scotti.models.runtime import ScottiRuntime, load_pair, window_graph_for
+from scotti.models.runtime import ScottiRuntime, load_pair
 
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
@@ -154,15 +154,9 @@ def replay_session(
 
 
 def window_graphs(runtimes: Sequence[ScottiRuntime]) -> list[ScottiRuntime]:
-    """The window graph next to each step graph (``--every K``), checked to match it."""
-    out = []
-    for runtime in runtimes:
-        path = window_graph_for(runtime.path)
-        if not path.is_file():
-            msg = f"--every needs the window graph {path}, which does not exist"
-            raise EvaluationError(msg)
-        out.append(load_pair(runtime.path, runtime.threads)[1])
-    return out
+    """The window graph next to each step graph (``--every K``); ``load_pair`` checks that
+    it exists and comes from the same export (a one-line ModelError if not)."""
+    return [load_pair(runtime.path, runtime.threads)[1] for runtime in runtimes]
 
 
 def replay_session_models(
