@@ -196,3 +196,13 @@ def write_json(path: Path, value: Any) -> None:
 
 def utc_now() -> str:
     return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+
+
+def scoring(every: int) -> str:
+    """How the held-out prediction times were scored, in words."""
+    if every == 1:
+        return "every prediction time scored through the streaming step graph"
+    return (
+        f"every {every}th prediction time scored, through the window graph in batches (the "
+        "step graph's weights: the export proves the two graphs agree)"
+    )

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import onnx
-from common import ROOT, fmt, mean_sd, utc_now
+from common import ROOT, fmt, mean_sd, scoring, utc_now
 from measure import describe
 from scotti.models.contract import META_CARD
 from scotti.models.runtime import ScottiRuntime
@@ -67,10 +67,7 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
         "streaming path; frames t-T..t-1 predict t"
     )
     if every > 1:
-        how += (
-            f"; every {every}th prediction time scored, through the window graph in batches "
-            "(the step graph's weights; the export proves the two graphs agree)"
-        )
+        how += f"; {scoring(every)}"
     return {
         "how": how,
         "every": every,

@@ -41,6 +41,7 @@ from common import (
     read_json,
     run,
     run_parallel,
+    scoring,
     scotti_command,
     shown,
     utc_now,
@@ -48,7 +49,7 @@ from common import (
 )
 from measure import conv_int8, graph_flops
 from scotti.models.runtime import window_graph_for
-from sweep_doc import choose_default, rows_of, scoring, write_sweep_doc
+from sweep_doc import choose_default, rows_of, write_sweep_doc
 from training import RunSpec, export, measure, train
 
 HERE = Path(__file__).resolve().parent

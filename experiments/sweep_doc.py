@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from common import Partition, fmt, mean_sd, table
+from common import Partition, fmt, mean_sd, scoring, table
 
 TASKS = (  # key, lower is better
     ("mpjpe_mm", True),
@@ -27,16 +27,6 @@ def _int8(step: Path) -> Path:
 def _card(step: Path) -> dict[str, Any]:
     return dict(
         json.loads(step.with_name(step.name.removesuffix(".onnx") + ".card.json").read_text())
-    )
-
-
-def scoring(every: int) -> str:
-    """How the held-out prediction times were scored, in words."""
-    if every == 1:
-        return "every prediction time scored through the streaming step graph"
-    return (
-        f"every {every}th prediction time scored, through the window graph in batches (the "
-        "step graph's weights: the export proves the two graphs agree)"
     )
 
 
@@ -90,9 +80,10 @@ def rows_of(
             if reports:
                 per = {part: {k: r["metrics"][k] for k in KEYS} for part, r in reports.items()}
                 row["per_partition"] = per
-                row["metrics"] = {k: mean_sd([m[k] for m in per.values()])[0] for k in KEYS}
+                stats = {k: mean_sd([m[k] for m in per.values()]) for k in KEYS}
+                row["metrics"] = {k: mean for k, (mean, _) in stats.items()}
                 row["metrics"]["frames"] = sum(r["metrics"]["frames"] for r in reports.values())
-                row["spread"] = {k: mean_sd([m[k] for m in per.values()])[1] for k in KEYS}
+                row["spread"] = {k: sd for k, (_, sd) in stats.items()}
             rows.append(row)
     return rows
 
