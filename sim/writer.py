@@ -32,9 +32,10 @@ from scotti.sim.effects.base import Effect
 from scotti.sim.effects.receiver import board_statuses
 from scotti.sim.effects.registry import EffectPlan
 from scotti.sim.effects.schedule import STATUS, PacketSchedule, build_schedule, frame_times_ns
+from scotti.sim.loads import FootLoads, foot_loads
 from scotti.sim.motion import Motion
 from scotti.sim.motion import labels as motion_labels
-from scotti.sim.pressure import FootLoads, PressureRenderer, counts_from_kpa, foot_loads, to_uint16
+from scotti.sim.pressure import PressureRenderer, counts_from_kpa, to_uint16
 
 DEVICE: Final = "scotti-sim"
 CHUNK_FRAMES: Final = 1024  # frames rendered at once (64 s at 16 Hz)

@@ -6,16 +6,8 @@ import numpy as np
 import pytest
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
 from scotti.sim.foot_mask import REGIONS, insole_length_m, insole_mask, region_basis
-from scotti.sim.pressure import (
-    FootLoads,
-    G,
-    PressureRenderer,
-    Transfer,
-    counts_from_kpa,
-    foot_loads,
-    to_uint16,
-    vertical_acceleration,
-)
+from scotti.sim.loads import FootLoads, G, foot_loads, vertical_acceleration
+from scotti.sim.pressure import PressureRenderer, Transfer, counts_from_kpa, to_uint16
 from scotti.sim.writer import SimInput, render_counts
 
 from tests.support.sim_synthetic import (

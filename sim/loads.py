@@ -1,0 +1,141 @@
+"""Foot loads from a motion: how much each foot carries and where it presses.
+
+The total vertical load is ``m * (g + a_z)`` with ``a_z`` the COM's vertical
+acceleration (second finite difference, smoothed); it is shared between the
+feet in contact by inverse horizontal distance from the COM to each foot's
+centre of pressure (the lever rule for a COM between the feet). A foot whose
+keypoints are off the floor carries nothing; with both off (flight) the load
+is zero. Along the foot the COP follows the foot's pitch: heel only on the
+floor -> heel, toes only -> forefoot, rolling onto the hallux as the heel
+rises; flat -> under the COM's projection. Across the foot it rolls to the
+edge the COM leans over (side walking).
+
+:mod:`scotti.sim.pressure` renders these loads into taxel maps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+from scotti.models.contract import KP
+
+G: Final = 9.81  # m/s^2
+
+# Feet in the order the frames carry them: 0 left, 1 right (firmware Foot).
+_HEEL: Final = (KP["left_heel"], KP["right_heel"])
+_BIG_TOE: Final = (KP["left_big_toe"], KP["right_big_toe"])
+_SMALL_TOE: Final = (KP["left_small_toe"], KP["right_small_toe"])
+
+# A foot keypoint is on the floor below CONTACT_FULL_M and off above
+# CONTACT_NONE_M (linear in between, which softens touch-down and lift-off).
+CONTACT_FULL_M: Final = 0.015
+CONTACT_NONE_M: Final = 0.040
+# COP along the foot (0 heel, 1 hallux tip) for heel-only and flat contact.
+_COP_HEEL: Final = 0.10
+_COP_FLAT_RANGE: Final = (0.15, 0.80)
+# Toes-only contact: the metatarsal heads at first, rolling onto the hallux as
+# the foot pitches up (sine of the pitch from the first to the second value).
+_COP_FOREFOOT: Final = 0.70
+_COP_HALLUX: Final = 0.92
+_PITCH_SIN_ROLL: Final = (0.15, 0.70)
+# Across the foot: the COM this far medial of the foot is neutral (normal
+# stance width); the roll saturates over the given scale.
+_NEUTRAL_MEDIAL_M: Final = 0.09
+_ROLL_SCALE_M: Final = 0.12
+# Inverse-distance sharing: distances below this do not dominate.
+_SHARE_EPS_M: Final = 0.03
+
+
+@dataclass(frozen=True)
+class FootLoads:
+    """Per frame and foot (axis 1: 0 left, 1 right)."""
+
+    load_n: np.ndarray  # (N, 2) vertical force on the foot
+    cop_u: np.ndarray  # (N, 2) along the foot, 0 heel .. 1 toes
+    cop_medial: np.ndarray  # (N, 2) -1 lateral edge .. +1 medial edge
+    contact: np.ndarray  # (N, 2) 0 in the air .. 1 on the floor
+    total_n: np.ndarray  # (N,) m (g + a_z), before the contact gate
+
+
+def _ramp_down(z: np.ndarray) -> np.ndarray:
+    """1 at/below CONTACT_FULL_M, 0 at/above CONTACT_NONE_M."""
+    return np.clip((CONTACT_NONE_M - z) / (CONTACT_NONE_M - CONTACT_FULL_M), 0.0, 1.0)
+
+
+def vertical_acceleration(com_z: np.ndarray, rate_hz: float) -> np.ndarray:
+    """COM vertical acceleration (m/s^2): central second difference, smoothed [1 2 1]/4."""
+    z = np.asarray(com_z, dtype=np.float64)
+    if z.size < 3:
+        return np.zeros_like(z)
+    padded = np.concatenate([z[:1], z, z[-1:]])
+    acc = (padded[2:] - 2.0 * padded[1:-1] + padded[:-2]) * rate_hz * rate_hz
+    acc_padded = np.concatenate([acc[:1], acc, acc[-1:]])
+    return 0.25 * acc_padded[:-2] + 0.5 * acc_padded[1:-1] + 0.25 * acc_padded[2:]
+
+
+def foot_loads(
+    keypoints: np.ndarray,
+    com: np.ndarray,
+    rate_hz: float,
+    mass_kg: float,
+    ground_z: np.ndarray | None = None,
+) -> FootLoads:
+    """Loads and centres of pressure of both feet.
+
+    ``keypoints`` (N, 19, 3) world, ``com`` (N, 3); ``ground_z`` (N, 2): the
+    surface height under each foot (a step), None for a flat floor.
+    """
+    kp = np.asarray(keypoints, dtype=np.float64)
+    com = np.asarray(com, dtype=np.float64)
+    ground = np.zeros((len(kp), 2)) if ground_z is None else np.asarray(ground_z, np.float64)
+    heel = kp[:, _HEEL, :]  # (N, 2, 3)
+    toe = 0.5 * (kp[:, _BIG_TOE, :] + kp[:, _SMALL_TOE, :])  # (N, 2, 3)
+    toe_z = np.minimum(kp[:, _BIG_TOE, 2], kp[:, _SMALL_TOE, 2]) - ground
+    heel_z = heel[..., 2] - ground
+    c_heel, c_toe = _ramp_down(heel_z), _ramp_down(toe_z)
+    contact = np.maximum(c_heel, c_toe)
+
+    # Foot axis on the floor, heel -> toes, and the medial direction:
+    # to the right of the left foot, to the left of the right foot.
+    axis = toe[..., :2] - heel[..., :2]
+    length = np.maximum(np.linalg.norm(axis, axis=-1), 1e-3)
+    fwd = axis / length[..., None]
+    left_of_foot = np.stack([-fwd[..., 1], fwd[..., 0]], axis=-1)
+    medial_dir = left_of_foot * np.array([-1.0, 1.0])[None, :, None]
+
+    rel = com[:, None, :2] - heel[..., :2]  # (N, 2, 2)
+    u_com = np.einsum("nfk,nfk->nf", rel, fwd) / length
+    u_flat = np.clip(u_com, *_COP_FLAT_RANGE)
+    pitch_sin = (heel_z - toe_z) / np.maximum(np.linalg.norm(toe - heel, axis=-1), 1e-3)
+    lo, hi = _PITCH_SIN_ROLL
+    heel_rise = np.clip((pitch_sin - lo) / (hi - lo), 0.0, 1.0)
+    # On the toes the COP is under the forefoot, as near the COM as it can be.
+    u_pitch = _COP_FOREFOOT + (_COP_HALLUX - _COP_FOREFOOT) * heel_rise
+    u_toe = np.clip(np.maximum(u_pitch, u_com), _COP_FOREFOOT, _COP_HALLUX)
+    w_flat = c_heel * c_toe
+    w_heel = c_heel * (1.0 - c_toe)
+    w_toe = c_toe * (1.0 - c_heel)
+    w_sum = w_flat + w_heel + w_toe
+    cop_u = np.where(
+        w_sum > 0,
+        (w_flat * u_flat + w_heel * _COP_HEEL + w_toe * u_toe) / np.maximum(w_sum, 1e-12),
+        0.5 * sum(_COP_FLAT_RANGE),
+    )
+
+    # COP point on the floor, then the COM's medial offset from it.
+    cop_xy = heel[..., :2] + axis * cop_u[..., None]
+    medial_off = np.einsum("nfk,nfk->nf", com[:, None, :2] - cop_xy, medial_dir)
+    cop_medial = np.tanh((medial_off - _NEUTRAL_MEDIAL_M) / _ROLL_SCALE_M)
+
+    # Share by inverse horizontal distance (the lever rule between two feet).
+    dist = np.linalg.norm(com[:, None, :2] - cop_xy, axis=-1)
+    share = contact / (dist + _SHARE_EPS_M)
+    share_sum = share.sum(axis=1, keepdims=True)
+    share = np.where(share_sum > 0, share / np.maximum(share_sum, 1e-12), 0.0)
+
+    total = mass_kg * (G + vertical_acceleration(com[:, 2], rate_hz))
+    gate = np.minimum(1.0, contact.sum(axis=1))
+    load = np.maximum(total * gate, 0.0)[:, None] * share
+    return FootLoads(load, cop_u, cop_medial, contact, total)
