@@ -18,7 +18,7 @@ import numpy as np
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim.effects.registry import EffectPlan, parse_effects, realistic_effects
 from scotti.sim.pressure import PressureRenderer
-from scotti.sim.scene import Scene, ScriptEntry, SubjectModel, build_motion
+from scotti.sim.scene import PHYSICS_OVERSAMPLE, Scene, ScriptEntry, SubjectModel, build_motion
 from scotti.sim.writer import CountsStream, sim_input, write_session
 
 TARGET_RATIO: Final = 100.0
@@ -77,7 +77,7 @@ def bench_scene(minutes: float, effects: bool) -> Scene:
 def run_bench(minutes: float, effects: bool = False, out: Path | None = None) -> BenchResult:
     scene = bench_scene(minutes, effects)
     t0 = time.perf_counter()
-    sim = sim_input(build_motion(scene))
+    sim = sim_input(build_motion(scene, PHYSICS_OVERSAMPLE))
     t1 = time.perf_counter()
     renderer = PressureRenderer(sim.foot_length_m)
     parsed = parse_effects(scene.effects)

@@ -19,7 +19,7 @@ import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.effects.registry import parse_effects, realistic_effects
 from scotti.sim.motion import Subject
-from scotti.sim.scene import Scene, ScriptEntry, SubjectModel, build_motion
+from scotti.sim.scene import PHYSICS_OVERSAMPLE, Scene, ScriptEntry, SubjectModel, build_motion
 from scotti.sim.subjects import draw_subjects
 from scotti.sim.writer import RenderReport, sim_input, write_session
 
@@ -70,7 +70,7 @@ def render_scene(
     ``subject_id`` goes into the header's subject as "id" (training splits
     by it); without it readers fall back to the file name.
     """
-    motion = build_motion(scene)
+    motion = build_motion(scene, PHYSICS_OVERSAMPLE)
     subject: dict[str, Any] = motion.subject.as_dict()
     if subject_id is not None:
         subject["id"] = subject_id

@@ -36,6 +36,10 @@ from scotti.sim.motion import Motion, Subject
 from scotti.sim.skeleton import Body, center_of_mass, pose_keypoints
 
 LEAD_IN_S = 1.0  # quiet stand before the first action
+# Motions for session files are built at this multiple of the scene rate
+# (8 x 16 Hz = 128 Hz) so that forces come from resolved accelerations; the
+# writer samples them back to the frame rate (``writer.sim_input``).
+PHYSICS_OVERSAMPLE = 8
 
 
 class SceneError(SimError):
@@ -164,7 +168,11 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def build_motion(scene: Scene, oversample: int = 1) -> Motion:
-    """Run the script: lead-in stand, then each action followed by its stand."""
+    """Run the script: lead-in stand, then each action followed by its stand.
+
+    ``oversample`` multiplies the scene's rate: 1 for kinematics and labels
+    alone, ``PHYSICS_OVERSAMPLE`` for a motion whose forces are computed.
+    """
     if oversample < 1:
         msg = f"oversample must be a positive integer, got {oversample}"
         raise SceneError(msg)

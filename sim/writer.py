@@ -65,19 +65,32 @@ class SimInput:
     foot_length_m: float
     labels: FrameLabels
     ground_z: np.ndarray | None = None  # (N, 2) surface under each foot, None: flat floor
+    # Loads at the frame rate, sampled from loads computed at the motion's own
+    # (higher) rate; None: computed here from the frame-rate keypoints.
+    frame_loads: FootLoads | None = None
 
     def loads(self) -> FootLoads:
+        if self.frame_loads is not None:
+            return self.frame_loads
         return foot_loads(self.keypoints, self.com, self.rate_hz, self.mass_kg, self.ground_z)
 
 
 def sim_input(motion: Motion) -> SimInput:
-    """A sim-body ``Motion`` (16 Hz or an integer multiple) at the frame rate, with labels."""
+    """A sim-body ``Motion`` (16 Hz or an integer multiple) at the frame rate, with labels.
+
+    The foot loads are computed at the motion's rate and then sampled at the
+    frame times (``FootLoads.every``): build the motion with
+    ``scene.PHYSICS_OVERSAMPLE`` for forces from 128 Hz kinematics.
+    """
     step = round(motion.rate_hz / FRAME_RATE_HZ)
     if step < 1 or abs(motion.rate_hz - step * FRAME_RATE_HZ) > 1e-6:
         msg = f"motion rate {motion.rate_hz} Hz is not a multiple of {FRAME_RATE_HZ} Hz"
         raise SimError(msg)
+    mass = motion.subject.mass_kg
+    loads = foot_loads(motion.world, motion.com, motion.rate_hz, mass, motion.ground_z)
     if step > 1:
         motion = motion.every(step)
+        loads = loads.every(step)
     lab = motion_labels(motion)
     return SimInput(
         keypoints=motion.world,
@@ -87,6 +100,7 @@ def sim_input(motion: Motion) -> SimInput:
         foot_length_m=motion.subject.foot_length,
         labels=FrameLabels(lab.keypoints, lab.action, lab.progress, lab.repetition),
         ground_z=motion.ground_z,
+        frame_loads=loads,
     )
 
 

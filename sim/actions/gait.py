@@ -27,6 +27,7 @@ from scotti.sim.actions.base import (
 )
 from scotti.sim.actions.curves import ease, hermite
 from scotti.sim.actions.footsteps import FLAT, HEEL, TOE, FootTrack, Plant, foot_track, support_path
+from scotti.sim.actions.pendulum import pendulum_height
 from scotti.sim.skeleton import LEFT, RIGHT, Array, PoseParams, axes
 
 STANCE = 0.6  # share of the gait cycle a foot stands (Winter; Perry)
@@ -127,9 +128,10 @@ def _walk(
     pelvis = p.pelvis.copy()
     pelvis[:, :2] += (along - lateral)[:, None] * f[:2]
     p = p.replace(lean=lean * envelope, pelvis=pelvis)
+    ground = np.stack([f.ground_z for f in feet], axis=1)
+    p = p.replace(pelvis=pendulum_height(body, p, t, ground, end_s))
     p = _arm_swing(p, feet, place.heading, length, 0.35)
     end = Place(*place.xy(forward[-1], 0.0), place.heading, place.floor_z)
-    ground = np.stack([f.ground_z for f in feet], axis=1)
     return Segment(finalize(body, p), np.full(len(t), action, dtype=np.int64), end, ground)
 
 
