@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from scotti.sim.actions.backward import backward_walking
 from scotti.sim.actions.base import ActionSpec, Context, Place, Segment, stand
-from scotti.sim.actions.gait import backward_walking, in_place_walking, side_walking, walking
+from scotti.sim.actions.gait import in_place_walking, side_walking, walking
 from scotti.sim.actions.jump import jump
 from scotti.sim.actions.step_up import step_up
 from scotti.sim.actions.strength import lunge, squat

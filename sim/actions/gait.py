@@ -4,9 +4,9 @@ For these four a repetition is one step (one foot's swing), as the progress
 labeller cuts them: by heel distance (walking, side walking), heel height
 (in place) or heel displacement (backward). Walking is built from a gait
 cycle with stance 60 %, double support 2 x 10 %, heel strike -> flat foot ->
-heel rise -> toe off; the pelvis follows the standing feet and the legs'
-reach gives its rise and fall. Backward walking is forward walking played
-in reverse, which turns heel strike into the toe-first landing it has.
+heel rise -> toe off; the pelvis follows the standing feet and its height
+an inverted pendulum (``pendulum.py``). Backward walking has
+its own gait in ``backward.py``.
 """
 
 from __future__ import annotations
@@ -46,12 +46,6 @@ def steps_for(spec: ActionSpec, step_s: float, least: int = 2) -> int:
 
 def walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     return _walk(ctx, spec, place, ACTIONS.index("walking"), 1.0, 1.0, 0.3, -0.6, 0.04)
-
-
-def backward_walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
-    # Shorter, slower steps; toe lands first (the reversed toe-off), heel leaves last.
-    forward = _walk(ctx, spec, place, ACTIONS.index("backward_walking"), 0.7, 0.85, 0.3, -0.4, 0.0)
-    return _reverse(ctx, forward, place)
 
 
 def _walk(
@@ -164,18 +158,6 @@ def _arm_swing(
     flex = np.stack([swing, -swing], axis=1)
     elbow = ELBOW_REST + 0.4 * np.maximum(flex, 0.0)
     return p.replace(shoulder_flex=flex, elbow_flex=elbow)
-
-
-def _reverse(ctx: Context, seg: Segment, place: Place) -> Segment:
-    """Play a segment backwards and move it so that it starts at ``place``."""
-    shift = np.array([place.x - seg.end.x, place.y - seg.end.y, 0.0])
-    p = seg.params
-    flipped = p.replace(
-        **{name: getattr(p, name)[::-1].copy() for name in p.__dataclass_fields__},
-    )
-    flipped = flipped.replace(pelvis=flipped.pelvis + shift, ankle=flipped.ankle + shift)
-    end = Place(place.x + (place.x - seg.end.x), place.y + (place.y - seg.end.y), place.heading)
-    return Segment(flipped, seg.action, end, seg.ground_z[::-1].copy())
 
 
 def in_place_walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
