@@ -10,6 +10,12 @@ hmax and hmin its extremes and "mid" the frame where h is smallest,
 so p runs 0 -> 0.5 -> 1 as h goes top -> bottom -> top.
 
 Choices the paper leaves open, fixed here:
+- Repetitions are cut where the person rests between them, which must be a
+  peak of h. Squats and lunges rest standing tall: h is the mid-hip height.
+  Jumps rest in the crouch and step-ups on the floor, at the bottom of the
+  mid-hip height: for them h is its negative, so a step-up runs floor (0) ->
+  on the step (0.5) -> floor (1). With h = +height, K step-ups have K peaks
+  (one per stand on the step) and were cut into K + 1 pieces.
 - Peaks are found on h smoothed by a short moving average, with a minimum
   prominence (a share of the run's range, and an absolute floor in metres)
   and a minimum distance in frames (``PeakParams``). Values of p use raw h.
@@ -74,7 +80,7 @@ def progress_indicator(keypoints: npt.ArrayLike, action: int) -> FloatArray:
     heels = k[:, [KP["left_heel"], KP["right_heel"]], :]  # (N, 2, 3)
     if name in ("squat", "lunge", "step_up", "jump"):
         mid_hip_z = 0.5 * (k[:, KP["left_hip"], 2] + k[:, KP["right_hip"], 2])
-        return -mid_hip_z if name == "jump" else mid_hip_z
+        return -mid_hip_z if name in ("jump", "step_up") else mid_hip_z
     if name in ("walking", "side_walking"):
         return np.asarray(np.linalg.norm(heels[:, 0] - heels[:, 1], axis=-1), np.float64)
     if name == "in_place_walking":

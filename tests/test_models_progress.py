@@ -53,9 +53,10 @@ def test_indicators_follow_the_paper() -> None:
     k += rng.normal(0, 0.05, k.shape)
     mid_hip_z = 0.5 * (k[:, KP["left_hip"], 2] + k[:, KP["right_hip"], 2])
     lh, rh = k[:, KP["left_heel"]], k[:, KP["right_heel"]]
-    for name in ("squat", "lunge", "step_up"):
+    for name in ("squat", "lunge"):
         np.testing.assert_allclose(progress_indicator(k, A[name]), mid_hip_z)
-    np.testing.assert_allclose(progress_indicator(k, A["jump"]), -mid_hip_z)
+    for name in ("jump", "step_up"):  # they rest at the bottom of the hip height
+        np.testing.assert_allclose(progress_indicator(k, A[name]), -mid_hip_z)
     for name in ("walking", "side_walking"):
         np.testing.assert_allclose(progress_indicator(k, A[name]), np.linalg.norm(lh - rh, axis=1))
     np.testing.assert_allclose(
@@ -69,6 +70,18 @@ def test_indicators_follow_the_paper() -> None:
     expected_2 = max(np.linalg.norm(lh[2] - lh[0]), np.linalg.norm(rh[2] - rh[0]))
     assert back[2] == pytest.approx(expected_2)
     assert back[0] == 0.0
+
+
+def test_step_ups_from_the_floor_count_once_each_and_peak_on_the_step() -> None:
+    # K step-ups: floor pause, up onto a 0.2 m step, stand, back down.
+    reps, period = 4, 48
+    t = np.arange(reps * period + 8, dtype=np.float64)
+    phase = np.mod(t - 8, period) / period
+    on_step = np.where(t < 8, 0.0, np.clip(np.sin(np.pi * phase) * 1.6, 0.0, 1.0))
+    labels = label_progress(with_hip_z(0.9 + 0.2 * on_step), np.full(len(t), A["step_up"]))
+    assert int(labels.repetition.max()) + 1 == reps
+    top = np.flatnonzero(on_step[: period + 8] == 1.0)
+    assert labels.progress[top[len(top) // 2]] == pytest.approx(0.5, abs=0.05)
 
 
 def test_indicator_refuses_no_action_and_bad_shapes() -> None:

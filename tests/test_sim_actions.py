@@ -144,7 +144,7 @@ TOLERANCE = {
     "squat": 0,
     "lunge": 0,
     "jump": 0,
-    "step_up": 1,
+    "step_up": 0,
     "walking": 1,
     "backward_walking": 1,
     "side_walking": 1,

@@ -25,6 +25,12 @@ TOE_OUT = 0.08
 ELBOW_REST = 0.15
 # Softness (metres) of the reach limit on the pelvis height.
 REACH_SOFTNESS = 0.004
+# The body leans forwards a little over the ankles: the hips this far ahead
+# of where the recipes put them (x height / 1.75) puts the standing COM
+# 4-6 cm in front of the ankle joints, where quiet standing has it (Winter
+# 1995, "Human balance and posture control during standing and walking",
+# Gait & Posture 3:193-214); the calf muscles hold that lean.
+HIPS_AHEAD_M = 0.045
 
 
 @dataclass(frozen=True)
@@ -119,8 +125,16 @@ def neutral(body: Body, place: Place, n: int) -> PoseParams:
     )
 
 
+def lean_ahead(body: Body, p: PoseParams) -> PoseParams:
+    """``p`` with the hips moved HIPS_AHEAD_M (scaled by height) along the heading."""
+    forward, _ = axes(p.heading)
+    ahead = HIPS_AHEAD_M * body.height / 1.75
+    return p.replace(pelvis=p.pelvis + ahead * forward * np.array([1.0, 1.0, 0.0]))
+
+
 def finalize(body: Body, p: PoseParams) -> PoseParams:
-    """Keep the feet on or above the floor and the pelvis within the legs' reach."""
+    """Lean over the ankles, keep the feet on or above the floor and the pelvis within reach."""
+    p = lean_ahead(body, p)
     ankle = p.ankle.copy()
     for side in (0, 1):
         feet = foot_points(body, side, ankle[:, side], p.foot_yaw[:, side], p.foot_pitch[:, side])

@@ -36,6 +36,7 @@ from typing import Final
 import numpy as np
 from scotti.models.contract import ACTIONS, NO_ACTION
 from scotti.sim.actions.base import ActionSpec, Context, Place, Segment, finalize, neutral
+from scotti.sim.actions.com import com_z, steer_com_z
 from scotti.sim.actions.curves import box_smooth, bump, ease, hermite
 from scotti.sim.skeleton import (
     LEFT,
@@ -45,9 +46,7 @@ from scotti.sim.skeleton import (
     PoseParams,
     ankle_on_pivot,
     axes,
-    center_of_mass,
     foot_points,
-    pose_keypoints,
 )
 
 G: Final = 9.81
@@ -197,17 +196,12 @@ def jump(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     return Segment(finalize(body, p), action, place, np.zeros((len(t), 2)))
 
 
-def _com_z(body: Body, p: PoseParams) -> Array:
-    return center_of_mass(body, pose_keypoints(body, finalize(body, p)))[:, 2]
-
-
 def _com_follows_hips(
     body: Body,
     p: PoseParams,
     t: Array,
     flights: list[tuple[float, float]],
     landing_ends: list[float],
-    iterations: int = 3,
 ) -> PoseParams:
     """Move the hips so that the whole body's COM, not the hips, flies and lands as drawn.
 
@@ -218,7 +212,7 @@ def _com_follows_hips(
     crouch. The arms swinging and the trunk leaning would otherwise bend the
     COM's flight off the parabola and blunt the landing.
     """
-    com = _com_z(body, p)
+    com = com_z(body, p)
     target = com.copy()
     window = np.zeros(len(t), dtype=bool)
     hip = p.pelvis[:, 2]
@@ -232,12 +226,4 @@ def _com_follows_hips(
         target[on] = hip[on] + start_off + (end_off - start_off) * blend
         window[on] = True
     flying = window & (p.ankle[:, :, 2].min(axis=1) > body.foot_height + 1e-3)
-    for _ in range(iterations):
-        error = np.where(window, target - com, 0.0)
-        pelvis = p.pelvis.copy()
-        pelvis[:, 2] += error
-        ankle = p.ankle.copy()
-        ankle[flying, :, 2] += error[flying, None]
-        p = p.replace(pelvis=pelvis, ankle=ankle)
-        com = _com_z(body, p)
-    return p
+    return steer_com_z(body, p, target, window, feet_follow=flying)

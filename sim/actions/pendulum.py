@@ -26,6 +26,7 @@ import itertools
 from typing import Final
 
 import numpy as np
+from scotti.sim.actions.base import lean_ahead
 from scotti.sim.actions.curves import box_smooth, ease
 from scotti.sim.loads import CONTACT_NONE_M, G
 from scotti.sim.skeleton import Array, Body, PoseParams, foot_points, hip_points, leg_reach_z
@@ -101,7 +102,7 @@ def pendulum_height(body: Body, p: PoseParams, t: Array, ground: Array, end_s: f
     rise_end = 0.5 * (swings[0][0] + swings[0][1])
     fall_start = swings[-1][0]
     fade = ease(t / max(rise_end, 1e-9)) * ease((end_s - t) / max(end_s - fall_start, 1e-9))
-    hips = hip_points(body, p.pelvis, p.heading)
+    hips = hip_points(body, lean_ahead(body, p).pelvis, p.heading)
     reach = np.minimum(*(leg_reach_z(body, hips[:, s, :2], p.ankle[:, s]) for s in (0, 1)))
     walking = (t >= rise_end) & (t <= fall_start)
     stand = p.pelvis[:, 2]

@@ -21,7 +21,9 @@ from scotti.sim.skeleton import LEFT, RIGHT, Array, Body, ankle_on_pivot, axes, 
 START_S = 0.3
 SQUAT_S = 3.0  # one squat at tempo 1: down, short hold, up, pause
 SQUAT_DROP = 0.26  # x height: mid-hip drop at depth 1
-SQUAT_BACK = 0.13  # x height: mid-hip moves back at depth 1
+SQUAT_BACK = 0.14  # x height: mid-hip moves back at depth 1 (COM and COP towards the heels)
+SQUAT_BACK_LEAD = 0.7  # back ~ drop^0.7: the hips lead backwards
+SQUAT_ARMS = 0.9  # radians the arms rise in front at depth 1 (more would carry the COM forwards)
 LUNGE_S = 3.8
 LUNGE_LENGTH = 0.45  # x height: step of the lunge
 LUNGE_DROP = 0.25  # x height at depth 1
@@ -48,13 +50,17 @@ def squat(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     t0 = START_S
     for d, depth in zip(durations, depths, strict=True):
         bottom = np.array(
-            [SQUAT_BACK * depth, SQUAT_DROP * depth, 0.6 * depth, 1.3 * depth]
+            [SQUAT_BACK * depth, SQUAT_DROP * depth, 0.6 * depth, SQUAT_ARMS * depth]
         ) * np.array([body.height, body.height, 1.0, 1.0])
         knot_t += [t0 + 0.42 * d, t0 + 0.47 * d, t0 + 0.87 * d, t0 + d]
         knot_y += [bottom, bottom, np.zeros(4), np.zeros(4)]
         t0 += d
     t = ctx.times(t0)
     back, drop, lean, arms = hermite(t, knot_t, np.array(knot_y)).T
+    # The hips go back first and the knees forward later, so that the COM (and
+    # the COP under it) moves towards the heels from the first centimetre.
+    full_drop = SQUAT_DROP * body.height
+    back = SQUAT_BACK * body.height * (np.maximum(drop, 0.0) / full_drop) ** SQUAT_BACK_LEAD
     p = neutral(body, place, len(t))
     f, _ = axes(place.heading)
     pelvis = p.pelvis - back[:, None] * f - drop[:, None] * np.array([0.0, 0.0, 1.0])
