@@ -7,7 +7,7 @@ ground reaction force is ``m (g + z'')``, so the path is drawn from the force
 we want rather than from the legs' reach (whose cusps at heel strike gave
 spikes and drops to zero load):
 
-    F / mg = c - d sin(pi s) + e cos(pi s)   in single support (s = 0 .. 1)
+    F / mg = c - d sin(pi s)^k + e cos(pi s)   in single support (s = 0 .. 1)
     F / mg = c - e .. c + e (linear)         in double support
 
 with ``c`` and ``d`` such that the force averages body weight over every
@@ -32,11 +32,15 @@ from scotti.sim.loads import CONTACT_NONE_M, G
 from scotti.sim.skeleton import Array, Body, PoseParams, foot_points, hip_points, leg_reach_z
 
 # Force at mid single support, body weights (Perry; Winter: 0.7-0.8).
-VALLEY_BW: Final = 0.72
+VALLEY_BW: Final = 0.70
 # The force leans towards the start of single support by this much (body
 # weights): weight acceptance after heel strike is the larger peak at
 # comfortable speed (Perry), the push-off peak the smaller.
-WEIGHT_ACCEPTANCE: Final = 0.04
+WEIGHT_ACCEPTANCE: Final = 0.05
+# The dip's shape over single support, sin(pi s) ** DIP_POWER: below 1 it is
+# wide and its edges steep, which lifts the two peaks for a given valley.
+DIP_POWER: Final = 0.8
+_DIP_MEAN: Final = float(np.mean(np.sin(np.pi * (np.arange(4096) + 0.5) / 4096) ** DIP_POWER))
 # Keep the pelvis this far below the legs' reach (the soft minimum's
 # softness is 4 mm: 15 mm below it the path is untouched).
 REACH_MARGIN_M: Final = 0.015
@@ -52,15 +56,15 @@ def pendulum_force(t: Array, swings: list[tuple[float, float]], valley_bw: float
     for (t_ss, t_ds), (t_next, _) in itertools.pairwise(swings):
         single = t_ds - t_ss
         r = single / (t_next - t_ss)
-        # F = c - d sin(pi s) + e cos(pi s) over single support, rising from
+        # F = c - d sin(pi s)^k + e cos(pi s) over single support, rising from
         # c - e to c + e over double support: mean 1 over the cycle,
         # valley_bw at mid single support.
-        d = (1.0 - valley_bw) / (1.0 - 2.0 * r / np.pi)
-        c = 1.0 + 2.0 * r * d / np.pi
+        d = (1.0 - valley_bw) / (1.0 - r * _DIP_MEAN)
+        c = 1.0 + r * d * _DIP_MEAN
         ss = (t >= t_ss) & (t < t_ds)
         ds = (t >= t_ds) & (t < t_next)
         phase = np.pi * (t[ss] - t_ss) / single
-        a[ss] = c - 1.0 - d * np.sin(phase) + WEIGHT_ACCEPTANCE * np.cos(phase)
+        a[ss] = c - 1.0 - d * np.sin(phase) ** DIP_POWER + WEIGHT_ACCEPTANCE * np.cos(phase)
         ramp = (t[ds] - t_ds) / max(t_next - t_ds, 1e-9)
         a[ds] = c - 1.0 + WEIGHT_ACCEPTANCE * (2.0 * ramp - 1.0)
     return a
