@@ -21,6 +21,11 @@ def com_z(body: Body, p: PoseParams) -> Array:
     return np.asarray(center_of_mass(body, pose_keypoints(body, finalize(body, p)))[:, 2])
 
 
+def take(p: PoseParams, idx: npt.NDArray[np.intp]) -> PoseParams:
+    """The frames ``idx`` of ``p``."""
+    return PoseParams(**{n: getattr(p, n)[idx] for n in PoseParams.__dataclass_fields__})
+
+
 def steer_com_z(
     body: Body,
     p: PoseParams,
@@ -32,17 +37,24 @@ def steer_com_z(
     """``p`` with the pelvis raised or lowered inside ``window`` so that the COM is at ``target``.
 
     Where ``feet_follow`` (N,) is set (in the air) both ankles move with the
-    pelvis; elsewhere the feet stay where they stand.
+    pelvis; elsewhere the feet stay where they stand. Only the window's
+    frames are posed (the kinematics are frame by frame).
     """
-    com = com_z(body, p)
+    idx = np.flatnonzero(window)
+    if idx.size == 0:
+        return p
+    part = take(p, idx)
+    follow = None if feet_follow is None else feet_follow[idx]
+    goal = target[idx]
     for _ in range(iterations):
-        error = np.where(window, target - com, 0.0)
-        pelvis = p.pelvis.copy()
+        error = goal - com_z(body, part)
+        pelvis = part.pelvis.copy()
         pelvis[:, 2] += error
-        ankle = p.ankle
-        if feet_follow is not None:
+        ankle = part.ankle
+        if follow is not None:
             ankle = ankle.copy()
-            ankle[feet_follow, :, 2] += error[feet_follow, None]
-        p = p.replace(pelvis=pelvis, ankle=ankle)
-        com = com_z(body, p)
-    return p
+            ankle[follow, :, 2] += error[follow, None]
+        part = part.replace(pelvis=pelvis, ankle=ankle)
+    pelvis, ankle = p.pelvis.copy(), p.ankle.copy()
+    pelvis[idx], ankle[idx] = part.pelvis, part.ankle
+    return p.replace(pelvis=pelvis, ankle=ankle)

@@ -36,7 +36,7 @@ from typing import Final
 import numpy as np
 from scotti.models.contract import ACTIONS, NO_ACTION
 from scotti.sim.actions.base import ActionSpec, Context, Place, Segment, finalize, neutral
-from scotti.sim.actions.com import com_z, steer_com_z
+from scotti.sim.actions.com import com_z, steer_com_z, take
 from scotti.sim.actions.curves import box_smooth, bump, ease, hermite
 from scotti.sim.skeleton import (
     LEFT,
@@ -212,15 +212,20 @@ def _com_follows_hips(
     crouch. The arms swinging and the trunk leaning would otherwise bend the
     COM's flight off the parabola and blunt the landing.
     """
-    com = com_z(body, p)
-    target = com.copy()
+    target = np.zeros(len(t))
     window = np.zeros(len(t), dtype=bool)
     hip = p.pelvis[:, 2]
-    for (up, down), end in zip(flights, landing_ends, strict=True):
+    spans = []
+    for (up, _), end in zip(flights, landing_ends, strict=True):
         i_up = int(np.searchsorted(t, up))
         i_end = min(len(t) - 1, int(np.searchsorted(t, end)))
+        spans.append((i_up, i_end))
+    ends = np.array([i for span in spans for i in span], dtype=np.intp)
+    offsets = com_z(body, take(p, ends)) - hip[ends]
+    for k, ((_, down), end) in enumerate(zip(flights, landing_ends, strict=True)):
+        i_up, i_end = spans[k]
         on = slice(i_up, i_end + 1)
-        start_off, end_off = com[i_up] - hip[i_up], com[i_end] - hip[i_end]
+        start_off, end_off = offsets[2 * k], offsets[2 * k + 1]
         s = np.clip((t[on] - down) / max(end - down, 1e-9), 0.0, 1.0)
         blend = s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
         target[on] = hip[on] + start_off + (end_off - start_off) * blend
