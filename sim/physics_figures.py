@@ -4,26 +4,30 @@
 that forces come from 128 Hz kinematics), computes its foot loads and returns
 one figure per physical claim, each next to the range people show:
 
-==========================  ==========================================  ===========
-figure                      what                                        people
-==========================  ==========================================  ===========
-walking peaks / valley      per foot, median over complete stances      1.1-1.3 /
-                            (first half max, second half max, min        0.7-0.8 BW
-                            between them), body weights                 (Perry; Winter)
-COP onset / offset          cop_u (0 heel .. 1 toes) at a stance's      heel->toe
-                            first and last loaded sample, per gait      forwards
-side walking COP travel     whole-body COP's sideways travel / the      ~1
-                            pelvis's (and the share of its path that
-                            goes back against the travel)
-jump landing peak           both feet, median over landings, BW         2.5-4
-jump flight load            largest load with both feet off, newtons    0
-jump L/R                    median touch-down time gap (ms) and         not 0
-                            load split difference of landing peaks
-step-up lead peak           the foot on the step until the other         1.3-1.5
-                            joins it, median over steps, BW
-squat COP vs depth          correlation of mean cop_u with hip drop     < 0 (heels)
-standing COM offset         COM in front of the ankles, metres          0.04-0.06
-==========================  ==========================================  ===========
+=========================  ========================================  ==================
+figure                     what                                      people
+=========================  ========================================  ==================
+walking peaks / valley     per foot, median over complete stances    1.1-1.3 / 0.7-0.8
+                           (first-half max, second-half max, min     BW (Perry 1992;
+                           between them), body weights               Winter 2009)
+COP onset / offset         cop_u (0 heel .. 1 toes) at a stance's    heel -> toe
+                           first and last loaded sample, per gait    forwards, toe
+                                                                     first backwards
+side walking COP travel    whole-body COP's sideways travel over     about 1, little
+                           the pelvis's; share of its path that      backtracking
+                           goes back against the travel
+jump landing peak          both feet, median over landings, BW       2.5-4 (Bobbert
+                                                                     1987; McNitt-Gray
+                                                                     1993)
+jump flight load           largest load with both feet off, N        0
+jump L/R                   median touch-down gap (ms) and load       not 0
+                           split difference of the landing peaks
+step-up lead peak          the foot on the step until the other      1.3-1.5 BW
+                           joins it, median over steps, BW           (Stacoff 2005)
+squat COP vs depth         correlation of mean cop_u with hip drop   < 0 (to the heels)
+standing COM offset        COM in front of the ankles, metres        0.04-0.06
+                                                                     (Winter 1995)
+=========================  ========================================  ==================
 
 A figure is NaN when the motion has no such action. Pure: no files, no
 printing; ``scotti sim realism`` (the lead's) formats them.

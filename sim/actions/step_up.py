@@ -4,7 +4,15 @@ One repetition: the leading foot steps up onto the step, the other follows
 beside it (standing on the step), the leading foot steps back down to where
 it stood, the other follows. Leading legs alternate. Feet on the step stand
 at the step's height, which ``Segment.ground_z`` reports as the surface under
-them; the pelvis follows the standing feet and rises by the step height.
+them; the pelvis follows the standing feet sideways and forwards.
+
+Its height is drawn from the force it takes (``rise_share``): a quick push
+as the leading leg lifts the body and a long ease onto the step, which loads
+the leading leg with 1.3-1.5 body weights for a 0.2 m step (stair ascent:
+from a little above body weight on shallow stairs up to 1.6 on steep ones,
+Stacoff et al. 2005, "Ground reaction forces on stairs: effects of stair
+inclination and age", Gait & Posture 21:24-38), and the mirror image on the
+way down, braking as the leading foot lands back on the floor.
 """
 
 from __future__ import annotations
