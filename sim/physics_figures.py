@@ -13,9 +13,10 @@ walking peaks / valley     per foot, median over complete stances    1.1-1.3 / 0
 COP onset / offset         cop_u (0 heel .. 1 toes) at a stance's    heel -> toe
                            first and last loaded sample, per gait    forwards, toe
                                                                      first backwards
-side walking COP travel    whole-body COP's sideways travel over     about 1, little
-                           the pelvis's; share of its path that      backtracking
-                           goes back against the travel
+side walking COP           share of the whole-body COP's sideways    most of it (the
+                           path that goes the way the person         first shift, to
+                           travels                                   unload the leading
+                                                                     foot, goes back)
 jump landing peak          both feet, median over landings, BW       2.5-4 (Bobbert
                                                                      1987; McNitt-Gray
                                                                      1993)
@@ -71,8 +72,7 @@ class PhysicsFigures:
     walking_cop_offset_u: float = NAN
     backward_cop_onset_u: float = NAN
     backward_cop_offset_u: float = NAN
-    side_cop_travel_ratio: float = NAN
-    side_cop_backtrack: float = NAN
+    side_cop_with_travel: float = NAN
     jump_landing_peak_bw: float = NAN
     jump_flight_max_n: float = NAN
     jump_touchdown_gap_ms: float = NAN
@@ -109,8 +109,7 @@ def measure(motion: Motion, loads: FootLoads | None = None) -> PhysicsFigures:
         figures |= {"backward_cop_onset_u": onset, "backward_cop_offset_u": offset}
     side = _runs_of(motion, "side_walking")
     if side:
-        ratio, backtrack = _side_travel(motion, loads, side)
-        figures |= {"side_cop_travel_ratio": ratio, "side_cop_backtrack": backtrack}
+        figures["side_cop_with_travel"] = _side_travel(motion, loads, side)
     jumps = _runs_of(motion, "jump")
     if jumps:
         figures |= _jump_figures(motion, loads, jumps, bw)
@@ -193,11 +192,9 @@ def cop_world(motion: Motion, loads: FootLoads) -> Array:
     return np.asarray(heel + (toe - heel) * loads.cop_u[..., None], dtype=np.float64)
 
 
-def _side_travel(
-    motion: Motion, loads: FootLoads, runs: list[tuple[int, int]]
-) -> tuple[float, float]:
+def _side_travel(motion: Motion, loads: FootLoads, runs: list[tuple[int, int]]) -> float:
     cop = cop_world(motion, loads)
-    ratios, backtracks = [], []
+    shares = []
     for start, end in runs:
         w = loads.load_n[start:end]
         total = w.sum(axis=1)
@@ -205,18 +202,14 @@ def _side_travel(
         whole = (w[ok, :, None] * cop[start:end][ok]).sum(axis=1) / total[ok, None]
         _, left = axes(float(motion.heading[start]))
         lateral = whole @ left[:2]
-        pelvis = 0.5 * (
-            motion.world[start:end, KP["left_hip"]] + motion.world[start:end, KP["right_hip"]]
-        )
+        hips = motion.world[start:end, [KP["left_hip"], KP["right_hip"]]]
+        pelvis = hips.mean(axis=1)
         travel = float((pelvis[-1, :2] - pelvis[0, :2]) @ left[:2])
         if abs(travel) < 1e-3 or lateral.size < 2:
             continue
         moved = np.diff(lateral) * np.sign(travel)
-        ratios.append(float(lateral[-1] - lateral[0]) / travel)
-        backtracks.append(float(-moved[moved < 0].sum() / max(np.abs(moved).sum(), 1e-12)))
-    if not ratios:
-        return NAN, NAN
-    return float(np.mean(ratios)), float(np.mean(backtracks))
+        shares.append(float(moved[moved > 0].sum() / max(np.abs(moved).sum(), 1e-12)))
+    return float(np.mean(shares)) if shares else NAN
 
 
 def _jump_figures(

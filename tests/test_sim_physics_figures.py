@@ -124,9 +124,7 @@ def test_side_walking_moves_the_centre_of_pressure_the_way_it_goes() -> None:
         m = build_motion(
             _scene("side_walking", 3, *SUBJECTS[0], direction=direction), PHYSICS_OVERSAMPLE
         )
-        f = measure(m)
-        assert 0.8 <= f.side_cop_travel_ratio <= 1.2
-        assert f.side_cop_backtrack < 0.4
+        assert measure(m).side_cop_with_travel > 0.65
 
 
 def test_squat_moves_the_centre_of_pressure_towards_the_heels_as_it_deepens() -> None:
