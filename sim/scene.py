@@ -9,14 +9,24 @@ that names the file, the line and the field, e.g.
     [subject]
     height_m = 1.75
     mass_kg = 70.0
-    style_seed = 3      # the person's movement style
+    style_seed = 3      # the person's movement traits (scotti.sim.traits) ...
+    strike = "heel"     # ... of which any can be given instead
     [[script]]
     action = "squat"    # one of ACTIONS
     reps = 5            # or duration_s
-    stand_s = 1.5       # quiet stand after it (NO_ACTION)
+    stand_s = 1.5       # quiet stand after it (standing)
     [[effects]]
     name = "noise"      # see scotti.sim.effects.registry
     std_counts = 4
+
+Instead of a script, a scene can ask for a lab session (``scotti.sim.session``)::
+
+    [session]
+    actions = ["squat", "walking"]  # default: every action
+    minutes_per_action = 4.0        # or a table: {squat = 2.0, walking = 5.0}
+    set_s = [30.0, 75.0]            # set lengths are drawn in this range
+    rest_s = [5.0, 20.0]            # standing between sets
+    seed = 3                        # the plan's draws; default: the scene's seed
 """
 
 from __future__ import annotations
@@ -31,9 +41,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from pydantic import model_validator as _model_validator
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim import SimError
-from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
+from scotti.sim.actions import EXERCISES, RECIPES, ActionSpec, Context, Place, Segment, stand
+from scotti.sim.actions.base import standing_label
 from scotti.sim.motion import Motion, Subject
+from scotti.sim.session import build_session, plan_session
 from scotti.sim.skeleton import Body, center_of_mass, pose_keypoints
+from scotti.sim.traits import STRIKES, TRAIT_NAMES, TRAIT_RANGES
 
 LEAD_IN_S = 1.0  # quiet stand before the first action
 
@@ -46,27 +59,60 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+def _trait(name: str) -> Any:
+    """An optional trait field, kept within the range the traits are drawn in."""
+    r = TRAIT_RANGES[name]
+    return Field(default=None, ge=r.low, le=r.high)
+
+
 class SubjectModel(_Strict):
+    """Body size and ``style_seed``; any trait given here replaces the drawn one."""
+
     height_m: float = Field(ge=1.2, le=2.2)
     mass_kg: float = Field(ge=30.0, le=200.0)
     foot_length_m: float | None = Field(default=None, ge=0.15, le=0.35)
     style_seed: int = 0
+    strike: Literal[STRIKES] | None = None  # type: ignore[valid-type]
+    walking_speed_mps: float | None = _trait("walking_speed_mps")
+    step_length_ratio: float | None = _trait("step_length_ratio")
+    step_width_m: float | None = _trait("step_width_m")
+    stance_width_m: float | None = _trait("stance_width_m")
+    toe_out_deg: float | None = _trait("toe_out_deg")
+    toe_out_asymmetry_deg: float | None = _trait("toe_out_asymmetry_deg")
+    strike_pitch_deg: float | None = _trait("strike_pitch_deg")
+    stride_cv: float | None = _trait("stride_cv")
+    speed_variability: float | None = _trait("speed_variability")
+    asymmetry: float | None = _trait("asymmetry")
+    depth: float | None = _trait("depth")
+    lunge_depth: float | None = _trait("lunge_depth")
+    squat_rep_s: float | None = _trait("squat_rep_s")
+    lunge_rep_s: float | None = _trait("lunge_rep_s")
+    tempo_variation: float | None = _trait("tempo_variation")
+    depth_variation: float | None = _trait("depth_variation")
+    rep_pause_s: float | None = _trait("rep_pause_s")
+    fatigue_slowdown_per_min: float | None = _trait("fatigue_slowdown_per_min")
+    fatigue_shallowing_per_min: float | None = _trait("fatigue_shallowing_per_min")
+    cadence_spm: float | None = _trait("cadence_spm")
 
     def subject(self) -> Subject:
+        given = {n: getattr(self, n) for n in TRAIT_NAMES if getattr(self, n) is not None}
         return Subject(
             self.height_m,
             self.mass_kg,
             foot_length_m=self.foot_length_m,
             style_seed=self.style_seed,
+            traits_given=given,
         )
 
 
 class ScriptEntry(_Strict):
     """One action. ``depth`` applies to squat, lunge, jump and in-place walking
     (None: the subject's own); ``step_length_m`` to walking, backward and side
-    walking and lunge (None: from height); ``step_height_m`` to step-up;
-    ``direction`` to side walking. Repetitions: one step for the walking
-    actions, one full movement for the others."""
+    walking and lunge (None: the person's own); ``step_height_m`` to step-up;
+    ``direction`` to side walking; ``turn_deg`` to walking (the heading
+    change, spread over the walk: an arc). ``vary`` draws speed changes
+    (and for walking a walkway with turns) from the seed. Repetitions: one
+    step for the walking actions, one full movement for the others."""
 
     action: Literal[ACTIONS]  # type: ignore[valid-type]
     reps: int | None = Field(default=None, gt=0, le=500)
@@ -76,6 +122,8 @@ class ScriptEntry(_Strict):
     step_length_m: float | None = Field(default=None, gt=0.0, le=1.5)
     step_height_m: float = Field(default=0.2, ge=0.05, le=0.5)
     direction: Literal["left", "right"] = "left"
+    turn_deg: float = Field(default=0.0, ge=-1080.0, le=1080.0)
+    vary: bool = False
     stand_s: float = Field(default=1.5, ge=0.0, le=600.0)
 
     @_model_validator(mode="after")
@@ -95,7 +143,48 @@ class ScriptEntry(_Strict):
             step_length_m=self.step_length_m,
             step_height_m=self.step_height_m,
             direction=self.direction,
+            turn_rad=float(np.radians(self.turn_deg)),
+            vary=self.vary,
         )
+
+
+class SessionModel(_Strict):
+    """A generated lab session (``scotti.sim.session``)."""
+
+    actions: list[Literal[EXERCISES]] = Field(  # type: ignore[valid-type]
+        default_factory=lambda: list(EXERCISES), min_length=1
+    )
+    minutes_per_action: float | dict[str, float] = 4.0
+    set_s: tuple[float, float] = (30.0, 75.0)
+    rest_s: tuple[float, float] = (5.0, 20.0)
+    seed: int | None = None
+
+    @_model_validator(mode="after")
+    def _ranges(self) -> SessionModel:
+        for name in ("set_s", "rest_s"):
+            low, high = getattr(self, name)
+            if not 0.0 < low <= high <= 3600.0:
+                msg = f"{name} must be [low, high] with 0 < low <= high <= 3600"
+                raise ValueError(msg)
+        for action, minutes in self.minutes().items():
+            if not 0.0 < minutes <= 600.0:
+                msg = f"minutes_per_action for {action} must be in (0, 600]"
+                raise ValueError(msg)
+        return self
+
+    def minutes(self) -> dict[str, float]:
+        """Minutes per asked action (a table names some; the others are not asked)."""
+        if isinstance(self.minutes_per_action, dict):
+            unknown = sorted(set(self.minutes_per_action) - set(self.actions))
+            if unknown:
+                msg = f"minutes_per_action names actions not asked for: {', '.join(unknown)}"
+                raise ValueError(msg)
+            missing = [a for a in self.actions if a not in self.minutes_per_action]
+            if missing:
+                msg = f"minutes_per_action gives no minutes for {', '.join(missing)}"
+                raise ValueError(msg)
+            return {a: float(self.minutes_per_action[a]) for a in self.actions}
+        return dict.fromkeys(self.actions, float(self.minutes_per_action))
 
 
 class Scene(_Strict):
@@ -106,8 +195,16 @@ class Scene(_Strict):
     seed: int = 0
     rate: float = Field(default=FRAME_RATE_HZ, gt=0.0, le=1000.0)
     subject: SubjectModel
-    script: list[ScriptEntry] = Field(min_length=1)
+    script: list[ScriptEntry] = Field(default_factory=list)
+    session: SessionModel | None = None
     effects: list[dict[str, Any]] = Field(default_factory=list)
+
+    @_model_validator(mode="after")
+    def _script_or_session(self) -> Scene:
+        if bool(self.script) == (self.session is not None):
+            msg = "give either a script ([[script]] entries) or a [session], not both"
+            raise ValueError(msg)
+        return self
 
     @field_validator("effects")
     @classmethod
@@ -164,24 +261,44 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def build_motion(scene: Scene, oversample: int = 1) -> Motion:
-    """Run the script: lead-in stand, then each action followed by its stand."""
+    """Run the script (lead-in stand, then each action followed by its stand) or the session."""
     if oversample < 1:
         msg = f"oversample must be a positive integer, got {oversample}"
         raise SceneError(msg)
     subject = scene.subject_model()
-    body = Body.from_height(subject.height_m, subject.foot_length)
+    body = subject.body()
     rate = scene.rate * oversample
     rng = np.random.default_rng(np.random.SeedSequence([scene.seed, subject.style_seed]))
     ctx = Context(body, subject, rate, rng)
+    if scene.session is not None:
+        return motion_from_segments(
+            body, subject, rate, session_segments(scene.session, ctx, scene.seed)
+        )
     place = Place(0.0, 0.0, 0.0)
-    segments: list[Segment] = [stand(ctx, place, LEAD_IN_S)]
+    segments: list[Segment] = [_standing(ctx, place, LEAD_IN_S)]
     for entry in scene.script:
         segment = RECIPES[entry.action](ctx, entry.spec(), place)
         place = segment.end
         segments.append(segment)
         if entry.stand_s > 0:
-            segments.append(stand(ctx, place, entry.stand_s))
+            segments.append(_standing(ctx, place, entry.stand_s))
     return motion_from_segments(body, subject, rate, segments)
+
+
+def session_segments(session: SessionModel, ctx: Context, scene_seed: int) -> list[Segment]:
+    """The segments of a generated lab session (its plan drawn from its own seed)."""
+    seed = scene_seed if session.seed is None else session.seed
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5E55]))
+    minutes = session.minutes()
+    items = plan_session(minutes, session.set_s, session.rest_s, rng)
+    segments, _ = build_session(ctx, items, minutes, session.rest_s, rng)
+    return segments
+
+
+def _standing(ctx: Context, place: Place, seconds: float) -> Segment:
+    """A quiet stand labelled ``standing`` (NO_ACTION before the contract has it)."""
+    s = stand(ctx, place, seconds)
+    return Segment(s.params, np.full(len(s), standing_label(), np.int64), s.end, s.ground_z)
 
 
 def motion_from_segments(

@@ -10,6 +10,7 @@ from scotti.models.contract import ACTIONS, NO_ACTION
 from scotti.sim import SimError
 from scotti.sim.scene import Scene, SceneError, build_motion, load_scene
 from scotti.sim.subjects import BMI_RANGE, HEIGHT_RANGE_M, draw_subjects
+from scotti.sim.traits import CADENCE_RANGE_SPM
 
 SCENES = Path(__file__).resolve().parents[1] / "sim" / "scenes"
 
@@ -158,5 +159,5 @@ def test_subjects_cover_a_realistic_range_and_repeat_from_a_seed() -> None:
     assert draw_subjects(200, seed=1) == subjects
     assert draw_subjects(5, seed=2) != subjects[:5]
     cadences = np.array([s.cadence_spm for s in subjects])
-    assert cadences.min() >= 100.0
-    assert cadences.max() <= 120.0
+    assert CADENCE_RANGE_SPM[0] <= cadences.min()
+    assert cadences.max() <= CADENCE_RANGE_SPM[1]
