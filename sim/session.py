@@ -39,6 +39,11 @@ TURN_ROUND_RAD: Final = (np.radians(160.0), np.radians(200.0))
 TURN_ROUND_STEPS: Final = 5
 TURN_ROUND_LENGTH: Final = 0.12  # share of the person's step length: turning on the spot
 STEP_BOX_M: Final = (0.15, 0.25)  # the lab's step for step-ups, one per session
+# Sets are asked a little longer than their share: repetitions are whole and
+# a set may end short of its time; a set that tops up what is missing is
+# at least this long.
+SET_MARGIN: Final = 1.08
+TOP_UP_S: Final = 10.0
 
 
 @dataclass(frozen=True)
@@ -76,15 +81,28 @@ def cut_sets(seconds: float, set_s: tuple[float, float], rng: np.random.Generato
 
 
 def order_sets(sets: list[tuple[str, float]], rng: np.random.Generator) -> list[tuple[str, float]]:
-    """Shuffle sets so that, where it can be helped, no action follows itself."""
-    order = [sets[i] for i in rng.permutation(len(sets))]
-    for i in range(1, len(order)):
-        if order[i][0] != order[i - 1][0]:
-            continue
-        for j in range(i + 1, len(order)):
-            if order[j][0] != order[i - 1][0]:
-                order[i], order[j] = order[j], order[i]
-                break
+    """A random order of the sets in which, where it can be helped, no action follows itself.
+
+    Each next set is drawn among the other actions' sets, in proportion to
+    how many each has left; an action holding more than half of what is
+    left goes next (else it would have to follow itself later).
+    """
+    left: dict[str, list[float]] = {}
+    for action, seconds in [sets[i] for i in rng.permutation(len(sets))]:
+        left.setdefault(action, []).append(seconds)
+    order: list[tuple[str, float]] = []
+    previous = ""
+    while left:
+        total = sum(len(v) for v in left.values())
+        names = sorted(left)
+        crowded = [a for a in names if 2 * len(left[a]) > total + (a == previous)]
+        choices = crowded or [a for a in names if a != previous] or names
+        weights = np.array([len(left[a]) for a in choices], dtype=np.float64)
+        action = choices[int(rng.choice(len(choices), p=weights / weights.sum()))]
+        order.append((action, left[action].pop()))
+        if not left[action]:
+            del left[action]
+        previous = action
     return order
 
 
@@ -95,7 +113,7 @@ def plan_session(
     rng: np.random.Generator,
 ) -> list[Item]:
     """The items of a session: every action's minutes as sets, with stands and walks between."""
-    sets = [(a, s) for a, m in minutes.items() for s in cut_sets(60.0 * m, set_s, rng)]
+    sets = [(a, s * SET_MARGIN) for a, m in minutes.items() for s in cut_sets(60.0 * m, set_s, rng)]
     items = [Item("stand", float(rng.uniform(*LEAD_IN_S)))]
     previous = ""
     for action, seconds in order_sets(sets, rng):
@@ -155,7 +173,7 @@ def build_session(
             last = parts[-1].item.action if parts else ""
             for action, missing in short.items():
                 queue += _between(last, action, rest_s, rng)
-                queue.append(Item("set", missing + 2.0, action))
+                queue.append(Item("set", max(missing + 2.0, TOP_UP_S), action))
                 last = action
             if short:
                 queue.append(Item("stand", float(rng.uniform(*rest_s))))

@@ -218,7 +218,9 @@ def draw_traits(style_seed: int, height_m: float, given: Mapping[str, float | st
     # split of a speed change between the two), cadence = speed / step.
     if "step_length_ratio" not in given:
         speed_share = float(values["walking_speed_mps"]) / COMFORTABLE_SPEED_MPS
-        values["step_length_ratio"] = float(values["step_length_ratio"]) * speed_share**0.5
+        ratio = TRAIT_RANGES["step_length_ratio"]
+        scaled = float(values["step_length_ratio"]) * speed_share**0.5
+        values["step_length_ratio"] = float(np.clip(scaled, ratio.low, ratio.high))
     step_m = float(values["step_length_ratio"]) * height_m
     if "cadence_spm" in given:
         cadence = float(given["cadence_spm"])

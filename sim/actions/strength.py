@@ -13,6 +13,7 @@ goes on (fatigue), with pauses standing between repetitions.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -42,9 +43,10 @@ PAUSE_CAP = 3.0  # a pause between repetitions is at most this many times the pe
 
 
 def reps_for(spec: ActionSpec, rep_s: float) -> int:
+    """Repetitions asked for: ``reps``, or enough to fill ``duration_s`` (rounded up)."""
     if spec.reps is not None:
         return spec.reps
-    return max(1, round((spec.duration_s or 0.0) * spec.tempo / rep_s))
+    return max(1, math.ceil((spec.duration_s or 0.0) * spec.tempo / rep_s - 1e-9))
 
 
 @dataclass(frozen=True)
