@@ -25,7 +25,8 @@ from scotti.models.contract import ACTIONS
 from scotti.sim.actions import EXERCISES
 from scotti.sim.effects.registry import parse_effects, realistic_effects
 from scotti.sim.motion import Subject
-from scotti.sim.scene import Scene, SessionModel, SubjectModel, build_motion
+from scotti.sim.scene import Scene, SubjectModel, build_motion
+from scotti.sim.session import SessionModel
 from scotti.sim.subjects import draw_subjects
 from scotti.sim.writer import RenderReport, sim_input, write_session
 

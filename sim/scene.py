@@ -41,10 +41,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from pydantic import model_validator as _model_validator
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim import SimError
-from scotti.sim.actions import EXERCISES, RECIPES, ActionSpec, Context, Place, Segment, stand
+from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
 from scotti.sim.actions.base import standing_label
 from scotti.sim.motion import Motion, Subject
-from scotti.sim.session import build_session, plan_session
+from scotti.sim.session import SessionModel, session_segments
 from scotti.sim.skeleton import Body, center_of_mass, pose_keypoints
 from scotti.sim.traits import STRIKES, TRAIT_NAMES, TRAIT_RANGES
 
@@ -148,45 +148,6 @@ class ScriptEntry(_Strict):
         )
 
 
-class SessionModel(_Strict):
-    """A generated lab session (``scotti.sim.session``)."""
-
-    actions: list[Literal[EXERCISES]] = Field(  # type: ignore[valid-type]
-        default_factory=lambda: list(EXERCISES), min_length=1
-    )
-    minutes_per_action: float | dict[str, float] = 4.0
-    set_s: tuple[float, float] = (30.0, 75.0)
-    rest_s: tuple[float, float] = (5.0, 20.0)
-    seed: int | None = None
-
-    @_model_validator(mode="after")
-    def _ranges(self) -> SessionModel:
-        for name in ("set_s", "rest_s"):
-            low, high = getattr(self, name)
-            if not 0.0 < low <= high <= 3600.0:
-                msg = f"{name} must be [low, high] with 0 < low <= high <= 3600"
-                raise ValueError(msg)
-        for action, minutes in self.minutes().items():
-            if not 0.0 < minutes <= 600.0:
-                msg = f"minutes_per_action for {action} must be in (0, 600]"
-                raise ValueError(msg)
-        return self
-
-    def minutes(self) -> dict[str, float]:
-        """Minutes per asked action (a table names some; the others are not asked)."""
-        if isinstance(self.minutes_per_action, dict):
-            unknown = sorted(set(self.minutes_per_action) - set(self.actions))
-            if unknown:
-                msg = f"minutes_per_action names actions not asked for: {', '.join(unknown)}"
-                raise ValueError(msg)
-            missing = [a for a in self.actions if a not in self.minutes_per_action]
-            if missing:
-                msg = f"minutes_per_action gives no minutes for {', '.join(missing)}"
-                raise ValueError(msg)
-            return {a: float(self.minutes_per_action[a]) for a in self.actions}
-        return dict.fromkeys(self.actions, float(self.minutes_per_action))
-
-
 class Scene(_Strict):
     """A validated scene; ``effects`` stay raw tables until the effect registry checks them."""
 
@@ -283,16 +244,6 @@ def build_motion(scene: Scene, oversample: int = 1) -> Motion:
         if entry.stand_s > 0:
             segments.append(_standing(ctx, place, entry.stand_s))
     return motion_from_segments(body, subject, rate, segments)
-
-
-def session_segments(session: SessionModel, ctx: Context, scene_seed: int) -> list[Segment]:
-    """The segments of a generated lab session (its plan drawn from its own seed)."""
-    seed = scene_seed if session.seed is None else session.seed
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5E55]))
-    minutes = session.minutes()
-    items = plan_session(minutes, session.set_s, session.rest_s, rng)
-    segments, _ = build_session(ctx, items, minutes, session.rest_s, rng)
-    return segments
 
 
 def _standing(ctx: Context, place: Place, seconds: float) -> Segment:

@@ -21,11 +21,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scotti.models.contract import ACTIONS
-from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
+from scotti.sim.actions import EXERCISES, RECIPES, ActionSpec, Context, Place, Segment, stand
 from scotti.sim.actions.base import standing_label
 from scotti.sim.actions.gait import transition_walk
 
@@ -200,3 +201,54 @@ def _build(
         vary=True,
     )
     return RECIPES[item.action](ctx, spec, place)
+
+
+class SessionModel(BaseModel):
+    """A scene's ``[session]`` table: what to record, validated."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    actions: list[Literal[EXERCISES]] = Field(  # type: ignore[valid-type]
+        default_factory=lambda: list(EXERCISES), min_length=1
+    )
+    minutes_per_action: float | dict[str, float] = 4.0
+    set_s: tuple[float, float] = (30.0, 75.0)
+    rest_s: tuple[float, float] = (5.0, 20.0)
+    seed: int | None = None
+
+    @model_validator(mode="after")
+    def _ranges(self) -> SessionModel:
+        for name in ("set_s", "rest_s"):
+            low, high = getattr(self, name)
+            if not 0.0 < low <= high <= 3600.0:
+                msg = f"{name} must be [low, high] with 0 < low <= high <= 3600"
+                raise ValueError(msg)
+        for action, minutes in self.minutes().items():
+            if not 0.0 < minutes <= 600.0:
+                msg = f"minutes_per_action for {action} must be in (0, 600]"
+                raise ValueError(msg)
+        return self
+
+    def minutes(self) -> dict[str, float]:
+        """Minutes per asked action (a table names some; the others are not asked)."""
+        if isinstance(self.minutes_per_action, dict):
+            unknown = sorted(set(self.minutes_per_action) - set(self.actions))
+            if unknown:
+                msg = f"minutes_per_action names actions not asked for: {', '.join(unknown)}"
+                raise ValueError(msg)
+            missing = [a for a in self.actions if a not in self.minutes_per_action]
+            if missing:
+                msg = f"minutes_per_action gives no minutes for {', '.join(missing)}"
+                raise ValueError(msg)
+            return {a: float(self.minutes_per_action[a]) for a in self.actions}
+        return dict.fromkeys(self.actions, float(self.minutes_per_action))
+
+
+def session_segments(session: SessionModel, ctx: Context, scene_seed: int) -> list[Segment]:
+    """The segments of a generated lab session (its plan drawn from its own seed)."""
+    seed = scene_seed if session.seed is None else session.seed
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5E55]))
+    minutes = session.minutes()
+    items = plan_session(minutes, session.set_s, session.rest_s, rng)
+    segments, _ = build_session(ctx, items, minutes, session.rest_s, rng)
+    return segments

@@ -30,29 +30,23 @@ from scotti.sim.actions.base import (
     neutral,
     stance_lateral,
 )
-from scotti.sim.actions.curves import bump, ease, hermite
+from scotti.sim.actions.curves import ease, hermite
 from scotti.sim.actions.footsteps import FLAT, HEEL, TOE, FootTrack, Plant, foot_track, support_path
+from scotti.sim.actions.paths import (
+    SHARP_TURN_RAD,
+    headings,
+    keep_clear,
+    knot_velocity,
+    speed_factors,
+)
 from scotti.sim.skeleton import LEFT, RIGHT, Array, PoseParams, axes
 
 STANCE = 0.6  # share of the gait cycle a foot stands (Winter; Perry)
-STEP_LENGTH = 0.43  # x height: comfortable step length when no person is given
 SETTLE_S = 0.5  # after the closing step, before the segment ends
 START_S = 0.3  # weight shift before the first swing
 LEAD_AT_STRIKE = [0.1, 0.2]
 # Gait initiation: the first step from standing is shorter than the steady ones.
 FIRST_STEP = 0.75
-# A lab walkway: straight for WALKWAY_M (uniform), then a turn round (or a
-# corner) over TURN_STEPS shorter, slower steps; a gentle wander in between.
-WALKWAY_M = (6.0, 12.0)
-TURN_STEPS = 4
-TURN_STEP_LENGTH = 0.65
-SHARP_TURN_RAD = 0.35  # a step turning more than this stands wider
-# A swinging ankle passes the standing one at least this far away (softly).
-CLEARANCE_M = 0.07
-CLEARANCE_SOFT_M = 0.005
-WANDER_RAD = 0.03  # SD of the heading drift per step (smoothed)
-# Speed changes: two slow sinusoids over the steps (periods in steps).
-SPEED_PERIODS = ((20.0, 40.0), (7.0, 15.0))
 
 
 def steps_for(spec: ActionSpec, step_s: float, least: int = 2) -> int:
@@ -86,47 +80,6 @@ def backward_walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     # Shorter, slower steps; toe lands first (the reversed toe-off), heel leaves last.
     forward = _walk(ctx, spec, place, ACTIONS.index("backward_walking"), 0.7, 0.85, 0.3, -0.4, 0.0)
     return _reverse(ctx, forward, place)
-
-
-def speed_factors(ctx: Context, steps: int, amplitude: float) -> Array:
-    """Per-step speed relative to the person's own: slow drifts of +-``amplitude``."""
-    k = np.arange(steps)
-    out = np.ones(steps)
-    for weight, (low, high) in zip((0.7, 0.5), SPEED_PERIODS, strict=True):
-        period, phase = ctx.rng.uniform(low, high), ctx.rng.uniform(0, 2 * np.pi)
-        out += weight * amplitude * np.sin(2 * np.pi * k / period + phase)
-    return out
-
-
-def _headings(ctx: Context, spec: ActionSpec, lengths: Array, turns: bool) -> tuple[Array, Array]:
-    """Heading change per step (radians) and a step-length factor (shorter in turns).
-
-    The last two steps never turn: the walk ends straight, in the neutral stand.
-    """
-    steps = len(lengths)
-    turn = np.zeros(steps)
-    scale = np.ones(steps)
-    free = max(1, steps - 2)  # steps that may turn
-    if not turns:
-        return turn, scale
-    turn[:free] += spec.turn_rad / free
-    if not spec.vary:
-        return turn, scale
-    wander = ctx.rng.standard_normal(steps) * WANDER_RAD
-    turn[:free] += np.convolve(wander, np.ones(3) / 3, mode="same")[:free]
-    walkway = ctx.rng.uniform(*WALKWAY_M)
-    travelled, k = 0.0, 0
-    while k < free:
-        travelled += lengths[k]
-        if travelled >= walkway and k + TURN_STEPS <= free:
-            angle = np.pi * ctx.rng.uniform(0.85, 1.1) if ctx.rng.random() < 0.7 else np.pi / 2
-            sign = 1.0 if ctx.rng.random() < 0.5 else -1.0
-            turn[k + 1 : k + 1 + TURN_STEPS] += sign * angle / TURN_STEPS
-            scale[k + 1 : k + 1 + TURN_STEPS] = TURN_STEP_LENGTH
-            k += TURN_STEPS
-            travelled, walkway = 0.0, ctx.rng.uniform(*WALKWAY_M)
-        k += 1
-    return turn, scale
 
 
 def _walk(
@@ -163,7 +116,7 @@ def _walk(
     first = int(ctx.rng.integers(2))  # which foot swings first
     swinging = [(first + k) % 2 for k in range(steps)]
     lengths *= np.array([1.0 + (0.5 if s == RIGHT else -0.5) * subject.asymmetry for s in swinging])
-    turn, scale = _headings(ctx, spec, lengths, turns)
+    turn, scale = headings(ctx, spec, lengths, turns)
     lengths *= scale
     durations *= np.where(scale < 1.0, 1.1, 1.0)
     toe_off = START_S + np.r_[0.0, np.cumsum(durations[:-1])]
@@ -220,11 +173,11 @@ def _walk(
     knot_t = np.r_[0.0, heel_strike[:-1], end_s - SETTLE_S, end_s]
     knot_xy = np.r_[start, middles, centre[-1:], centre[-1:]]
     knot_h = np.r_[place.heading, mid_heading, heading[-1], heading[-1]]
-    path = hermite(t, knot_t, knot_xy, _knot_velocity(knot_xy, knot_t))
-    facing_t = hermite(t, knot_t, knot_h, _knot_velocity(knot_h, knot_t))
+    path = hermite(t, knot_t, knot_xy, knot_velocity(knot_xy, knot_t))
+    facing_t = hermite(t, knot_t, knot_h, knot_velocity(knot_h, knot_t))
     _, left_t = axes(facing_t)
     tracks = [foot_track(body, side, plants[side], t) for side in (LEFT, RIGHT)]
-    feet = _clear(tracks[LEFT], tracks[RIGHT], left_t[:, :2])
+    feet = keep_clear(tracks[LEFT], tracks[RIGHT], left_t[:, :2])
     envelope = ease(t / START_S) * ease((end_s - t) / SETTLE_S)
     p = _drive(ctx, place, t, feet, round(step_s * ctx.rate_hz))
     half = 0.5 * body.stance_width
@@ -236,44 +189,6 @@ def _walk(
     end = Place(float(centre[-1, 0]), float(centre[-1, 1]), float(heading[-1]), place.floor_z)
     ground = np.stack([f.ground_z for f in feet], axis=1)
     return Segment(finalize(body, p), np.full(len(t), action, dtype=np.int64), end, ground)
-
-
-def _clear(left: FootTrack, right: FootTrack, left_axis: Array) -> tuple[FootTrack, FootTrack]:
-    """Keep a swinging foot on its own side of the standing one (turns cut corners).
-
-    Across the body (``left_axis`` (N, 2), the person's left) a swinging
-    ankle stays about CLEARANCE_M to its side of the standing ankle. The push
-    fades in after lift-off and out before touch-down, so the swing still
-    leaves and lands where its plants are.
-    """
-    feet = [left, right]
-    for swing in (LEFT, RIGHT):
-        airborne = ~feet[swing].stance
-        if not airborne.any():
-            continue
-        # Swing progress 0..1 within each run of swinging frames.
-        edges = np.flatnonzero(np.diff(np.r_[0, airborne.astype(np.int8), 0]))
-        fade = np.zeros(len(airborne))
-        for a, b in zip(edges[::2], edges[1::2], strict=True):
-            fade[a:b] = bump((np.arange(a, b) - a + 1) / (b - a + 1))
-        sign = 1.0 if swing == LEFT else -1.0
-        apart = sign * np.sum(
-            (feet[swing].ankle[:, :2] - feet[1 - swing].ankle[:, :2]) * left_axis, axis=1
-        )
-        # Soft maximum of the separation and the clearance: unchanged when well apart.
-        gap = (apart - CLEARANCE_M) / CLEARANCE_SOFT_M
-        wanted = CLEARANCE_M + CLEARANCE_SOFT_M * np.logaddexp(0.0, gap)
-        ankle = feet[swing].ankle.copy()
-        ankle[:, :2] += (sign * fade * (wanted - apart))[:, None] * left_axis
-        feet[swing] = replace(feet[swing], ankle=ankle)
-    return feet[LEFT], feet[RIGHT]
-
-
-def _knot_velocity(y: Array, knot_t: Array) -> Array:
-    """Velocities at the keyframes: finite differences, zero at the start and at the end stand."""
-    v = np.gradient(y, knot_t, axis=0)
-    v[[0, -2, -1]] = 0.0
-    return np.asarray(v, dtype=np.float64)
 
 
 def _with_release(plant: Plant, t_off: float, pitch: float, release_s: float) -> Plant:
