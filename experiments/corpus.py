@@ -1,11 +1,15 @@
 """The evaluation corpus and its three subject-wise partitions, in one command.
 
-    nice -n 5 python experiments/corpus.py [--subjects 15] [--minutes-per-action 2]
+    nice -n 5 python experiments/corpus.py [--subjects 15] [--minutes-per-action 4]
 
-Writes data/corpus/realistic/ (every subject with the simulator's
+Every subject is a lab session (``scotti sim corpus``): each action for at
+least the given minutes, in sets of varied length and order, standing
+between sets, walking and turning round between spots. Writes
+data/corpus/realistic/ (every subject with the simulator's
 ``realistic`` effects preset: sensor gain spread, noise, hysteresis and creep,
 crosstalk, clock drift, jitter, packet loss, ...; the preset draws them per
-subject), data/corpus/clean/ (the same subjects and motions, no effects) and
+subject), data/corpus/clean/ (the same subjects and motions, no effects: the
+same seeds) and
 experiments/partitions.json: three partitions of 10 training and 5 test
 subjects with disjoint test sets, so that every subject is tested exactly once.
 """
@@ -14,10 +18,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import sys
+import time
 from typing import Any
 
-from common import CLEAN, PARTITIONS, REALISTIC, ExperimentError, run, scotti_command, write_json
+from common import (
+    CLEAN,
+    COMMANDS,
+    PARTITIONS,
+    REALISTIC,
+    ROOT,
+    ExperimentError,
+    scotti_command,
+    shown,
+    write_json,
+)
 
 PARTITION_SEED = 2024  # which subjects land in which test set
 
@@ -38,10 +54,30 @@ def partitions(
     return out
 
 
+def run_streaming(cmd: list[str]) -> None:
+    """Run ``cmd`` from the repository root, passing on its lines as they come (one per subject)."""
+    line = shown(cmd)
+    COMMANDS.append(line)
+    print(f"$ {line}", flush=True)
+    started = time.monotonic()
+    with subprocess.Popen(
+        cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    ) as proc:
+        assert proc.stdout is not None
+        last = "(no output)"
+        for out in proc.stdout:
+            last = out.rstrip()
+            print(f"  {last}", flush=True)
+    if proc.returncode != 0:
+        msg = f"{line!r} failed with status {proc.returncode}: {last}"
+        raise ExperimentError(msg)
+    print(f"  ({time.monotonic() - started:.0f} s)", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python experiments/corpus.py", description=__doc__)
     parser.add_argument("--subjects", type=int, default=15)
-    parser.add_argument("--minutes-per-action", type=float, default=2.0)
+    parser.add_argument("--minutes-per-action", type=float, default=4.0)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args(argv)
     try:
@@ -49,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             if (out / "manifest.json").is_file():
                 print(f"{out} exists: kept (delete it to render again)")
                 continue
-            run(
+            run_streaming(
                 scotti_command(
                     "sim",
                     "corpus",

@@ -43,12 +43,16 @@ def _scene_parser() -> argparse.ArgumentParser:
 
 def _corpus_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="scotti sim corpus", description="N subjects doing all eight actions"
+        prog="scotti sim corpus",
+        description="N drawn subjects, each a lab session: every action in sets, standing "
+        "between, walks and turns between spots",
     )
     p.add_argument("-o", "--output", type=Path, required=True, help="directory to fill")
     p.add_argument("--subjects", type=int, required=True, help="how many subjects to draw")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--minutes-per-action", type=float, default=1.0)
+    p.add_argument(
+        "--minutes-per-action", type=float, default=4.0, help="at least this much of each action"
+    )
     p.add_argument("--effects", choices=("realistic", "none"), default="realistic")
     return p
 
@@ -125,7 +129,7 @@ def _corpus(a: argparse.Namespace) -> int:
         seed=a.seed,
         minutes_per_action=a.minutes_per_action,
         effects=a.effects,
-        progress=print,
+        progress=lambda line: print(line, flush=True),  # a line per subject, as it is done
     )
     total = manifest["total_duration_s"]
     print(f"{a.output / MANIFEST}: {a.subjects} subjects, {total / 60:.1f} min in all")

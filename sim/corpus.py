@@ -1,30 +1,38 @@
-"""A training corpus: N drawn subjects, each doing all eight actions, one file each.
+"""A training corpus: N drawn subjects, each recorded as in a lab, one file each.
 
-Subject ``i`` gets its own scene: every action in the contract's order for
-``minutes_per_action`` minutes with a short stand between, a seed derived
-from the corpus seed and ``i``, and either no effects or a fresh draw of the
-``realistic`` preset. ``manifest.json`` lists subjects, seeds, durations and
-files; the same arguments give the same files, byte for byte.
+Subject ``i`` gets its own scene: a generated lab session
+(``scotti.sim.session``) with every action for at least
+``minutes_per_action`` minutes, cut into sets of 30-75 s in an order of its
+own, standing 5-20 s between sets and walking or turning round between
+spots; a seed derived from the corpus seed and ``i``; and either no effects
+or a fresh draw of the ``realistic`` preset. The effects never touch the
+motion's draws, so the clean and the realistic corpus of one seed hold the
+same motions. ``manifest.json`` lists subjects, seeds, durations and files;
+the same arguments give the same files, byte for byte.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final, Literal
 
 import numpy as np
 from scotti.models.contract import ACTIONS
+from scotti.sim.actions import EXERCISES
 from scotti.sim.effects.registry import parse_effects, realistic_effects
 from scotti.sim.motion import Subject
-from scotti.sim.scene import PHYSICS_OVERSAMPLE, Scene, ScriptEntry, SubjectModel, build_motion
+from scotti.sim.scene import PHYSICS_OVERSAMPLE, Scene, SubjectModel, build_motion
+from scotti.sim.session import SessionModel
 from scotti.sim.subjects import draw_subjects
 from scotti.sim.writer import RenderReport, sim_input, write_session
 
 EffectsPreset = Literal["realistic", "none"]
-STAND_BETWEEN_S: Final = 2.0
+SET_S: Final = (30.0, 75.0)  # length of one set
+REST_S: Final = (5.0, 20.0)  # standing between sets
 MANIFEST: Final = "manifest.json"
 
 
@@ -36,14 +44,17 @@ def subject_scene(
     minutes_per_action: float,
     effects: EffectsPreset,
 ) -> Scene:
-    """The scene of one corpus subject (all actions, derived seed, effects preset)."""
+    """The scene of one corpus subject (a lab session of all actions, derived seed, effects)."""
     seed = int(np.random.SeedSequence([corpus_seed, index]).generate_state(1)[0])
     raw_effects: list[dict[str, Any]] = []
     if effects == "realistic":
         raw_effects = realistic_effects(np.random.default_rng([corpus_seed, index, 0xEF]))
     return Scene(
         name=f"subject-{index:03d}",
-        description=f"corpus subject {index}: all actions, {minutes_per_action} min each",
+        description=(
+            f"corpus subject {index}: lab session, every action for at least "
+            f"{minutes_per_action} min in sets, standing and transitions between"
+        ),
         seed=seed,
         subject=SubjectModel(
             height_m=subject.height_m,
@@ -51,10 +62,12 @@ def subject_scene(
             foot_length_m=subject.foot_length,
             style_seed=subject.style_seed,
         ),
-        script=[
-            ScriptEntry(action=a, duration_s=minutes_per_action * 60.0, stand_s=STAND_BETWEEN_S)
-            for a in ACTIONS
-        ],
+        session=SessionModel(
+            actions=list(EXERCISES),
+            minutes_per_action=minutes_per_action,
+            set_s=SET_S,
+            rest_s=REST_S,
+        ),
         effects=raw_effects,
     )
 
@@ -102,7 +115,9 @@ def write_corpus(
             i, subject, corpus_seed=seed, minutes_per_action=minutes_per_action, effects=effects
         )
         name = f"{scene.name}.ses"
+        started = time.perf_counter()
         report = render_scene(scene, out / name, subject_id=scene.name)
+        elapsed = time.perf_counter() - started
         entries.append(
             {
                 "id": scene.name,
@@ -117,7 +132,11 @@ def write_corpus(
             }
         )
         if progress is not None:
-            progress(f"{name}: {report.duration_s:.0f} s, {report.frames} frames")
+            progress(
+                f"{name} ({i + 1}/{subjects}): {report.duration_s / 60:.1f} min, "
+                f"{report.frames} frames, rendered in {elapsed:.1f} s "
+                f"({report.duration_s / max(elapsed, 1e-9):.0f}x real time)"
+            )
     manifest = {
         "kind": "scotti-sim-corpus",
         "seed": seed,

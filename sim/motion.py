@@ -7,6 +7,7 @@ person faces and which action they are doing, at ``rate_hz``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -14,38 +15,34 @@ import numpy as np
 import numpy.typing as npt
 from scotti.models.contract import KP
 from scotti.models.progress import label_progress
-from scotti.sim.skeleton import FOOT_LENGTH
+from scotti.sim.skeleton import FOOT_LENGTH, Body
+from scotti.sim.traits import TRAIT_NAMES, Traits, draw_traits
 
 Array = npt.NDArray[np.float64]
-
-# Ranges the per-subject style is drawn from (uniform), see ``Subject``.
-CADENCE_SPM = (100.0, 120.0)  # steps per minute, comfortable walking
-DEPTH = (0.6, 0.95)  # how deep squats and lunges go, 1 = thighs past parallel
-ASYMMETRY = (-0.06, 0.06)  # right minus left share in step length and depth
-TEMPO_VARIATION = (0.02, 0.07)  # relative spread of one repetition's duration
 
 
 @dataclass(frozen=True)
 class Subject:
-    """One person: body size plus a movement style drawn from ``style_seed``."""
+    """One person: body size plus movement traits drawn from ``style_seed``.
+
+    ``traits_given`` fixes traits by name (a scene's explicit values); the
+    others are drawn (``scotti.sim.traits``). The common ones read as
+    attributes: ``cadence_spm``, ``depth``, ``asymmetry``, ``tempo_variation``.
+    """
 
     height_m: float
     mass_kg: float
     foot_length_m: float | None = None  # None: 0.152 x height
     style_seed: int = 0
-    cadence_spm: float = field(init=False)
-    depth: float = field(init=False)
-    asymmetry: float = field(init=False)
-    tempo_variation: float = field(init=False)
+    traits_given: Mapping[str, float | str] = field(default_factory=dict, hash=False)
+    traits: Traits = field(init=False)
 
     def __post_init__(self) -> None:
         if self.foot_length_m is None:
             object.__setattr__(self, "foot_length_m", FOOT_LENGTH * self.height_m)
-        rng = np.random.default_rng(self.style_seed)
-        object.__setattr__(self, "cadence_spm", float(rng.uniform(*CADENCE_SPM)))
-        object.__setattr__(self, "depth", float(rng.uniform(*DEPTH)))
-        object.__setattr__(self, "asymmetry", float(rng.uniform(*ASYMMETRY)))
-        object.__setattr__(self, "tempo_variation", float(rng.uniform(*TEMPO_VARIATION)))
+        given = dict(self.traits_given)
+        object.__setattr__(self, "traits_given", given)
+        object.__setattr__(self, "traits", draw_traits(self.style_seed, self.height_m, given))
 
     @property
     def foot_length(self) -> float:
@@ -53,17 +50,43 @@ class Subject:
         assert self.foot_length_m is not None  # set in __post_init__
         return self.foot_length_m
 
-    def as_dict(self) -> dict[str, float | int]:
-        """Plain values for a session header."""
+    @property
+    def cadence_spm(self) -> float:
+        return self.traits.cadence_spm
+
+    @property
+    def depth(self) -> float:
+        return self.traits.depth
+
+    @property
+    def asymmetry(self) -> float:
+        return self.traits.asymmetry
+
+    @property
+    def tempo_variation(self) -> float:
+        return self.traits.tempo_variation
+
+    @property
+    def step_length_m(self) -> float:
+        return self.traits.step_length_ratio * self.height_m
+
+    def body(self) -> Body:
+        """Segment lengths, stance width and toe-out of this person."""
+        return Body.from_height(
+            self.height_m,
+            self.foot_length,
+            stance_width=self.traits.stance_width_m,
+            toe_out=(self.traits.toe_out_rad(0), self.traits.toe_out_rad(1)),
+        )
+
+    def as_dict(self) -> dict[str, float | int | str]:
+        """Plain values for a session header: size, seed and every trait."""
         return {
             "height_m": self.height_m,
             "mass_kg": self.mass_kg,
             "foot_length_m": self.foot_length,
             "style_seed": self.style_seed,
-            "cadence_spm": self.cadence_spm,
-            "depth": self.depth,
-            "asymmetry": self.asymmetry,
-            "tempo_variation": self.tempo_variation,
+            **{name: getattr(self.traits, name) for name in TRAIT_NAMES},
         }
 
 

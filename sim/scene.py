@@ -9,14 +9,24 @@ that names the file, the line and the field, e.g.
     [subject]
     height_m = 1.75
     mass_kg = 70.0
-    style_seed = 3      # the person's movement style
+    style_seed = 3      # the person's movement traits (scotti.sim.traits) ...
+    strike = "heel"     # ... of which any can be given instead
     [[script]]
     action = "squat"    # one of ACTIONS
     reps = 5            # or duration_s
-    stand_s = 1.5       # quiet stand after it (NO_ACTION)
+    stand_s = 1.5       # quiet stand after it (standing)
     [[effects]]
     name = "noise"      # see scotti.sim.effects.registry
     std_counts = 4
+
+Instead of a script, a scene can ask for a lab session (``scotti.sim.session``)::
+
+    [session]
+    actions = ["squat", "walking"]  # default: every action
+    minutes_per_action = 4.0        # or a table: {squat = 2.0, walking = 5.0}
+    set_s = [30.0, 75.0]            # set lengths are drawn in this range
+    rest_s = [5.0, 20.0]            # standing between sets
+    seed = 3                        # the plan's draws; default: the scene's seed
 """
 
 from __future__ import annotations
@@ -32,8 +42,11 @@ from pydantic import model_validator as _model_validator
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim import SimError
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
+from scotti.sim.actions.base import standing_label
 from scotti.sim.motion import Motion, Subject
+from scotti.sim.session import SessionModel, session_segments
 from scotti.sim.skeleton import Body, center_of_mass, pose_keypoints
+from scotti.sim.traits import STRIKES, TRAIT_NAMES, TRAIT_RANGES
 
 LEAD_IN_S = 1.0  # quiet stand before the first action
 # Motions for session files are built at this multiple of the scene rate
@@ -50,27 +63,60 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+def _trait(name: str) -> Any:
+    """An optional trait field, kept within the range the traits are drawn in."""
+    r = TRAIT_RANGES[name]
+    return Field(default=None, ge=r.low, le=r.high)
+
+
 class SubjectModel(_Strict):
+    """Body size and ``style_seed``; any trait given here replaces the drawn one."""
+
     height_m: float = Field(ge=1.2, le=2.2)
     mass_kg: float = Field(ge=30.0, le=200.0)
     foot_length_m: float | None = Field(default=None, ge=0.15, le=0.35)
     style_seed: int = 0
+    strike: Literal[STRIKES] | None = None  # type: ignore[valid-type]
+    walking_speed_mps: float | None = _trait("walking_speed_mps")
+    step_length_ratio: float | None = _trait("step_length_ratio")
+    step_width_m: float | None = _trait("step_width_m")
+    stance_width_m: float | None = _trait("stance_width_m")
+    toe_out_deg: float | None = _trait("toe_out_deg")
+    toe_out_asymmetry_deg: float | None = _trait("toe_out_asymmetry_deg")
+    strike_pitch_deg: float | None = _trait("strike_pitch_deg")
+    stride_cv: float | None = _trait("stride_cv")
+    speed_variability: float | None = _trait("speed_variability")
+    asymmetry: float | None = _trait("asymmetry")
+    depth: float | None = _trait("depth")
+    lunge_depth: float | None = _trait("lunge_depth")
+    squat_rep_s: float | None = _trait("squat_rep_s")
+    lunge_rep_s: float | None = _trait("lunge_rep_s")
+    tempo_variation: float | None = _trait("tempo_variation")
+    depth_variation: float | None = _trait("depth_variation")
+    rep_pause_s: float | None = _trait("rep_pause_s")
+    fatigue_slowdown_per_min: float | None = _trait("fatigue_slowdown_per_min")
+    fatigue_shallowing_per_min: float | None = _trait("fatigue_shallowing_per_min")
+    cadence_spm: float | None = _trait("cadence_spm")
 
     def subject(self) -> Subject:
+        given = {n: getattr(self, n) for n in TRAIT_NAMES if getattr(self, n) is not None}
         return Subject(
             self.height_m,
             self.mass_kg,
             foot_length_m=self.foot_length_m,
             style_seed=self.style_seed,
+            traits_given=given,
         )
 
 
 class ScriptEntry(_Strict):
     """One action. ``depth`` applies to squat, lunge, jump and in-place walking
     (None: the subject's own); ``step_length_m`` to walking, backward and side
-    walking and lunge (None: from height); ``step_height_m`` to step-up;
-    ``direction`` to side walking. Repetitions: one step for the walking
-    actions, one full movement for the others."""
+    walking and lunge (None: the person's own); ``step_height_m`` to step-up;
+    ``direction`` to side walking; ``turn_deg`` to walking (the heading
+    change, spread over the walk: an arc). ``vary`` draws speed changes
+    (and for walking a walkway with turns) from the seed. Repetitions: one
+    step for the walking actions, one full movement for the others."""
 
     action: Literal[ACTIONS]  # type: ignore[valid-type]
     reps: int | None = Field(default=None, gt=0, le=500)
@@ -80,6 +126,8 @@ class ScriptEntry(_Strict):
     step_length_m: float | None = Field(default=None, gt=0.0, le=1.5)
     step_height_m: float = Field(default=0.2, ge=0.05, le=0.5)
     direction: Literal["left", "right"] = "left"
+    turn_deg: float = Field(default=0.0, ge=-1080.0, le=1080.0)
+    vary: bool = False
     stand_s: float = Field(default=1.5, ge=0.0, le=600.0)
 
     @_model_validator(mode="after")
@@ -99,6 +147,8 @@ class ScriptEntry(_Strict):
             step_length_m=self.step_length_m,
             step_height_m=self.step_height_m,
             direction=self.direction,
+            turn_rad=float(np.radians(self.turn_deg)),
+            vary=self.vary,
         )
 
 
@@ -110,8 +160,16 @@ class Scene(_Strict):
     seed: int = 0
     rate: float = Field(default=FRAME_RATE_HZ, gt=0.0, le=1000.0)
     subject: SubjectModel
-    script: list[ScriptEntry] = Field(min_length=1)
+    script: list[ScriptEntry] = Field(default_factory=list)
+    session: SessionModel | None = None
     effects: list[dict[str, Any]] = Field(default_factory=list)
+
+    @_model_validator(mode="after")
+    def _script_or_session(self) -> Scene:
+        if bool(self.script) == (self.session is not None):
+            msg = "give either a script ([[script]] entries) or a [session], not both"
+            raise ValueError(msg)
+        return self
 
     @field_validator("effects")
     @classmethod
@@ -168,7 +226,7 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def build_motion(scene: Scene, oversample: int = 1) -> Motion:
-    """Run the script: lead-in stand, then each action followed by its stand.
+    """Run the script (lead-in stand, then each action followed by its stand) or the session.
 
     ``oversample`` multiplies the scene's rate: 1 for kinematics and labels
     alone, ``PHYSICS_OVERSAMPLE`` for a motion whose forces are computed.
@@ -177,19 +235,29 @@ def build_motion(scene: Scene, oversample: int = 1) -> Motion:
         msg = f"oversample must be a positive integer, got {oversample}"
         raise SceneError(msg)
     subject = scene.subject_model()
-    body = Body.from_height(subject.height_m, subject.foot_length)
+    body = subject.body()
     rate = scene.rate * oversample
     rng = np.random.default_rng(np.random.SeedSequence([scene.seed, subject.style_seed]))
     ctx = Context(body, subject, rate, rng)
+    if scene.session is not None:
+        return motion_from_segments(
+            body, subject, rate, session_segments(scene.session, ctx, scene.seed)
+        )
     place = Place(0.0, 0.0, 0.0)
-    segments: list[Segment] = [stand(ctx, place, LEAD_IN_S)]
+    segments: list[Segment] = [_standing(ctx, place, LEAD_IN_S)]
     for entry in scene.script:
         segment = RECIPES[entry.action](ctx, entry.spec(), place)
         place = segment.end
         segments.append(segment)
         if entry.stand_s > 0:
-            segments.append(stand(ctx, place, entry.stand_s))
+            segments.append(_standing(ctx, place, entry.stand_s))
     return motion_from_segments(body, subject, rate, segments)
+
+
+def _standing(ctx: Context, place: Place, seconds: float) -> Segment:
+    """A quiet stand labelled ``standing`` (NO_ACTION before the contract has it)."""
+    s = stand(ctx, place, seconds)
+    return Segment(s.params, np.full(len(s), standing_label(), np.int64), s.end, s.ground_z)
 
 
 def motion_from_segments(

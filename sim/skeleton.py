@@ -69,6 +69,8 @@ ANKLE_FROM_HEEL: Final = 0.22
 SMALL_TOE_AT: Final = 0.80
 # Arms hang this far out from the trunk (radians), so hands clear the hips.
 ARM_ABDUCTION: Final = 0.12
+# Standing toe-out of each foot (radians) unless the person's own is given.
+TOE_OUT: Final = 0.08
 
 # Dempster (Winter Table 4.1): (mass share, centre of mass from the proximal end).
 MASS_HAND: Final = (0.006, 0.506)
@@ -102,10 +104,22 @@ class Body:
     trunk: float  # mid-hip -> neck (mid-shoulder)
     nose_up: float  # neck -> nose, along the trunk
     nose_forward: float  # neck -> nose, forwards
+    # Standing: ankle centres this far apart, feet turned out (left, right) radians.
+    stance_width: float = 0.0
+    toe_out: tuple[float, float] = (TOE_OUT, TOE_OUT)
 
     @classmethod
-    def from_height(cls, height: float, foot_length: float | None = None) -> Body:
+    def from_height(
+        cls,
+        height: float,
+        foot_length: float | None = None,
+        *,
+        stance_width: float | None = None,
+        toe_out: tuple[float, float] = (TOE_OUT, TOE_OUT),
+    ) -> Body:
+        """Lengths from height; standing width defaults to the hip keypoints' spacing."""
         h = float(height)
+        hip_spacing = HIP_JOINT_SHARE * HIP_WIDTH * h
         return cls(
             height=h,
             thigh=THIGH * h,
@@ -113,7 +127,7 @@ class Body:
             foot_length=FOOT_LENGTH * h if foot_length is None else float(foot_length),
             foot_height=FOOT_HEIGHT * h,
             foot_width=FOOT_WIDTH * h,
-            hip_spacing=HIP_JOINT_SHARE * HIP_WIDTH * h,
+            hip_spacing=hip_spacing,
             shoulder_spacing=SHOULDER_JOINT_SHARE * SHOULDER_WIDTH * h,
             upper_arm=UPPER_ARM * h,
             forearm=FOREARM * h,
@@ -121,6 +135,8 @@ class Body:
             trunk=(SHOULDER_HEIGHT - HIP_HEIGHT) * h,
             nose_up=(NOSE_HEIGHT - SHOULDER_HEIGHT) * h,
             nose_forward=NOSE_FORWARD * h,
+            stance_width=hip_spacing if stance_width is None else float(stance_width),
+            toe_out=(float(toe_out[0]), float(toe_out[1])),
         )
 
     @property

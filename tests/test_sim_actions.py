@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scotti.models.contract import ACTIONS, BONE_INDEX, KP, NO_ACTION
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place
-from scotti.sim.actions.base import finalize, neutral
+from scotti.sim.actions.base import finalize, neutral, standing_label
 from scotti.sim.actions.strength import SQUAT_DROP
 from scotti.sim.motion import Motion, Subject, labels
 from scotti.sim.scene import Scene, build_motion, motion_from_segments
@@ -164,12 +164,14 @@ def test_labels_progress_in_range_and_repetitions_counted(action: str) -> None:
     )
     m = build_motion(scene)
     lab = labels(m)
-    active = lab.action != NO_ACTION
+    active = lab.action == ACTIONS.index(action)
     assert active.any()
-    assert (lab.action[active] == ACTIONS.index(action)).all()
+    # Around the action: standing (NO_ACTION until the contract has it) or transitions.
+    assert set(np.unique(lab.action[~active]).tolist()) <= {NO_ACTION, standing_label()}
     assert np.isfinite(lab.progress[active]).all()
     assert (lab.progress[active] >= 0.0).all()
     assert (lab.progress[active] <= 1.0).all()
+    # Outside the action (standing, transitions) there is no progress.
     assert np.isnan(lab.progress[~active]).all()
     assert (lab.repetition[~active] == -1).all()
     # Repetitions are counted per run of the action; a jump set with pauses
@@ -212,7 +214,146 @@ def test_transitions_blend_without_a_jump() -> None:
     step = np.linalg.norm(np.diff(m.world, axis=0), axis=-1).max(axis=1)
     changes = np.flatnonzero(np.diff(m.action) != 0)
     assert step[changes].max() < 0.02  # 2 cm in 1/64 s where the label changes
-    assert (m.action[: int(m.rate_hz)] == NO_ACTION).all()  # lead-in stand
+    assert (m.action[: int(m.rate_hz)] == standing_label()).all()  # lead-in stand
     down = m.every(4)
     assert down.rate_hz == 16.0
     np.testing.assert_array_equal(down.world, m.world[::4])
+
+
+# --- people who differ and variation within a set -------------------------------
+
+
+def _person_motion(
+    action: str, traits: dict[str, float | str], rate: float = 16.0, **spec: object
+) -> Motion:
+    """One segment by a person with some traits given (their own stance and toe-out)."""
+    subject = Subject(HEIGHT, 70.0, style_seed=21, traits_given=traits)
+    body = subject.body()
+    ctx = Context(body, subject, rate, np.random.default_rng(1))
+    segment = RECIPES[action](ctx, ActionSpec(action, **spec), Place(0.0, 0.0, 0.0))  # type: ignore[arg-type]
+    return motion_from_segments(body, subject, rate, [segment])
+
+
+@pytest.mark.parametrize("action", ACTIONS)
+def test_every_action_starts_and_ends_in_the_persons_own_stand(action: str) -> None:
+    traits: dict[str, float | str] = {
+        "stance_width_m": 0.24,
+        "toe_out_deg": 15.0,
+        "toe_out_asymmetry_deg": 0.0,
+    }
+    m = _person_motion(action, traits, rate=32.0, reps=3, vary=True)
+    body = m.subject.body()
+    start = pose_keypoints(body, finalize(body, neutral(body, Place(0.0, 0.0, 0.0), 1)))[0]
+    assert np.abs(m.world[0] - start).max() < 2e-3
+    ankles = m.world[0, [KP["left_ankle"], KP["right_ankle"]]]
+    assert ankles[0, 1] - ankles[1, 1] == pytest.approx(0.24, abs=0.005)
+    # The feet turn out by 15 degrees more than a person with no toe-out.
+    straight = _person_motion(action, {**traits, "toe_out_deg": 0.0}, rate=32.0, reps=1)
+    for k in (0, -1):
+        for side, sign in (("left", 1.0), ("right", -1.0)):
+            turned, ahead = (
+                x.world[k, KP[f"{side}_big_toe"], :2] - x.world[k, KP[f"{side}_heel"], :2]
+                for x in (m, straight)
+            )
+            angle = (np.arctan2(turned[1], turned[0]) - m.heading[k]) - (
+                np.arctan2(ahead[1], ahead[0]) - straight.heading[k]
+            )
+            assert sign * np.degrees(angle) == pytest.approx(15.0, abs=0.5)
+    speed = np.linalg.norm(np.diff(m.world, axis=0), axis=-1) * m.rate_hz
+    assert speed.max() < 8.0
+    assert (_feet_z(m) >= -1e-3).all()
+
+
+def _touch_down_pitch(m: Motion, side: str) -> np.ndarray:
+    """Foot pitch (> 0 toes up) at each touch-down, from heel and big toe keypoints."""
+    heel, toe = m.world[:, KP[f"{side}_heel"]], m.world[:, KP[f"{side}_big_toe"]]
+    contact = _contact(m, side)
+    onsets = np.flatnonzero(contact[1:] & ~contact[:-1]) + 1
+    d = toe - heel
+    pitch = np.arctan2(d[:, 2], np.linalg.norm(d[:, :2], axis=1))
+    return np.asarray(pitch[onsets])
+
+
+@pytest.mark.parametrize(
+    ("strike", "low", "high"),
+    [("heel", 0.2, 0.6), ("midfoot", -0.08, 0.12), ("forefoot", -0.4, -0.08)],
+)
+def test_strike_pattern_shows_in_foot_pitch_at_touch_down(
+    strike: str, low: float, high: float
+) -> None:
+    m = _person_motion("walking", {"strike": strike}, rate=64.0, reps=8)
+    pitches = np.r_[_touch_down_pitch(m, "left"), _touch_down_pitch(m, "right")]
+    assert len(pitches) >= 6
+    steady = np.sort(pitches)[1:-1]  # the closing step lands at half the angle
+    assert low < np.median(steady) < high
+
+
+def test_a_walk_that_turns_changes_heading_and_labels_stay_in_the_persons_frame() -> None:
+    m = _person_motion("walking", {}, reps=16, turn_rad=np.pi / 2)
+    assert m.heading[-1] - m.heading[0] == pytest.approx(np.pi / 2, abs=1e-6)
+    # The person ends up facing and having walked towards +y (a left turn).
+    hip = _mid_hip(m)
+    assert hip[-1, 1] > 2.0
+    lab = labels(m)
+    k = lab.keypoints
+    # Pose frame: x forwards, y to the left, whatever the heading.
+    assert (k[:, KP["left_hip"], 1] > 0.05).all()
+    assert (k[:, KP["right_hip"], 1] < -0.05).all()
+    for side in ("left", "right"):
+        foot = k[:, KP[f"{side}_big_toe"], :2] - k[:, KP[f"{side}_heel"], :2]
+        along = foot[:, 0] / np.linalg.norm(foot, axis=1)
+        assert (along > 0.8).all()  # feet point forwards in the person's frame
+    # Where the walk goes and where the person faces agree, start and end.
+    moved = np.diff(hip[:, :2], axis=0)
+    for i in (slice(16, 24), slice(-24, -16)):
+        direction = np.arctan2(*moved[i].sum(axis=0)[::-1])
+        assert direction == pytest.approx(m.heading[i].mean(), abs=0.25)
+
+
+def test_speed_changes_vary_the_step_times_of_a_walk() -> None:
+    traits: dict[str, float | str] = {"speed_variability": 0.1, "stride_cv": 0.01}
+
+    def step_times(vary: bool) -> np.ndarray:
+        m = _person_motion("walking", traits, rate=64.0, reps=40, vary=vary)
+        onsets = []
+        for side in ("left", "right"):
+            contact = _contact(m, side)
+            onsets += (np.flatnonzero(contact[1:] & ~contact[:-1]) + 1).tolist()
+        return np.diff(np.sort(onsets))[2:-2] / m.rate_hz
+
+    assert np.std(step_times(True)) > 2.0 * np.std(step_times(False))
+
+
+def _reps(m: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """Frames and mid-hip drop of each complete repetition the labeller finds."""
+    lab = labels(m)
+    hip_z = _mid_hip(m)[:, 2]
+    reps = np.unique(lab.repetition[lab.repetition >= 0])[1:-1]
+    frames = np.array([np.count_nonzero(lab.repetition == r) for r in reps])
+    drops = np.array([hip_z[0] - hip_z[lab.repetition == r].min() for r in reps])
+    return frames, drops
+
+
+@pytest.mark.parametrize("action", ["squat", "lunge"])
+def test_fatigue_makes_late_repetitions_slower_and_shallower(action: str) -> None:
+    traits: dict[str, float | str] = {
+        "fatigue_slowdown_per_min": 0.08,
+        "fatigue_shallowing_per_min": 0.05,
+        "tempo_variation": 0.02,
+        "depth_variation": 0.02,
+        "rep_pause_s": 0.0,
+        "squat_rep_s": 3.0,
+        "lunge_rep_s": 3.5,
+    }
+    # 40 repetitions take over two minutes: the last ones about 15 % slower.
+    frames, drops = _reps(_person_motion(action, traits, reps=40))
+    assert frames[-6:].mean() > 1.08 * frames[:6].mean()
+    assert drops[-6:].mean() < 0.92 * drops[:6].mean()
+
+
+def test_pauses_between_repetitions_lengthen_a_set() -> None:
+    base: dict[str, float | str] = {"tempo_variation": 0.02, "fatigue_slowdown_per_min": 0.02}
+    quick = _person_motion("squat", {**base, "rep_pause_s": 0.0}, reps=10)
+    paused = _person_motion("squat", {**base, "rep_pause_s": 1.5}, reps=10)
+    assert (len(paused) - len(quick)) / quick.rate_hz > 5.0
+    assert int(labels(paused).repetition.max()) + 1 == 10  # pauses are no repetitions

@@ -24,13 +24,21 @@ from typing import Final
 
 import numpy as np
 from scotti.models.contract import ACTIONS
-from scotti.sim.actions.base import TOE_OUT, ActionSpec, Context, Place, Segment, finalize
+from scotti.sim.actions.base import (
+    ActionSpec,
+    Context,
+    Place,
+    Segment,
+    finalize,
+    foot_yaw,
+    stance_lateral,
+)
 from scotti.sim.actions.curves import ease, hermite
 from scotti.sim.actions.footsteps import HEEL, TOE, Plant, foot_track
-from scotti.sim.actions.gait import SETTLE_S, START_S, STEP_LENGTH, steps_for
+from scotti.sim.actions.gait import SETTLE_S, START_S, steps_for
 from scotti.sim.actions.gait import _arm_swing as arm_swing
 from scotti.sim.actions.gait import _drive as drive
-from scotti.sim.actions.pendulum import pendulum_height
+from scotti.sim.actions.pendulum import pendulum_height, steer_com_to_pendulum
 from scotti.sim.skeleton import LEFT, RIGHT, axes
 
 STANCE: Final = 0.65  # share of the cycle a foot stands (forwards 0.60)
@@ -45,7 +53,7 @@ def backward_walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     body, subject = ctx.body, ctx.subject
     step_s = 60.0 / (subject.cadence_spm * CADENCE_SCALE * spec.tempo)
     steps = steps_for(spec, step_s)
-    length = spec.step_length_m or STEP_LENGTH * body.height * LENGTH_SCALE
+    length = (spec.step_length_m or subject.step_length_m) * LENGTH_SCALE
     durations = ctx.rep_durations(step_s, 1.0, steps)
     lengths = length * np.clip(ctx.jitter(0.03, steps), 0.9, 1.1)
     first = int(ctx.rng.integers(2))
@@ -56,8 +64,8 @@ def backward_walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     # How far behind the start each step's foot lands; the last closes beside.
     behind = np.r_[np.cumsum(lengths[:-1]), 0.0]
     behind[-1] = behind[-2] if steps > 1 else 0.0
-    lateral = [0.5 * body.hip_spacing, -0.5 * body.hip_spacing]
-    yaws = [place.heading + TOE_OUT, place.heading - TOE_OUT]
+    lateral = [stance_lateral(body, LEFT), stance_lateral(body, RIGHT)]
+    yaws = [foot_yaw(body, LEFT, place.heading), foot_yaw(body, RIGHT, place.heading)]
     plants: list[list[Plant]] = [
         [Plant(0.0, 0.0, place.xy(0.0, lateral[s]), yaws[s])] for s in (LEFT, RIGHT)
     ]
@@ -104,7 +112,8 @@ def backward_walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     p = p.replace(lean=LEAN * envelope, pelvis=pelvis)
     ground = np.stack([foot.ground_z for foot in feet], axis=1)
     p = p.replace(pelvis=pendulum_height(body, p, t, ground, end_s))
-    p = arm_swing(p, feet, place.heading, length, 0.25)
+    p = arm_swing(p, feet, np.full(len(t), place.heading), length, 0.25)
+    p = steer_com_to_pendulum(body, p, round(step_s * ctx.rate_hz), envelope)
     end = Place(*place.xy(-behind[-1], 0.0), place.heading, place.floor_z)
     action = np.full(len(t), ACTIONS.index("backward_walking"), dtype=np.int64)
     return Segment(finalize(body, p), action, end, ground)

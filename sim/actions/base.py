@@ -1,7 +1,7 @@
 """What every recipe shares: where the person stands, the request, the result.
 
-A recipe starts and ends in the neutral stand (feet under the hips, flat,
-arms hanging) at a ``Place`` and returns a ``Segment`` of per-frame pose
+A recipe starts and ends in the neutral stand (feet flat at the person's
+stance width and toe-out, arms hanging) at a ``Place`` and returns a ``Segment`` of per-frame pose
 parameters. Because every segment begins and ends in that pose with zero
 velocity, segments join without a jump or a kink.
 """
@@ -12,15 +12,35 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scotti.models.contract import NO_ACTION
+from scotti.models.contract import ACTIONS, NO_ACTION
 from scotti.sim.actions.curves import bump, soft_min
 from scotti.sim.motion import Subject
-from scotti.sim.skeleton import Body, PoseParams, axes, foot_points, hip_points, leg_reach_z
+from scotti.sim.skeleton import (
+    LEFT,
+    TOE_OUT,  # re-exported: the default toe-out; a person's own is ``Body.toe_out``
+    Body,
+    PoseParams,
+    axes,
+    foot_points,
+    hip_points,
+    leg_reach_z,
+)
 
 Array = npt.NDArray[np.float64]
 
-# Feet turn out a little from the heading (radians, each foot).
-TOE_OUT = 0.08
+__all__ = [
+    "TOE_OUT",
+    "ActionSpec",
+    "Context",
+    "Place",
+    "Segment",
+    "finalize",
+    "foot_yaw",
+    "neutral",
+    "stance_lateral",
+    "stand",
+    "standing_label",
+]
 # Elbows hang slightly bent.
 ELBOW_REST = 0.15
 # Softness (metres) of the reach limit on the pelvis height.
@@ -65,6 +85,8 @@ class ActionSpec:
     step_length_m: float | None = None  # None: from height
     step_height_m: float = 0.2
     direction: str = "left"  # side walking only
+    turn_rad: float = 0.0  # walking: heading change spread over the walk (an arc)
+    vary: bool = False  # speed changes, and for walking turns, drawn from the seed
 
 
 @dataclass(frozen=True)
@@ -103,13 +125,23 @@ class Segment:
         return len(self.params)
 
 
+def stance_lateral(body: Body, side: int) -> float:
+    """Where a foot stands in the neutral stand: metres to the person's left (< 0: right)."""
+    return (0.5 if side == LEFT else -0.5) * body.stance_width
+
+
+def foot_yaw(body: Body, side: int, heading: float) -> float:
+    """A standing foot's yaw: the heading turned out by the person's toe-out."""
+    return heading + (body.toe_out[0] if side == LEFT else -body.toe_out[1])
+
+
 def neutral(body: Body, place: Place, n: int) -> PoseParams:
-    """The neutral stand held for ``n`` frames."""
+    """The neutral stand held for ``n`` frames: the person's stance width and toe-out."""
     heading = np.full(n, place.heading)
     ankles = np.stack(
         [
-            np.r_[place.point(0.0, side * 0.5 * body.hip_spacing), place.floor_z + body.foot_height]
-            for side in (1.0, -1.0)
+            np.r_[place.point(0.0, stance_lateral(body, side)), place.floor_z + body.foot_height]
+            for side in (0, 1)
         ]
     )
     pelvis = np.r_[place.x, place.y, place.floor_z + body.stand_hip_z]
@@ -118,7 +150,7 @@ def neutral(body: Body, place: Place, n: int) -> PoseParams:
         heading=heading,
         lean=np.zeros(n),
         ankle=np.tile(ankles, (n, 1, 1)),
-        foot_yaw=np.stack([heading + TOE_OUT, heading - TOE_OUT], axis=1),
+        foot_yaw=np.stack([heading + body.toe_out[0], heading - body.toe_out[1]], axis=1),
         foot_pitch=np.zeros((n, 2)),
         shoulder_flex=np.zeros((n, 2)),
         elbow_flex=np.full((n, 2), ELBOW_REST),
@@ -145,6 +177,15 @@ def finalize(body: Body, p: PoseParams) -> PoseParams:
     pelvis = p.pelvis.copy()
     pelvis[:, 2] = soft_min([pelvis[:, 2], *limits], REACH_SOFTNESS)
     return p.replace(ankle=ankle, pelvis=pelvis)
+
+
+def standing_label() -> int:
+    """The label of a quiet stand: ``standing`` once the contract has it, else NO_ACTION.
+
+    Until ``standing`` joins ``ACTIONS`` a stand and a transition share
+    NO_ACTION; after, NO_ACTION means a transition only.
+    """
+    return ACTIONS.index("standing") if "standing" in ACTIONS else NO_ACTION
 
 
 def stand(ctx: Context, place: Place, duration_s: float) -> Segment:

@@ -3,10 +3,13 @@
 For these four a repetition is one step (one foot's swing), as the progress
 labeller cuts them: by heel distance (walking, side walking), heel height
 (in place) or heel displacement (backward). Walking is built from a gait
-cycle with stance 60 %, double support 2 x 10 %, heel strike -> flat foot ->
+cycle with stance 60 %, double support 2 x 10 %, the person's own touch-down
+(heel strike, flat foot or toes first, ``Traits.strike``) -> flat foot ->
 heel rise -> toe off; the pelvis follows the standing feet and its height
-an inverted pendulum (``pendulum.py``). Backward walking has
-its own gait in ``backward.py``.
+an inverted pendulum (``pendulum.py``). Steps land the person's step width
+apart, turned out by their toe-out; the path may curve and turn (a lab
+walkway: straight, turn round, back) and the speed may drift, the heading
+following the path. Backward walking has its own gait in ``backward.py``.
 """
 
 from __future__ import annotations
@@ -14,27 +17,36 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scotti.models.contract import ACTIONS
+from scotti.models.contract import ACTIONS, NO_ACTION
 from scotti.sim.actions.base import (
     ELBOW_REST,
-    TOE_OUT,
     ActionSpec,
     Context,
     Place,
     Segment,
     finalize,
+    foot_yaw,
     neutral,
+    stance_lateral,
 )
 from scotti.sim.actions.curves import ease, hermite
 from scotti.sim.actions.footsteps import FLAT, HEEL, TOE, FootTrack, Plant, foot_track, support_path
-from scotti.sim.actions.pendulum import pendulum_height
+from scotti.sim.actions.paths import (
+    SHARP_TURN_RAD,
+    headings,
+    keep_clear,
+    knot_velocity,
+    speed_factors,
+)
+from scotti.sim.actions.pendulum import pendulum_height, steer_com_to_pendulum
 from scotti.sim.skeleton import LEFT, RIGHT, Array, PoseParams, axes
 
 STANCE = 0.6  # share of the gait cycle a foot stands (Winter; Perry)
-STEP_LENGTH = 0.38  # x height: comfortable step length (0.67 m at 1.75 m)
 SETTLE_S = 0.5  # after the closing step, before the segment ends
 START_S = 0.3  # weight shift before the first swing
 LEAD_AT_STRIKE = [0.1, 0.2]
+# Gait initiation: the first step from standing is shorter than the steady ones.
+FIRST_STEP = 0.75
 
 
 def steps_for(spec: ActionSpec, step_s: float, least: int = 2) -> int:
@@ -45,7 +57,23 @@ def steps_for(spec: ActionSpec, step_s: float, least: int = 2) -> int:
 
 
 def walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
-    return _walk(ctx, spec, place, ACTIONS.index("walking"), 1.0, 1.0, 0.3, -0.6, 0.04)
+    traits = ctx.subject.traits
+    return _walk(
+        ctx, spec, place, ACTIONS.index("walking"), 1.0, 1.0, traits.strike_pitch_rad, -0.6, 0.04,
+        strike=traits.strike, turns=True,
+    )  # fmt: skip
+
+
+def transition_walk(
+    ctx: Context, place: Place, steps: int, turn_rad: float, length_scale: float
+) -> Segment:
+    """Walking to the next spot or turning round: a short walk labelled NO_ACTION."""
+    spec = ActionSpec("walking", reps=max(2, steps), turn_rad=turn_rad)
+    traits = ctx.subject.traits
+    return _walk(
+        ctx, spec, place, NO_ACTION, length_scale, 0.9, traits.strike_pitch_rad, -0.5, 0.02,
+        strike=traits.strike, turns=True,
+    )  # fmt: skip
 
 
 def _walk(
@@ -58,35 +86,61 @@ def _walk(
     strike_pitch: float,
     release_pitch: float,
     lean: float,
+    *,
+    strike: str = "heel",
+    turns: bool = False,
 ) -> Segment:
+    """Steps along a path that may curve and turn (``turns``), at a speed that may drift.
+
+    Each step lands one step length along the path from the other foot,
+    ``step_width`` apart across it and turned out by the person's toe-out;
+    the last two steps go back to the stance width so that the walk ends in
+    the neutral stand. The pelvis follows the path (forwards) and sways over
+    the standing foot (across); the heading turns with the path.
+    """
     body, subject = ctx.body, ctx.subject
+    traits = subject.traits
     step_s = 60.0 / (subject.cadence_spm * cadence_scale * spec.tempo)
     steps = steps_for(spec, step_s)
-    length = spec.step_length_m or STEP_LENGTH * body.height * length_scale
-    durations = ctx.rep_durations(step_s, 1.0, steps)
-    lengths = length * np.clip(ctx.jitter(0.03, steps), 0.9, 1.1)
+    length = (spec.step_length_m or subject.step_length_m) * length_scale
+    speed = speed_factors(ctx, steps, traits.speed_variability) if spec.vary else np.ones(steps)
+    durations = step_s * np.clip(ctx.jitter(traits.stride_cv, steps), 0.85, 1.15) / speed**0.5
+    lengths = length * np.clip(ctx.jitter(0.03, steps), 0.9, 1.1) * speed**0.5
+    lengths[0] *= FIRST_STEP
     first = int(ctx.rng.integers(2))  # which foot swings first
     swinging = [(first + k) % 2 for k in range(steps)]
     lengths *= np.array([1.0 + (0.5 if s == RIGHT else -0.5) * subject.asymmetry for s in swinging])
+    turn, scale = headings(ctx, spec, lengths, turns)
+    lengths *= scale
+    durations *= np.where(scale < 1.0, 1.1, 1.0)
     toe_off = START_S + np.r_[0.0, np.cumsum(durations[:-1])]
     heel_strike = toe_off + (1.0 - STANCE) * 2 * durations
-    # Forward position of each step's foot: step k lands one step ahead of the
-    # other foot; the last step closes beside it.
-    forward = np.zeros(steps)
-    ahead = 0.0
-    for k in range(steps - 1):
-        ahead = ahead + lengths[k]
-        forward[k] = ahead
-    forward[-1] = ahead
+    # Where each step lands on the path and which way the body then faces;
+    # the last step closes beside the one before.
+    heading = place.heading + np.cumsum(turn)
+    centre = np.zeros((steps, 2))
+    at, facing = np.array([place.x, place.y]), place.heading
+    for k in range(steps):
+        if k < steps - 1:
+            mean = 0.5 * (facing + heading[k])
+            at = at + lengths[k] * np.array([np.cos(mean), np.sin(mean)])
+            facing = heading[k]
+        centre[k] = at
+    heading[-1] = heading[-2] if steps > 1 else heading[-1]
+    width = traits.step_width_m
     plants: list[list[Plant]] = [[], []]
     for side in (LEFT, RIGHT):
-        lateral = (0.5 if side == LEFT else -0.5) * body.hip_spacing
-        yaw = place.heading + (TOE_OUT if side == LEFT else -TOE_OUT)
-        plants[side].append(Plant(0.0, 0.0, place.xy(0.0, lateral), yaw))
+        home = place.xy(0.0, stance_lateral(body, side))
+        plants[side].append(Plant(0.0, 0.0, home, foot_yaw(body, side, place.heading)))
+    pivot = HEEL if strike_pitch >= 0 else TOE
+    strike_share = {"heel": 0.24, "midfoot": 0.08, "forefoot": 0.15}[strike]
     for k, side in enumerate(swinging):
         last = k == steps - 1
-        lateral = (0.5 if side == LEFT else -0.5) * body.hip_spacing
-        yaw = place.heading + (TOE_OUT if side == LEFT else -TOE_OUT)
+        # The last two steps, and steps that turn sharply, stand at stance width.
+        wide = k >= steps - 2 or abs(turn[k]) > SHARP_TURN_RAD
+        across = stance_lateral(body, side) if wide else (0.5 if side == LEFT else -0.5) * width
+        _, lft = axes(heading[k])
+        xy = centre[k] + across * lft[:2]
         before = plants[side][-1]
         release_s = min(0.5 * durations[k], 0.8 * (toe_off[k] - before.t_on))
         plants[side][-1] = _with_release(before, toe_off[k], release_pitch, release_s)
@@ -94,38 +148,42 @@ def _walk(
             Plant(
                 heel_strike[k],
                 np.inf,
-                place.xy(forward[k], lateral),
-                yaw,
-                strike=HEEL,
+                (float(xy[0]), float(xy[1])),
+                foot_yaw(body, side, float(heading[k])),
+                strike=pivot,
                 strike_pitch=strike_pitch * (0.5 if last else 1.0),
-                strike_s=0.24 * durations[k],
+                strike_s=strike_share * durations[k],
                 lift_before=0.05,
                 lift_power=1.0,
             )
         )
     end_s = heel_strike[-1] + SETTLE_S
     t = ctx.times(end_s)
-    feet = (foot_track(body, LEFT, plants[LEFT], t), foot_track(body, RIGHT, plants[RIGHT], t))
+    # Along the path the pelvis is half-way between the feet at each heel
+    # strike; across it it sways over the stance foot (``support_path``).
+    start = np.array([[place.x, place.y]])
+    middles = 0.5 * (centre[:-1] + np.r_[start, centre[:-2]])
+    mid_heading = 0.5 * (heading[:-1] + np.r_[place.heading, heading[:-2]])
+    knot_t = np.r_[0.0, heel_strike[:-1], end_s - SETTLE_S, end_s]
+    knot_xy = np.r_[start, middles, centre[-1:], centre[-1:]]
+    knot_h = np.r_[place.heading, mid_heading, heading[-1], heading[-1]]
+    path = hermite(t, knot_t, knot_xy, knot_velocity(knot_xy, knot_t))
+    facing_t = hermite(t, knot_t, knot_h, knot_velocity(knot_h, knot_t))
+    _, left_t = axes(facing_t)
+    tracks = [foot_track(body, side, plants[side], t) for side in (LEFT, RIGHT)]
+    feet = keep_clear(tracks[LEFT], tracks[RIGHT], left_t[:, :2])
     envelope = ease(t / START_S) * ease((end_s - t) / SETTLE_S)
     p = _drive(ctx, place, t, feet, round(step_s * ctx.rate_hz))
-    # Forwards the pelvis is half-way between the feet at each heel strike;
-    # sideways it sways over the stance foot (``support_path``).
-    f, _ = axes(place.heading)
-    strikes = heel_strike[:-1]
-    middles = 0.5 * (forward[:-1] + np.r_[0.0, forward[:-2]])
-    knot_t = np.r_[0.0, strikes, end_s - SETTLE_S, end_s]
-    knot_u = np.r_[0.0, middles, forward[-1], forward[-1]]
-    knot_v = np.gradient(knot_u, knot_t)
-    knot_v[[0, -2, -1]] = 0.0
-    along = hermite(t, knot_t, knot_u, knot_v)
-    lateral = (p.pelvis[:, :2] - np.array([place.x, place.y])) @ f[:2]
+    half = 0.5 * body.stance_width
+    sway = np.clip(np.sum((p.pelvis[:, :2] - path) * left_t[:, :2], axis=1), -half, half)
     pelvis = p.pelvis.copy()
-    pelvis[:, :2] += (along - lateral)[:, None] * f[:2]
-    p = p.replace(lean=lean * envelope, pelvis=pelvis)
+    pelvis[:, :2] = path + sway[:, None] * left_t[:, :2]
+    p = p.replace(lean=lean * envelope, pelvis=pelvis, heading=facing_t)
     ground = np.stack([f.ground_z for f in feet], axis=1)
     p = p.replace(pelvis=pendulum_height(body, p, t, ground, end_s))
-    p = _arm_swing(p, feet, place.heading, length, 0.35)
-    end = Place(*place.xy(forward[-1], 0.0), place.heading, place.floor_z)
+    p = _arm_swing(p, feet, facing_t, length, 0.35)
+    p = steer_com_to_pendulum(body, p, round(step_s * ctx.rate_hz), envelope)
+    end = Place(float(centre[-1, 0]), float(centre[-1, 1]), float(heading[-1]), place.floor_z)
     return Segment(finalize(body, p), np.full(len(t), action, dtype=np.int64), end, ground)
 
 
@@ -149,11 +207,11 @@ def _drive(
 
 
 def _arm_swing(
-    p: PoseParams, feet: tuple[FootTrack, FootTrack], heading: float, span: float, amp: float
+    p: PoseParams, feet: tuple[FootTrack, FootTrack], heading: Array, span: float, amp: float
 ) -> PoseParams:
     """Each arm swings with the opposite leg: forwards when that foot is ahead."""
-    f, _ = axes(heading)
-    ahead = (feet[RIGHT].ankle - feet[LEFT].ankle) @ f  # right foot ahead of left, metres
+    f, _ = axes(heading)  # (N, 3)
+    ahead = np.sum((feet[RIGHT].ankle - feet[LEFT].ankle) * f, axis=1)  # right ahead, metres
     swing = amp * np.clip(ahead / max(span, 1e-6), -1.0, 1.0)
     flex = np.stack([swing, -swing], axis=1)
     elbow = ELBOW_REST + 0.4 * np.maximum(flex, 0.0)
@@ -165,16 +223,16 @@ def in_place_walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     body, subject = ctx.body, ctx.subject
     step_s = 60.0 / (0.9 * subject.cadence_spm * spec.tempo)
     steps = steps_for(spec, step_s, least=1)
-    durations = ctx.rep_durations(step_s, 1.0, steps)
+    speed = speed_factors(ctx, steps, subject.traits.speed_variability) if spec.vary else 1.0
+    durations = ctx.rep_durations(step_s, 1.0, steps) / speed
     depth = subject.depth if spec.depth is None else spec.depth
     lift = (0.10 + 0.14 * depth) * body.height / 1.75
     first = int(ctx.rng.integers(2))
     starts = START_S + np.r_[0.0, np.cumsum(durations[:-1])]
     plants: list[list[Plant]] = [[], []]
     for side in (LEFT, RIGHT):
-        lateral = (0.5 if side == LEFT else -0.5) * body.hip_spacing
-        yaw = place.heading + (TOE_OUT if side == LEFT else -TOE_OUT)
-        plants[side].append(Plant(0.0, 0.0, place.xy(0.0, lateral), yaw))
+        home = place.xy(0.0, stance_lateral(body, side))
+        plants[side].append(Plant(0.0, 0.0, home, foot_yaw(body, side, place.heading)))
     for k in range(steps):
         side = (first + k) % 2
         before = plants[side][-1]
@@ -215,11 +273,13 @@ def side_walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     sign = 1.0 if spec.direction == "left" else -1.0
     lead = LEFT if sign > 0 else RIGHT
     durations = ctx.rep_durations(step_s, 1.0, 2 * reps)
+    if spec.vary:
+        durations /= np.repeat(speed_factors(ctx, reps, subject.traits.speed_variability), 2)
     starts = START_S + np.r_[0.0, np.cumsum(durations[:-1])]
     plants: list[list[Plant]] = [[], []]
-    lateral = [0.5 * body.hip_spacing, -0.5 * body.hip_spacing]
+    lateral = [stance_lateral(body, LEFT), stance_lateral(body, RIGHT)]
     for side in (LEFT, RIGHT):
-        yaw = place.heading + (TOE_OUT if side == LEFT else -TOE_OUT)
+        yaw = foot_yaw(body, side, place.heading)
         plants[side].append(Plant(0.0, 0.0, place.xy(0.0, lateral[side]), yaw))
     travelled = 0.0
     for k in range(2 * reps):

@@ -27,16 +27,17 @@ from typing import Final
 
 import numpy as np
 from scotti.sim.actions.base import lean_ahead
+from scotti.sim.actions.com import com_z, steer_com_z
 from scotti.sim.actions.curves import box_smooth, ease
 from scotti.sim.loads import CONTACT_NONE_M, G
 from scotti.sim.skeleton import Array, Body, PoseParams, foot_points, hip_points, leg_reach_z
 
 # Force at mid single support, body weights (Perry; Winter: 0.7-0.8).
-VALLEY_BW: Final = 0.70
+VALLEY_BW: Final = 0.74
 # The force leans towards the start of single support by this much (body
 # weights): weight acceptance after heel strike is the larger peak at
 # comfortable speed (Perry), the push-off peak the smaller.
-WEIGHT_ACCEPTANCE: Final = 0.05
+WEIGHT_ACCEPTANCE: Final = 0.04
 # The dip's shape over single support, sin(pi s) ** DIP_POWER: below 1 it is
 # wide and its edges steep, which lifts the two peaks for a given valley.
 DIP_POWER: Final = 0.8
@@ -114,3 +115,26 @@ def pendulum_height(body: Body, p: PoseParams, t: Array, ground: Array, end_s: f
     pelvis = p.pelvis.copy()
     pelvis[:, 2] = stand + fade * (min(base, 0.0) + z)
     return pelvis
+
+
+def steer_com_to_pendulum(
+    body: Body, p: PoseParams, step_frames: int, envelope: Array
+) -> PoseParams:
+    """``p`` with the whole-body COM, not only the pelvis, on the pendulum's height.
+
+    The force comes from the COM, and a swinging leg (a sixth of the body's
+    mass) lifts and lowers it against the pelvis: left alone it dents single
+    support by about 0.1 body weight and the first peak falls below 1.1. The
+    COM's offset from the pelvis is smoothed over one step (what the legs
+    change slowly, e.g. from stand to walk, stays) and the pelvis is moved
+    until the COM follows the pelvis's drawn path plus that offset. The
+    correction fades in and out with ``envelope`` (N,) so that the segment
+    still starts and ends exactly in the neutral stand.
+    """
+    com = com_z(body, p)
+    offset = box_smooth(com - p.pelvis[:, 2], max(1, step_frames))
+    everywhere = np.ones(len(p), dtype=bool)
+    steered = steer_com_z(body, p, p.pelvis[:, 2] + offset, everywhere)
+    pelvis = p.pelvis.copy()
+    pelvis[:, 2] += envelope * (steered.pelvis[:, 2] - p.pelvis[:, 2])
+    return p.replace(pelvis=pelvis)

@@ -21,7 +21,16 @@ from dataclasses import replace
 
 import numpy as np
 from scotti.models.contract import ACTIONS
-from scotti.sim.actions.base import TOE_OUT, ActionSpec, Context, Place, Segment, finalize, neutral
+from scotti.sim.actions.base import (
+    ActionSpec,
+    Context,
+    Place,
+    Segment,
+    finalize,
+    foot_yaw,
+    neutral,
+    stance_lateral,
+)
 from scotti.sim.actions.curves import bump
 from scotti.sim.actions.footsteps import FLAT, TOE, Plant, foot_track, support_path
 from scotti.sim.skeleton import LEFT, RIGHT, Array
@@ -59,8 +68,8 @@ def step_up(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     durations = ctx.rep_durations(STEP_UP_S, spec.tempo, reps)
     height = spec.step_height_m
     ahead = STEP_AHEAD * body.height
-    lateral = [0.5 * body.hip_spacing, -0.5 * body.hip_spacing]
-    yaws = [place.heading + TOE_OUT, place.heading - TOE_OUT]
+    lateral = [stance_lateral(body, LEFT), stance_lateral(body, RIGHT)]
+    yaws = [foot_yaw(body, LEFT, place.heading), foot_yaw(body, RIGHT, place.heading)]
     home = [Plant(0.0, 0.0, place.xy(0.0, lateral[s]), yaws[s]) for s in (LEFT, RIGHT)]
     plants: list[list[Plant]] = [[home[LEFT]], [home[RIGHT]]]
     first = int(ctx.rng.integers(2))
