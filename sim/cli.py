@@ -5,8 +5,9 @@
                       [--effects realistic|none]
     scotti sim render FILE -o OUT.png [--start S] [--duration D] [--gif OUT.gif]
     scotti sim bench [--minutes M] [--effects realistic|none]
+    scotti sim realism [-o sim/REALISM.md] [--subjects N] [--seed N] [--no-pictures]
 
-The first word picks the form: ``corpus``, ``render`` and ``bench`` are
+The first word picks the form: ``corpus``, ``render``, ``bench`` and ``realism`` are
 sub-verbs; anything else is a scene file (a scene file literally named
 ``corpus`` can be given as ``./corpus``).
 """
@@ -18,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Final
 
-SUB_VERBS: Final = ("corpus", "render", "bench")
+SUB_VERBS: Final = ("corpus", "render", "bench", "realism")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -74,6 +75,19 @@ def _bench_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _realism_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="scotti sim realism", description="the simulator against published ranges"
+    )
+    p.add_argument("-o", "--output", type=Path, default=Path("sim/REALISM.md"))
+    p.add_argument("--subjects", type=int, default=8, help="drawn subjects to measure")
+    p.add_argument("--seed", type=int, default=7, help="seed of the drawn subjects")
+    p.add_argument(
+        "--no-pictures", action="store_true", help="skip the per-action renders (no matplotlib)"
+    )
+    return p
+
+
 def run(args: argparse.Namespace) -> int:
     words: list[str] = list(args.words)
     if not words:
@@ -99,6 +113,8 @@ def _dispatch(words: list[str]) -> int:
         return _render(_render_parser().parse_args(words[1:]))
     if verb == "bench":
         return _bench(_bench_parser().parse_args(words[1:]))
+    if verb == "realism":
+        return _realism(_realism_parser().parse_args(words[1:]))
     return _scene(_scene_parser().parse_args(words))
 
 
@@ -163,3 +179,31 @@ def _bench(a: argparse.Namespace) -> int:
     for line in result.lines():
         print(line)
     return 0
+
+
+def _realism(a: argparse.Namespace) -> int:
+    """Measure, write the doc (and pictures beside it); exit 1 if a figure is out of range."""
+    from scotti.sim import SimError
+    from scotti.sim.realism import measure_population, realism_markdown, render_pictures
+
+    if not 1 <= a.subjects <= 100:
+        msg = "--subjects must be in 1..100"
+        raise SimError(msg)
+    result = measure_population(a.subjects, a.seed, progress=lambda line: print(line, flush=True))
+    pictures: list[tuple[str, str]] = []
+    if not a.no_pictures:
+        img = a.output.parent / "img"
+        for action, png in render_pictures(result.subjects[0], a.seed, img):
+            pictures.append((action, str(png.relative_to(a.output.parent))))
+    words = ["scotti sim realism", f"--subjects {a.subjects}", f"--seed {a.seed}"]
+    if a.output != Path("sim/REALISM.md"):
+        words.append(f"-o {a.output}")
+    if a.no_pictures:
+        words.append("--no-pictures")
+    a.output.write_text(realism_markdown(result, " ".join(words), pictures))
+    measured = result.measured_rows
+    outside = [r.reference.quantity for r in measured if not r.inside]
+    print(f"{a.output}: {len(measured) - len(outside)} of {len(measured)} figures inside")
+    for quantity in outside:
+        print(f"  outside its range: {quantity}")
+    return 0 if not outside else 1

@@ -56,6 +56,13 @@ CONTACT_NONE_M: Final = 0.020
 # COP along the foot (0 heel, 1 hallux tip) for heel-only and flat contact.
 _COP_HEEL: Final = 0.10
 _COP_FLAT_RANGE: Final = (0.15, 0.80)
+# A foot coming down flat (heel and forefoot touching together, a midfoot
+# strike or a side step) first bears load on the middle of its sole, not
+# under a COM that is still behind it: while neither end is fully down the
+# flat COP is kept at least this far along (a strike index of about one half,
+# Cavanagh & Lafortune 1980), easing back to the COM's projection as the
+# foot settles.
+_COP_FLAT_LANDING: Final = 0.55
 # Toes-only contact: the metatarsal heads at first, rolling onto the hallux as
 # the foot pitches up (sine of the pitch from the first to the second value).
 _COP_FOREFOOT: Final = 0.70
@@ -149,7 +156,9 @@ def foot_loads(
 
     rel = com[:, None, :2] - heel[..., :2]  # (N, 2, 2)
     u_com = np.einsum("nfk,nfk->nf", rel, fwd) / length
-    u_flat = np.clip(u_com, *_COP_FLAT_RANGE)
+    settling = 1.0 - np.maximum(c_heel, c_toe)  # 1 at first touch of a flat foot, 0 once down
+    floor_u = _COP_FLAT_RANGE[0] + (_COP_FLAT_LANDING - _COP_FLAT_RANGE[0]) * settling
+    u_flat = np.clip(u_com, floor_u, _COP_FLAT_RANGE[1])
     pitch_sin = (heel_z - toe_z) / np.maximum(np.linalg.norm(toe - heel, axis=-1), 1e-3)
     lo, hi = _PITCH_SIN_ROLL
     heel_rise = np.clip((pitch_sin - lo) / (hi - lo), 0.0, 1.0)

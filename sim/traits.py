@@ -33,7 +33,8 @@ Walking (comfortable speed, healthy adults):
   distance runners (88.9 % rearfoot, 3.4 % midfoot, 1.8 % forefoot), whose
   non-heel minority walking can only be smaller. Foot angle at contact:
   heel strike 20 +- 4 deg toes up (Perry and Burnfield; Winter 2009), flat
-  2 +- 2 deg, forefoot 8 +- 3 deg toes down (our choice).
+  0 +- 1 deg (heel and ball land together), forefoot 8 +- 3 deg toes down
+  (our choice).
 - stride-time variability (coefficient of variation) 1-3 %: Hausdorff 2005
   (J NeuroEng Rehabil 2:19); drawn N(0.02, 0.006) clipped 0.01-0.04.
 - speed changes within a walk: slow drifts of a few per cent (our choice,
@@ -73,7 +74,7 @@ import numpy as np
 STRIKES: Final = ("heel", "midfoot", "forefoot")
 STRIKE_SHARES: Final = (0.88, 0.09, 0.03)
 # Foot pitch at touch-down by pattern (degrees, > 0 toes up): mean, SD.
-STRIKE_PITCH_DEG: Final = {"heel": (20.0, 4.0), "midfoot": (2.0, 2.0), "forefoot": (-8.0, 3.0)}
+STRIKE_PITCH_DEG: Final = {"heel": (20.0, 4.0), "midfoot": (0.0, 1.0), "forefoot": (-8.0, 3.0)}
 CADENCE_RANGE_SPM: Final = (95.0, 135.0)  # hard limits; 100-125 is typical
 COMFORTABLE_SPEED_MPS: Final = 1.36  # the population's mean (Bohannon 1997)
 FATIGUE_CAP: Final = (0.30, 0.20)  # largest slow-down and shallowing of a set
