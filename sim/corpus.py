@@ -3,7 +3,10 @@
 Subject ``i`` gets its own scene: every action in the contract's order for
 ``minutes_per_action`` minutes with a short stand between, a seed derived
 from the corpus seed and ``i``, and either no effects or a fresh draw of the
-``realistic`` preset. ``manifest.json`` lists subjects, seeds, durations and
+``realistic`` preset; with the preset, the insole's parameters are drawn
+too (``insole.draw_insole``), otherwise it is the default realistic insole.
+The feet's shape and placement come from the subject's style seed and the
+session's seed (``foot.draw_feet``). ``manifest.json`` lists subjects, seeds, durations and
 files; the same arguments give the same files, byte for byte.
 """
 
@@ -18,6 +21,8 @@ from typing import Any, Final, Literal
 import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.effects.registry import parse_effects, realistic_effects
+from scotti.sim.foot import draw_feet
+from scotti.sim.insole import InsoleSpec, draw_insole
 from scotti.sim.motion import Subject
 from scotti.sim.scene import Scene, ScriptEntry, SubjectModel, build_motion
 from scotti.sim.subjects import draw_subjects
@@ -39,8 +44,11 @@ def subject_scene(
     """The scene of one corpus subject (all actions, derived seed, effects preset)."""
     seed = int(np.random.SeedSequence([corpus_seed, index]).generate_state(1)[0])
     raw_effects: list[dict[str, Any]] = []
+    insole = InsoleSpec()
     if effects == "realistic":
         raw_effects = realistic_effects(np.random.default_rng([corpus_seed, index, 0xEF]))
+        drawn = draw_insole(np.random.default_rng([corpus_seed, index, 0x15]))
+        insole = InsoleSpec.model_validate(drawn.as_dict())
     return Scene(
         name=f"subject-{index:03d}",
         description=f"corpus subject {index}: all actions, {minutes_per_action} min each",
@@ -55,6 +63,7 @@ def subject_scene(
             ScriptEntry(action=a, duration_s=minutes_per_action * 60.0, stand_s=STAND_BETWEEN_S)
             for a in ACTIONS
         ],
+        insole=insole,
         effects=raw_effects,
     )
 
@@ -74,13 +83,23 @@ def render_scene(
     subject: dict[str, Any] = motion.subject.as_dict()
     if subject_id is not None:
         subject["id"] = subject_id
+    session_seed = scene.seed if seed is None else seed
+    feet = draw_feet(
+        motion.subject.foot_length,
+        subject_seed=scene.subject.style_seed,
+        session_seed=session_seed,
+        arch=scene.subject.arch,
+        ball_width_ratio=scene.subject.ball_width_ratio,
+    )
     return write_session(
         path,
         sim_input(motion),
-        seed=scene.seed if seed is None else seed,
+        seed=session_seed,
         effects=parse_effects(scene.effects),
         scene=scene.model_dump(mode="json"),
         subject=subject,
+        feet=feet,
+        insole=scene.insole.resolved(),
     )
 
 

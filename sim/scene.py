@@ -9,7 +9,10 @@ that names the file, the line and the field, e.g.
     [subject]
     height_m = 1.75
     mass_kg = 70.0
-    style_seed = 3      # the person's movement style
+    style_seed = 3      # the person's movement style (and foot shape, placement)
+    arch = "normal"     # optional: high, normal or flat (drawn when left out)
+    [insole]
+    model = "realistic" # or "ideal"; parameters may be overridden (sim/insole.py)
     [[script]]
     action = "squat"    # one of ACTIONS
     reps = 5            # or duration_s
@@ -32,6 +35,8 @@ from pydantic import model_validator as _model_validator
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim import SimError
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
+from scotti.sim.foot import BALL_WIDTH_RANGE, ArchType
+from scotti.sim.insole import InsoleSpec
 from scotti.sim.motion import Motion, Subject
 from scotti.sim.skeleton import Body, center_of_mass, pose_keypoints
 
@@ -51,6 +56,11 @@ class SubjectModel(_Strict):
     mass_kg: float = Field(ge=30.0, le=200.0)
     foot_length_m: float | None = Field(default=None, ge=0.15, le=0.35)
     style_seed: int = 0
+    # The foot's shape (scotti.sim.foot): None draws it from style_seed.
+    arch: ArchType | None = None
+    ball_width_ratio: float | None = Field(
+        default=None, ge=BALL_WIDTH_RANGE[0], le=BALL_WIDTH_RANGE[1]
+    )
 
     def subject(self) -> Subject:
         return Subject(
@@ -107,6 +117,7 @@ class Scene(_Strict):
     rate: float = Field(default=FRAME_RATE_HZ, gt=0.0, le=1000.0)
     subject: SubjectModel
     script: list[ScriptEntry] = Field(min_length=1)
+    insole: InsoleSpec = Field(default_factory=InsoleSpec)
     effects: list[dict[str, Any]] = Field(default_factory=list)
 
     @field_validator("effects")
