@@ -40,9 +40,9 @@ _ARCH_SHARE: Final = (0.25, 0.50, 0.25)
 # flat (mm), drawn uniformly per type; calibrated so that the quiet-standing
 # footprint's arch index falls in the type's band (tests/test_sim_foot.py).
 ARCH_HEIGHT_MM: Final[dict[ArchType, tuple[float, float]]] = {
-    "high": (17.5, 24.0),
-    "normal": (11.5, 15.5),
-    "flat": (3.0, 8.0),
+    "high": (21.0, 26.0),
+    "normal": (12.5, 16.0),
+    "flat": (3.0, 9.0),
 }
 # Ball width / foot length (ANSUR II, Gordon et al. 2014).
 BALL_WIDTH_MEAN: Final = 0.375
@@ -62,7 +62,7 @@ class FootShape:
 
     length_m: float
     arch: ArchType = "normal"
-    arch_height_mm: float = 13.5
+    arch_height_mm: float = 14.0
     ball_width_ratio: float = BALL_WIDTH_MEAN
 
     @property

@@ -105,7 +105,7 @@ def bodies(shape: FootShape) -> tuple[Body, ...]:
     # it touches in normal feet under load, barely in high arches.
     lateral = max(0.0, 0.3 * arch - 1.0)
     out = [
-        Body("heel", HEEL, 0.16, -0.04, 0.14, 0.60, 8.0, 0.0, _K_HEEL),
+        Body("heel", HEEL, 0.155, -0.04, 0.14, 0.60, 8.0, 0.0, _K_HEEL),
         Body("lateral_column", MIDFOOT, 0.45, -0.52, 0.22, 0.36, 6.0, lateral, _K_LATERAL),
         Body("medial_arch", MIDFOOT, 0.46, 0.18, 0.17, 0.48, 9.0, arch, _K_MIDFOOT),
     ]

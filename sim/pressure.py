@@ -65,7 +65,7 @@ _REACHABLE_MM: Final = 25.0
 # The warm-start table of the contact solver: loads (N) x COP along x across.
 _TABLE_LOADS_N: Final = np.geomspace(5.0, 5000.0, 14)
 _TABLE_COP_U: Final = np.linspace(*COP_REACH_A, 33)
-_TABLE_COP_MEDIAL: Final = np.linspace(-1.0, 1.0, 5)
+_TABLE_COP_MEDIAL: Final = np.linspace(-1.0, 1.0, 9)
 _TABLE_COLD_ITERATIONS: Final = 40
 _TABLE_STEP_ITERATIONS: Final = 16
 
@@ -213,8 +213,8 @@ class PressureRenderer:
         start, then each next COP station from its neighbour's solution, so
         every solve starts close and converges.
         """
-        loads, v = np.meshgrid(_TABLE_LOADS_N, _TABLE_COP_MEDIAL, indexing="ij")
-        loads, v = loads.ravel(), v.ravel()
+        load_grid, v_grid = np.meshgrid(_TABLE_LOADS_N, _TABLE_COP_MEDIAL, indexing="ij")
+        loads, v = load_grid.ravel(), v_grid.ravel()
         x = np.zeros((len(_TABLE_COP_U), len(loads), 3))
         middle = len(_TABLE_COP_U) // 2
         order = [*range(middle, len(_TABLE_COP_U)), *range(middle - 1, -1, -1)]
