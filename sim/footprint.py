@@ -33,8 +33,9 @@ from scotti.sim.pressure import FootLoads, PressureRenderer
 # Stance: fraction of stance -> COP along the foot (0 heel .. 1 toes).
 _COP_STANCE: Final = (0.0, 0.1, 0.3, 0.5, 0.65, 0.8, 0.9, 1.0)
 _COP_U: Final = (0.08, 0.14, 0.30, 0.44, 0.58, 0.71, 0.78, 0.88)
-# Quiet standing: each foot carries half the weight, COP ~40 % along the foot.
-_STANDING_COP_U: Final = 0.42
+# Quiet standing: each foot carries half the weight, COP ~40 % along the foot
+# (the arch index's footprint and the standing shares).
+_STANDING_COP_U: Final = 0.38
 _FOOTPRINT_STEP_M: Final = 0.002
 
 
@@ -51,6 +52,19 @@ def walking_stance(frames: int = 160, body_weight_n: float = 700.0) -> FootLoads
     return FootLoads(
         load_n=load,
         cop_u=np.stack([cop_u, cop_u], axis=1),
+        cop_medial=np.zeros((frames, 2)),
+        contact=(load > 0).astype(np.float64),
+        total_n=load.sum(axis=1),
+    )
+
+
+def quiet_standing(frames: int = 4, load_n: float = 350.0) -> FootLoads:
+    """Quiet standing on the left foot's half of a 700 N body: COP ~40 % along the foot."""
+    load = np.zeros((frames, 2))
+    load[:, 0] = load_n
+    return FootLoads(
+        load_n=load,
+        cop_u=np.full((frames, 2), _STANDING_COP_U),
         cop_medial=np.zeros((frames, 2)),
         contact=(load > 0).astype(np.float64),
         total_n=load.sum(axis=1),
@@ -119,6 +133,13 @@ def main() -> None:
             )
             print(f"{arch:>7} {height:5.1f}mm {arch_index(shape):5.3f}  {cells}")
     print("cells: share of the force-time integral, peak kPa on any taxel of the region")
+    shape = FootShape(length, "normal", sum(ARCH_HEIGHT_MM["normal"]) / 2)
+    standing = quiet_standing()
+    shares = stance_shares(PressureRenderer(length, Feet(shape)), standing)
+    cells = "  ".join(
+        f"{100 * s:5.1f}% {p:3.0f}k" for s, p in zip(shares.share, shares.peak_kpa, strict=True)
+    )
+    print(f"quiet standing, 350 N, COP {_STANDING_COP_U:.2f}, normal arch: {cells}")
 
 
 if __name__ == "__main__":
