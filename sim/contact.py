@@ -3,17 +3,22 @@
 Each point of the sole presses with ``p = k * max(0, w)``, ``w`` its
 compression in mm, ``k`` the tissue's stiffness (kPa/mm): a Winkler
 (elastic) foundation, the standard first model of soft tissue on a plate
-(Johnson 1985, Contact Mechanics, sec. 5.9). The foot moves as a rigid sole
+(the elastic foundation model of Johnson 1985, Contact Mechanics). The foot moves as a rigid sole
 with three degrees of freedom: how deep it sinks (``d``, mm), its pitch
 (``alpha``, mm per m, forefoot down) and its roll (``beta``, mm per m,
 medial edge down), so a point with height ``h``, pitch lever ``lever`` and
 medial coordinate ``t`` is compressed by ``w = d + alpha * lever + beta * t - h``.
 
-Per frame, Newton's method finds (d, alpha, beta) such that the summed force
-equals the foot's load and the centre of pressure the requested (s, t). The
-force is piecewise linear in the unknowns, so Newton is an active-set
-iteration; it runs on all frames at once (vectorised). A last rescaling
-makes the force exact.
+Newton's method finds (d, alpha, beta) such that the summed force equals the
+foot's load and the centre of pressure the requested (s, t); the force is
+piecewise linear in the unknowns, so Newton is an active-set iteration, run
+on many problems at once (vectorised). Newton overshoots when more points
+come into contact than its linear model knew of, so its steps are bounded.
+The renderer solves a table of (load, COP) once per foot (by continuation,
+each solve starting from its neighbour's solution) and interpolates every
+frame's unknowns in it (:class:`SolutionTable`); the pressure of the
+interpolated unknowns is rescaled to carry the load exactly, and its COP is
+within a few millimetres of the request (tests/test_sim_contact.py).
 
 Contact is partial by construction: a light load touches only the lowest
 points of the sole; the toes touch when the COP goes forward.

@@ -17,7 +17,7 @@ Shape, drawn per subject from published proportions:
   midfoot touches.
 - Ball width (metatarsal breadth) as a share of foot length: about
   0.37-0.38 in adults of both sexes, SD about 0.018 (ANSUR II, Gordon et
-  al. 2014: foot breadth 101/270 mm men, 92/245 mm women).
+  al. 2014: foot breadth about 101 of 270 mm in men, 92 of 245 mm in women).
 
 Placement, where the foot lies on the insole: an offset along and across
 and a small rotation (positive: toes turned laterally). Part of it belongs

@@ -11,13 +11,14 @@ voltage divider per taxel:
 
 - activation: the film's contact resistance stays open-circuit until the
   layers are pressed together; below ``threshold_kpa`` a taxel reads 0
-  (FSR "break force": Interlink FSR Integration Guide; Hollinger and
-  Wanderley 2006, NIME, measured 0.1-0.3 N break forces, ~5-30 kPa over a
-  taxel);
+  (the FSR "break force" of the Interlink FSR Integration Guide; Hollinger
+  and Wanderley 2006 compare commercial FSRs); a fraction of a newton over
+  a 4 x 8 mm taxel is some 5-30 kPa;
 - transfer: the film's conductance grows as a power of the pressure,
-  ``G ~ q^n`` with ``n`` below 1 for velostat and printed films
-  (Giovanelli and Farella 2016, J Sensors, FSR conductance about linear to
-  sub-linear in force), and a divider turns a conductance into a voltage
+  ``G ~ q^n``, ``n`` about 1 for commercial FSRs and below 1 for velostat
+  and printed films (Giovanelli and Farella 2016, J Sensors, review FSR
+  technology for wearable pressure sensing), and a divider turns a
+  conductance into a voltage
   ``G / (G + G_ref)``. Together the rational curve
   ``counts = 4095 * q^n / (q^n + p_half^n)``, ``q = p - threshold``:
   steep at first, compressing towards full scale; ``p_half_kpa`` is where

@@ -13,10 +13,11 @@ the hallux) and ``b = t / (ball_width / 2)`` (+1 medial edge of the ball):
 - the hallux and the four lesser toe pads, a few millimetres up (the toes'
   sulcus lifts them when the foot stands flat).
 
-Geometry after plantar pressure maps and footprint studies (heel centre
-about 15 % of foot length, metatarsal heads 63-74 % from lateral to
-medial, hallux pad about 90 %: Cavanagh et al. 1987, Foot Ankle 7:262;
-Hennig and Rosenbaum 1991). Each body has its own tissue stiffness
+Geometry after plantar pressure maps and footprints (heel centre about
+15 % of foot length, metatarsal heads 65-74 % from lateral to medial,
+hallux pad about 90 %; e.g. the maps of Cavanagh et al. 1987, Foot Ankle
+7:262, "Pressure distribution under symptom-free feet during barefoot
+standing"). Each body has its own tissue stiffness
 (Winkler modulus, kPa per mm of compression): heel pad and metatarsal fat
 pads stiffest under load, the midfoot softer (effective values for a
 shod foot on a thin insole; calibrated to the walking peak pressures and
