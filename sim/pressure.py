@@ -66,8 +66,8 @@ _REACHABLE_MM: Final = 25.0
 _TABLE_LOADS_N: Final = np.geomspace(5.0, 5000.0, 14)
 _TABLE_COP_U: Final = np.linspace(*COP_REACH_A, 33)
 _TABLE_COP_MEDIAL: Final = np.linspace(-1.0, 1.0, 9)
-_TABLE_COLD_ITERATIONS: Final = 40
-_TABLE_STEP_ITERATIONS: Final = 16
+_TABLE_COLD_ITERATIONS: Final = 30
+_TABLE_STEP_ITERATIONS: Final = 8
 
 
 @dataclass(frozen=True)
@@ -210,8 +210,8 @@ class PressureRenderer:
         """Solved unknowns over a grid of loads and COPs: every frame's solution, interpolated.
 
         Built by continuation along the foot: the middle column from a flat
-        start, then each next COP station from its neighbour's solution, so
-        every solve starts close and converges.
+        start, then each next COP station from its neighbours' solutions
+        (extrapolated linearly), so every solve starts close and converges.
         """
         load_grid, v_grid = np.meshgrid(_TABLE_LOADS_N, _TABLE_COP_MEDIAL, indexing="ij")
         loads, v = load_grid.ravel(), v_grid.ravel()
@@ -223,7 +223,10 @@ class PressureRenderer:
             if i == middle:
                 start, iterations = None, _TABLE_COLD_ITERATIONS
             else:
-                start, iterations = x[i - 1 if i > middle else i + 1], _TABLE_STEP_ITERATIONS
+                back = -1 if i > middle else 1  # towards the middle
+                start, iterations = x[i + back], _TABLE_STEP_ITERATIONS
+                if abs(i + 2 * back - middle) <= abs(i - middle) - 2:  # two solved: extrapolate
+                    start = 2 * x[i + back] - x[i + 2 * back]
             x[i] = contact.solve(loads, s_t, t_t, start, iterations)
         shape = (len(_TABLE_COP_U), len(_TABLE_LOADS_N), len(_TABLE_COP_MEDIAL), 3)
         table = x.reshape(shape).transpose(1, 0, 2, 3)
