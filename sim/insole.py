@@ -128,7 +128,7 @@ def counts_from_kpa(kpa: np.ndarray, insole: Insole = IDEAL) -> np.ndarray:
 
 def to_uint16(counts: np.ndarray) -> np.ndarray:
     """Round float counts to the wire's unsigned 12-bit samples."""
-    rounded = np.rint(counts)
+    rounded: np.ndarray = np.rint(counts)
     np.clip(rounded, 0, MAX_COUNT, out=rounded)
     return rounded.astype(np.uint16)
 
