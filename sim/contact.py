@@ -66,6 +66,9 @@ class Contact:
         self._moment_basis = (moments * ka).T.copy()  # (m, 3): force, force * s, force * t
         jac = moments[:, None, :] * self._affine[None, :, :] * ka  # (3, 3, m)
         self._jacobian_basis = jac.reshape(9, -1).T.copy()  # (m, 9)
+        self._affine32 = self._affine.astype(np.float32)
+        self._height32 = self.height_mm.astype(np.float32)
+        self._stiffness32 = self.stiffness.astype(np.float32)
         # How far a unit change of each unknown moves a point at most (mm).
         self._reach = np.array([1.0, np.abs(lever).max(), np.abs(self.t_m).max()])
 
@@ -116,10 +119,12 @@ class Contact:
 
     def pressure(self, x: np.ndarray, load_n: np.ndarray) -> np.ndarray:
         """Pressure (n, m) in kPa of the unknowns ``x``, rescaled to carry ``load_n`` exactly."""
-        w = np.asarray(x, np.float32) @ self._affine.astype(np.float32)
-        w -= self.height_mm.astype(np.float32)
+        # einsum, not matmul: a (frames x 3) @ (3 x taxels) product that
+        # OpenBLAS would spread over threads, slower than one core on a busy host.
+        w: np.ndarray = np.einsum("nk,km->nm", np.asarray(x, np.float32), self._affine32)
+        w -= self._height32
         np.maximum(w, 0.0, out=w)
-        w *= self.stiffness.astype(np.float32)  # kPa
+        w *= self._stiffness32  # kPa
         force = w.sum(axis=1, dtype=np.float64) * (self.area_m2 * 1e3)
         load = np.asarray(load_n, dtype=np.float64)
         scale = np.where(force > 0.0, load / np.maximum(force, 1e-12), 0.0)
