@@ -17,6 +17,8 @@ from typing import Final
 import numpy as np
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim.effects.registry import EffectPlan, parse_effects, realistic_effects
+from scotti.sim.foot import draw_feet
+from scotti.sim.insole import InsoleArray
 from scotti.sim.pressure import PressureRenderer
 from scotti.sim.scene import PHYSICS_OVERSAMPLE, Scene, ScriptEntry, SubjectModel, build_motion
 from scotti.sim.writer import CountsStream, sim_input, write_session
@@ -79,17 +81,27 @@ def run_bench(minutes: float, effects: bool = False, out: Path | None = None) ->
     t0 = time.perf_counter()
     sim = sim_input(build_motion(scene, PHYSICS_OVERSAMPLE))
     t1 = time.perf_counter()
-    renderer = PressureRenderer(sim.foot_length_m)
+    feet = draw_feet(sim.foot_length_m, scene.subject.style_seed, scene.seed)
+    insole = scene.insole.resolved()
+    renderer = PressureRenderer(sim.foot_length_m, feet)
     parsed = parse_effects(scene.effects)
     plan = EffectPlan.build(parsed, seed=scene.seed, rate_hz=sim.rate_hz, mask=renderer.mask)
-    stream = CountsStream(sim.loads(), renderer, plan)
+    stream = CountsStream(sim.loads(), renderer, plan, InsoleArray(insole, scene.seed))
     for i in range(-(-stream.frames // stream.chunk_frames)):
         stream.chunk(i)
     t2 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         path = out if out is not None else Path(tmp) / "bench.ses"
         t3 = time.perf_counter()
-        write_session(path, sim, seed=scene.seed, effects=parsed, scene=scene.model_dump())
+        write_session(
+            path,
+            sim,
+            seed=scene.seed,
+            effects=parsed,
+            scene=scene.model_dump(),
+            feet=feet,
+            insole=insole,
+        )
         t4 = time.perf_counter()
         size = os.path.getsize(path)
     return BenchResult(minutes, len(sim.com), t1 - t0, t2 - t1, t4 - t3, size)

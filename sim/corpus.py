@@ -7,8 +7,11 @@ own, standing 5-20 s between sets and walking or turning round between
 spots; a seed derived from the corpus seed and ``i``; and either no effects
 or a fresh draw of the ``realistic`` preset. The effects never touch the
 motion's draws, so the clean and the realistic corpus of one seed hold the
-same motions. ``manifest.json`` lists subjects, seeds, durations and files;
-the same arguments give the same files, byte for byte.
+same motions. ``manifest.json`` lists subjects, seeds, durations and files.
+The insole's parameters are drawn per subject (``insole.draw_insole``), the
+same in both copies. The feet's shape and placement come from the subject's style seed and the
+session's seed (``foot.draw_feet``). The same arguments give the same files,
+byte for byte.
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.actions import EXERCISES
 from scotti.sim.effects.registry import parse_effects, realistic_effects
+from scotti.sim.foot import draw_feet
+from scotti.sim.insole import InsoleSpec, draw_insole
 from scotti.sim.motion import Subject
 from scotti.sim.scene import PHYSICS_OVERSAMPLE, Scene, SubjectModel, build_motion
 from scotti.sim.session import SessionModel
@@ -49,6 +54,10 @@ def subject_scene(
     raw_effects: list[dict[str, Any]] = []
     if effects == "realistic":
         raw_effects = realistic_effects(np.random.default_rng([corpus_seed, index, 0xEF]))
+    # Each subject wears their own pair of insoles, drawn whatever the effects:
+    # the clean copy differs from the realistic one by the effects alone.
+    drawn = draw_insole(np.random.default_rng([corpus_seed, index, 0x15]))
+    insole = InsoleSpec.model_validate(drawn.as_dict())
     return Scene(
         name=f"subject-{index:03d}",
         description=(
@@ -68,6 +77,7 @@ def subject_scene(
             set_s=SET_S,
             rest_s=REST_S,
         ),
+        insole=insole,
         effects=raw_effects,
     )
 
@@ -87,13 +97,23 @@ def render_scene(
     subject: dict[str, Any] = motion.subject.as_dict()
     if subject_id is not None:
         subject["id"] = subject_id
+    session_seed = scene.seed if seed is None else seed
+    feet = draw_feet(
+        motion.subject.foot_length,
+        subject_seed=scene.subject.style_seed,
+        session_seed=session_seed,
+        arch=scene.subject.arch,
+        ball_width_ratio=scene.subject.ball_width_ratio,
+    )
     return write_session(
         path,
         sim_input(motion),
-        seed=scene.seed if seed is None else seed,
+        seed=session_seed,
         effects=parse_effects(scene.effects),
         scene=scene.model_dump(mode="json"),
         subject=subject,
+        feet=feet,
+        insole=scene.insole.resolved(),
     )
 
 

@@ -28,10 +28,18 @@ class Reference:
     # ``figure`` names another; ``strike`` limits it to subjects of one strike pattern.
     figure: str | None = None
     strike: str | None = None
+    arch: str | None = None
+    # "every": each subject's value must lie in the range (ranges of individuals);
+    # "median": the median over subjects must (the literature gives a population mean).
+    judge: str = "every"
 
     @property
     def figure_key(self) -> str:
         return self.figure or self.key
+
+    def applies_to(self, strike: str, arch: str) -> bool:
+        """Whether a subject of this strike pattern and arch type is judged by this range."""
+        return self.strike in (None, strike) and self.arch in (None, arch)
 
     def contains(self, value: float) -> bool:
         return self.low <= value <= self.high
@@ -67,6 +75,54 @@ REFERENCES: Final[tuple[Reference, ...]] = (
         "BW",
         "Stacoff et al. 2005, Gait Posture 21:24 (stairs); raised for a 20 cm step exercise",
     ),
+    # Where the load goes on the foot: walking, force-time integral per region
+    # (heel strikers with normal arches, the population the in-shoe norms come
+    # from: flat feet load the midfoot more, high arches less; a midfoot strike
+    # spares the heel).
+    Reference(
+        "share_heel",
+        "walking, heel strike, normal arch: heel share of the load",
+        0.40,
+        0.50,
+        "",
+        _PUTTI,
+        arch="normal",
+        strike="heel",
+        judge="median",
+    ),
+    Reference(
+        "share_midfoot",
+        "walking, heel strike, normal arch: midfoot share",
+        0.05,
+        0.10,
+        "",
+        _PUTTI,
+        arch="normal",
+        strike="heel",
+        judge="median",
+    ),
+    Reference(
+        "share_metatarsals",
+        "walking, heel strike, normal arch: metatarsal heads share",
+        0.35,
+        0.40,
+        "",
+        _PUTTI,
+        arch="normal",
+        strike="heel",
+        judge="median",
+    ),
+    Reference(
+        "share_toes",
+        "walking, heel strike, normal arch: toes share",
+        0.10,
+        0.15,
+        "",
+        _PUTTI,
+        arch="normal",
+        strike="heel",
+        judge="median",
+    ),
     # Centre of pressure: where a stance starts and ends along the foot (0 heel, 1 toes).
     Reference(
         "walking_cop_onset_u",
@@ -101,10 +157,11 @@ REFERENCES: Final[tuple[Reference, ...]] = (
     Reference(
         "backward_cop_onset_u",
         "backward walking: COP at touch-down (toe first)",
-        0.7,
+        0.67,
         1.0,
         "u",
-        "Grasso, Bianchi & Lacquaniti 1998, J Neurophysiol 80:1868",
+        "Grasso, Bianchi & Lacquaniti 1998, J Neurophysiol 80:1868; forefoot third of the strike"
+        " index (Cavanagh & Lafortune 1980)",
     ),
     Reference(
         "backward_cop_offset_u",

@@ -11,6 +11,9 @@ that names the file, the line and the field, e.g.
     mass_kg = 70.0
     style_seed = 3      # the person's movement traits (scotti.sim.traits) ...
     strike = "heel"     # ... of which any can be given instead
+    arch = "normal"     # optional: high, normal or flat (drawn when left out)
+    [insole]
+    model = "realistic" # or "ideal"; parameters may be overridden (sim/insole.py)
     [[script]]
     action = "squat"    # one of ACTIONS
     reps = 5            # or duration_s
@@ -43,6 +46,8 @@ from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim import SimError
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
 from scotti.sim.actions.base import standing_label
+from scotti.sim.foot import BALL_WIDTH_RANGE, ArchType
+from scotti.sim.insole import InsoleSpec
 from scotti.sim.motion import Motion, Subject
 from scotti.sim.session import SessionModel, session_segments
 from scotti.sim.skeleton import Body, center_of_mass, pose_keypoints
@@ -97,6 +102,11 @@ class SubjectModel(_Strict):
     fatigue_slowdown_per_min: float | None = _trait("fatigue_slowdown_per_min")
     fatigue_shallowing_per_min: float | None = _trait("fatigue_shallowing_per_min")
     cadence_spm: float | None = _trait("cadence_spm")
+    # The foot's shape (scotti.sim.foot): None draws it from style_seed.
+    arch: ArchType | None = None
+    ball_width_ratio: float | None = Field(
+        default=None, ge=BALL_WIDTH_RANGE[0], le=BALL_WIDTH_RANGE[1]
+    )
 
     def subject(self) -> Subject:
         given = {n: getattr(self, n) for n in TRAIT_NAMES if getattr(self, n) is not None}
@@ -162,6 +172,7 @@ class Scene(_Strict):
     subject: SubjectModel
     script: list[ScriptEntry] = Field(default_factory=list)
     session: SessionModel | None = None
+    insole: InsoleSpec = Field(default_factory=InsoleSpec)
     effects: list[dict[str, Any]] = Field(default_factory=list)
 
     @_model_validator(mode="after")

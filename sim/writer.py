@@ -32,10 +32,12 @@ from scotti.sim.effects.base import Effect
 from scotti.sim.effects.receiver import board_statuses
 from scotti.sim.effects.registry import EffectPlan
 from scotti.sim.effects.schedule import STATUS, PacketSchedule, build_schedule, frame_times_ns
+from scotti.sim.foot import Feet
+from scotti.sim.insole import REALISTIC, Insole, InsoleArray, to_uint16
 from scotti.sim.loads import FootLoads, foot_loads
 from scotti.sim.motion import Motion
 from scotti.sim.motion import labels as motion_labels
-from scotti.sim.pressure import PressureRenderer, counts_from_kpa, to_uint16
+from scotti.sim.pressure import PressureRenderer
 
 DEVICE: Final = "scotti-sim"
 CHUNK_FRAMES: Final = 1024  # frames rendered at once (64 s at 16 Hz)
@@ -125,18 +127,25 @@ class RenderReport:
 
 
 class CountsStream:
-    """Renders counts chunk by chunk through the sensor effects (which keep state)."""
+    """Renders counts chunk by chunk: contact pressure, the insole, the sensor effects.
+
+    Order, physical: pressure from the feet, each taxel's gain, the pressure
+    effects (hysteresis, creep), the insole's threshold and transfer curve,
+    the count effects (crosstalk, broken lines, noise).
+    """
 
     def __init__(
         self,
         loads: FootLoads,
         renderer: PressureRenderer,
         plan: EffectPlan,
+        insole: InsoleArray,
         chunk_frames: int = CHUNK_FRAMES,
     ) -> None:
         self.loads = loads
         self.renderer = renderer
         self.plan = plan
+        self.insole = insole
         self.chunk_frames = chunk_frames
         self.frames = len(loads.load_n)
         self._chunks: dict[int, np.ndarray] = {}
@@ -157,10 +166,10 @@ class CountsStream:
     def _render(self, index: int) -> np.ndarray:
         start = index * self.chunk_frames
         frames = slice(start, min(self.frames, start + self.chunk_frames))
-        x = self.renderer.kpa(self.loads, frames)
+        x = self.insole.sensed_kpa(self.renderer.kpa(self.loads, frames))
         for stage in self.plan.kpa:
             x = stage.apply(x)
-        x = counts_from_kpa(x, self.plan.transfer)
+        x = self.insole.counts(x)
         for stage in self.plan.counts:
             x = stage.apply(x)
         return to_uint16(x * self.renderer.mask)
@@ -193,12 +202,23 @@ def plan_schedule(frames: int, rate_hz: float, seed: int, rows_per_block: int) -
     )
 
 
-def render_counts(sim: SimInput, effects: Iterable[Effect] = (), seed: int = 0) -> np.ndarray:
-    """All frames' counts, (N, 2, 32, 22) uint16, as the session would carry them."""
-    renderer = PressureRenderer(sim.foot_length_m)
+def render_counts(
+    sim: SimInput,
+    effects: Iterable[Effect] = (),
+    seed: int = 0,
+    *,
+    feet: Feet | None = None,
+    insole: Insole = REALISTIC,
+) -> np.ndarray:
+    """All frames' counts, (N, 2, 32, 22) uint16, as the session would carry them.
+
+    ``feet``: shape and placement (None: a normal foot, centred); ``insole``:
+    the sensor, its taxel gains drawn from ``seed``.
+    """
+    renderer = PressureRenderer(sim.foot_length_m, feet)
     plan = EffectPlan.build(effects, seed=seed, rate_hz=sim.rate_hz, mask=renderer.mask)
     loads = sim.loads()
-    return CountsStream(loads, renderer, plan).all()
+    return CountsStream(loads, renderer, plan, InsoleArray(insole, seed)).all()
 
 
 def write_session(
@@ -212,14 +232,20 @@ def write_session(
     rows_per_block: int = 8,
     seq_start: int = 0,
     chunk_frames: int = CHUNK_FRAMES,
+    feet: Feet | None = None,
+    insole: Insole = REALISTIC,
 ) -> RenderReport:
-    """Render ``sim`` into a session file at ``path``; the same inputs give the same bytes."""
+    """Render ``sim`` into a session file at ``path``; the same inputs give the same bytes.
+
+    The header records the insole (``scene["insole"]``, every parameter) and
+    the feet (``subject["foot"]``: shape and placement).
+    """
     effects = tuple(effects)
     frames = len(sim.com)
-    renderer = PressureRenderer(sim.foot_length_m)
+    renderer = PressureRenderer(sim.foot_length_m, feet)
     plan = EffectPlan.build(effects, seed=seed, rate_hz=sim.rate_hz, mask=renderer.mask)
     loads = sim.loads()
-    stream = CountsStream(loads, renderer, plan, chunk_frames)
+    stream = CountsStream(loads, renderer, plan, InsoleArray(insole, seed), chunk_frames)
 
     schedule = plan_schedule(frames, sim.rate_hz, seed, rows_per_block)
     nominal_t_ns = schedule.t_ns.copy()
@@ -244,8 +270,8 @@ def write_session(
         sample_bits=SAMPLE_BITS,
         rate_hz=sim.rate_hz,
         created_unix=0.0,  # no wall clock in simulated files: reruns are bit-identical
-        scene=dict(scene) if scene is not None else None,
-        subject=dict(subject) if subject is not None else None,
+        scene={**(scene or {}), "insole": insole.as_dict()},
+        subject={**(subject or {}), "foot": renderer.feet.as_dict()},
     )
     emit = _Emitter(schedule, stream, statuses, seq_start)
     truth = sim.labels

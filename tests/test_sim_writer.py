@@ -17,6 +17,8 @@ from scotti.firmware_protocol.packets import (
 )
 from scotti.models.contract import NO_ACTION
 from scotti.sim.effects.schedule import build_schedule
+from scotti.sim.foot import neutral_feet
+from scotti.sim.insole import REALISTIC
 from scotti.sim.writer import render_counts, write_session
 
 from tests.support.sim_session import decode_session
@@ -38,14 +40,17 @@ def test_clean_session_decodes_to_the_rendered_counts(clean: Path) -> None:
     decoded = decode_session(clean)
     assert decoded.counters.errors == 0
     assert decoded.session.header.source == "simulated"
-    assert decoded.session.header.scene == SCENE
-    assert decoded.session.header.subject == SUBJECT
+    header = decoded.session.header
+    assert header.scene == {**SCENE, "insole": REALISTIC.as_dict()}  # the sensor is recorded
+    assert header.subject is not None
+    assert {k: header.subject[k] for k in SUBJECT} == SUBJECT
+    assert header.subject["foot"] == neutral_feet(SUBJECT["foot_length_m"]).as_dict()
     assert decoded.session.header.created_unix == 0.0
     seqs = {foot: sorted(f.seq for f in decoded.frames if f.foot == foot) for foot in Foot}
     assert seqs[Foot.LEFT] == list(range(FRAMES))
     assert seqs[Foot.RIGHT] == list(range(FRAMES))
     assert all(f.complete for f in decoded.frames)
-    expected = render_counts(synthetic_input(walking(FRAMES)))
+    expected = render_counts(synthetic_input(walking(FRAMES)), seed=5)  # seed: the insole's gains
     np.testing.assert_array_equal(decoded.frame_counts(FRAMES), expected)
 
 

@@ -4,8 +4,7 @@ A scene lists effects as raw tables, ``{"name": "noise", "std_counts": 4}``;
 :func:`parse_effects` validates them against ``EFFECT_MODELS`` (one line per
 mistake). :class:`EffectPlan` splits them by where they act:
 
-- ``kpa``: on pressure, before the transfer curve (gain spread, hysteresis, creep),
-- ``transfer``: replaces the transfer curve,
+- ``kpa``: on pressure, before the insole's transfer curve (hysteresis, creep),
 - ``counts``: on float counts (crosstalk, dead/shorted lines, noise),
 - ``schedule``: on the packet schedule (drift, loss, offset, jitter, unplug),
 - ``line``: on the encoded bytes (corruption).
@@ -32,12 +31,8 @@ from scotti.sim.effects.sensor import (
     CrosstalkParams,
     DeadLine,
     DeadLineParams,
-    GainSpread,
-    GainSpreadParams,
     Noise,
     NoiseParams,
-    TransferParams,
-    transfer_from,
 )
 from scotti.sim.effects.sensor_memory import Creep, CreepParams, Hysteresis, HysteresisParams
 from scotti.sim.effects.transport import (
@@ -52,7 +47,6 @@ from scotti.sim.effects.transport import (
     apply_packet_loss,
     apply_unplug,
 )
-from scotti.sim.pressure import DEFAULT_TRANSFER, Transfer
 
 __all__ = ["EFFECT_CALLS", "EFFECT_MODELS", "EffectError", "EffectPlan", "parse_effects"]
 
@@ -64,11 +58,8 @@ class EffectError(SimError):
 # Name -> parameter model, in the order effects are applied within their place.
 EFFECT_MODELS: Final[dict[str, type[EffectParams]]] = {
     # sensor, on pressure
-    "gain_spread": GainSpreadParams,
     "hysteresis": HysteresisParams,
     "creep": CreepParams,
-    # sensor, the transfer curve
-    "transfer": TransferParams,
     # sensor, on counts
     "crosstalk": CrosstalkParams,
     "dead_line": DeadLineParams,
@@ -82,10 +73,14 @@ EFFECT_MODELS: Final[dict[str, type[EffectParams]]] = {
     # the serial line, on bytes
     "line_corruption": LineCorruptionParams,
 }
+# Former effects that the insole model (scotti.sim.insole) now is.
+_NOW_INSOLE: Final = {
+    "gain_spread": "gain_sigma",
+    "transfer": "threshold_kpa, p_half_kpa, exponent, saturation_counts",
+}
 _ORDER: Final = {name: i for i, name in enumerate(EFFECT_MODELS)}
 _PLACE: Final = {
-    **dict.fromkeys(("gain_spread", "hysteresis", "creep"), "kpa"),
-    "transfer": "transfer",
+    **dict.fromkeys(("hysteresis", "creep"), "kpa"),
     **dict.fromkeys(("crosstalk", "dead_line", "noise"), "counts"),
     **dict.fromkeys(("clock_drift", "packet_loss", "foot_offset", "jitter", "unplug"), "schedule"),
     "line_corruption": "line",
@@ -99,6 +94,9 @@ def parse_effect(raw: Mapping[str, Any], index: int = 0) -> Effect:
         raise EffectError(msg)
     name = raw["name"]
     model = EFFECT_MODELS.get(name)
+    if name in _NOW_INSOLE:
+        msg = f"effect {name!r} is part of the insole now: set {_NOW_INSOLE[name]} in [insole]"
+        raise EffectError(msg)
     if model is None:
         msg = f"unknown effect {name!r}; known: {', '.join(EFFECT_MODELS)}"
         raise EffectError(msg)
@@ -126,7 +124,6 @@ class EffectPlan:
 
     kpa: list[Stage] = field(default_factory=list)
     counts: list[Stage] = field(default_factory=list)
-    transfer: Transfer = DEFAULT_TRANSFER
     schedule: list[Callable[[PacketSchedule], None]] = field(default_factory=list)
     unplugs: list[UnplugParams] = field(default_factory=list)
     line_params: list[tuple[LineCorruptionParams, np.random.Generator]] = field(
@@ -145,14 +142,10 @@ class EffectPlan:
 
     def _add(self, e: Effect, rng: np.random.Generator, rate_hz: float, mask: np.ndarray) -> None:
         p = e.params
-        if isinstance(p, GainSpreadParams):
-            self.kpa.append(GainSpread(p, rng))
-        elif isinstance(p, HysteresisParams):
+        if isinstance(p, HysteresisParams):
             self.kpa.append(Hysteresis(p, rate_hz))
         elif isinstance(p, CreepParams):
             self.kpa.append(Creep(p, rate_hz))
-        elif isinstance(p, TransferParams):
-            self.transfer = transfer_from(p)
         elif isinstance(p, CrosstalkParams):
             self.counts.append(Crosstalk(p, mask))
         elif isinstance(p, DeadLineParams):
@@ -181,7 +174,7 @@ class EffectPlan:
 
 
 def place_of(name: str) -> str:
-    """Where an effect acts: kpa, transfer, counts, schedule or line."""
+    """Where an effect acts: kpa, counts, schedule or line."""
     return _PLACE[name]
 
 
@@ -201,7 +194,6 @@ def describe_effects() -> dict[str, dict[str, Any]]:
 def realistic_effects(rng: np.random.Generator) -> list[dict[str, Any]]:
     """A draw of everyday imperfections; values inside the documented typical ranges."""
     return [
-        {"name": "gain_spread", "sigma": float(rng.uniform(0.08, 0.2))},
         {"name": "hysteresis", "fraction": float(rng.uniform(0.03, 0.12)), "tau_s": 0.5},
         {"name": "creep", "fraction": float(rng.uniform(0.02, 0.08)), "tau_s": 30.0},
         {"name": "crosstalk", "fraction": float(rng.uniform(0.005, 0.03))},

@@ -1,8 +1,9 @@
-"""Sensor effects without memory: noise, gain spread, transfer, crosstalk, broken lines.
+"""Sensor effects without memory: noise, crosstalk, broken lines.
 
-Stages act on a chunk of frames ``(n, 2, 32, 22)`` (axis 1: 0 left, 1 right),
-either in kPa before the transfer curve (``gain_spread``) or in float counts
-after it (the rest). Cells outside the insole outline are no taxels and stay 0.
+Stages act on a chunk of frames ``(n, 2, 32, 22)`` (axis 1: 0 left, 1 right)
+in float counts, after the insole's transfer curve. Cells outside the insole
+outline are no taxels and stay 0. Gain spread, threshold and transfer curve
+belong to the insole itself (``scotti.sim.insole``), not to effects.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ import numpy as np
 from pydantic import Field
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
 from scotti.sim.effects.base import EffectParams, count_call
-from scotti.sim.pressure import Transfer
 
 
 class NoiseParams(EffectParams):
@@ -23,31 +23,6 @@ class NoiseParams(EffectParams):
     """
 
     std_counts: float = Field(6.0, ge=0.0, le=200.0)
-
-
-class GainSpreadParams(EffectParams):
-    """Taxel-to-taxel sensitivity spread of a printed/velostat array.
-
-    Each taxel's pressure is multiplied by a fixed lognormal factor with this
-    sigma (mean 1), drawn once per session and foot. Typical 0.1-0.25; 0..1.
-    """
-
-    sigma: float = Field(0.15, ge=0.0, le=1.0)
-
-
-class TransferParams(EffectParams):
-    """Replaces the ideal transfer curve (pressure.Transfer) of both insoles.
-
-    ``p_half_kpa``: pressure at half scale (typ. 150-400); ``exponent``: 1 is
-    the ideal divider, 0.6-1.5 mimics real film nonlinearity;
-    ``saturation_counts``: where the amplifier rails (typ. 3500-4095);
-    ``threshold_kpa``: activation pressure (typ. 2-15).
-    """
-
-    p_half_kpa: float = Field(250.0, gt=0.0, le=5000.0)
-    exponent: float = Field(1.0, gt=0.1, le=4.0)
-    saturation_counts: float = Field(float(MAX_COUNT), gt=0.0, le=float(MAX_COUNT))
-    threshold_kpa: float = Field(3.0, ge=0.0, le=200.0)
 
 
 class CrosstalkParams(EffectParams):
@@ -74,19 +49,6 @@ class DeadLineParams(EffectParams):
 
 
 FOOT_INDEX = {"left": 0, "right": 1}
-
-
-class GainSpread:
-    domain = "kpa"
-
-    def __init__(self, params: GainSpreadParams, rng: np.random.Generator) -> None:
-        s = params.sigma
-        shape = (2, FRAME_ROWS, FRAME_COLS)
-        self.gain = np.exp(rng.normal(-0.5 * s * s, s, shape)).astype(np.float32)
-
-    def apply(self, x: np.ndarray) -> np.ndarray:
-        count_call("gain_spread")
-        return x * self.gain
 
 
 class Noise:
@@ -136,13 +98,3 @@ class DeadLine:
         else:
             out[:, self.foot, :, self.index] = self.value * self.mask[:, self.index]
         return out
-
-
-def transfer_from(params: TransferParams) -> Transfer:
-    count_call("transfer")
-    return Transfer(
-        p_half_kpa=params.p_half_kpa,
-        threshold_kpa=params.threshold_kpa,
-        full_scale=params.saturation_counts,
-        exponent=params.exponent,
-    )
