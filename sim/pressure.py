@@ -28,13 +28,17 @@ from typing import Final
 
 import numpy as np
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, KP, MAX_COUNT
+
+# The count scale is the model's contract (importers put other sensors on it too).
+from scotti.models.insole import DEFAULT_TRANSFER as DEFAULT_TRANSFER
+from scotti.models.insole import INSOLE_WIDTH_RATIO, insole_mask
+from scotti.models.insole import Transfer as Transfer
+from scotti.models.insole import counts_from_kpa as counts_from_kpa
 from scotti.sim.foot_mask import (
-    INSOLE_WIDTH_RATIO,
     REGION_BASE,
     REGION_MEDIAL,
     REGION_U,
     insole_length_m,
-    insole_mask,
     region_basis,
 )
 
@@ -167,40 +171,6 @@ def foot_loads(
     gate = np.minimum(1.0, contact.sum(axis=1))
     load = np.maximum(total * gate, 0.0)[:, None] * share
     return FootLoads(load, cop_u, cop_medial, contact, total)
-
-
-@dataclass(frozen=True)
-class Transfer:
-    """Sensor transfer curve: pressure on a taxel (kPa) -> 12-bit counts.
-
-    A piezoresistive taxel's conductance grows about linearly with pressure;
-    read through a voltage divider it gives
-    ``counts = full_scale * q^k / (q^k + p_half^k)``, ``q = max(p - threshold, 0)``:
-    linear for light loads, half scale at ``p_half_kpa``, saturating towards
-    ``full_scale``. Clipped to MAX_COUNT. ``exponent`` 1 is the ideal divider.
-    """
-
-    p_half_kpa: float = 250.0  # pressure giving half scale (typ. 150-400 kPa)
-    threshold_kpa: float = 3.0  # activation pressure, below it reads 0
-    full_scale: float = float(MAX_COUNT)  # asymptote in counts (ADC rail)
-    exponent: float = 1.0
-
-
-DEFAULT_TRANSFER: Final = Transfer()
-
-
-def counts_from_kpa(kpa: np.ndarray, transfer: Transfer = DEFAULT_TRANSFER) -> np.ndarray:
-    """Float32 counts (same shape), clipped to [0, MAX_COUNT]; round when packing."""
-    f32 = np.float32
-    q = np.maximum(np.asarray(kpa, dtype=f32) - f32(transfer.threshold_kpa), f32(0.0))
-    half = f32(transfer.p_half_kpa)
-    if transfer.exponent != 1.0:
-        q **= f32(transfer.exponent)
-        half **= f32(transfer.exponent)
-    counts: np.ndarray = np.asarray(q / (q + half), dtype=f32)
-    counts *= f32(transfer.full_scale)
-    np.minimum(counts, f32(MAX_COUNT), out=counts)
-    return counts
 
 
 def to_uint16(counts: np.ndarray) -> np.ndarray:
