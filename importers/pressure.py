@@ -22,6 +22,7 @@ from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
 from scotti.models.insole import counts_from_kpa
 
 G: Final = 9.81  # m/s^2
+_CHUNK: Final = 256  # output frames taken from source values to counts at once
 FEET: Final = ("left", "right")  # the order of axis 1 of every (N, 2, ...) array here
 
 
@@ -31,7 +32,7 @@ class PressureSource:
 
     path: Path
     times: np.ndarray  # (N,) float64 seconds, strictly increasing
-    frames: np.ndarray  # (N, 2, rows, cols) float64 >= 0, left then right, as stored
+    frames: np.ndarray  # (N, 2, rows, cols) float32 >= 0, left then right, as stored
 
     @property
     def rate_hz(self) -> float:
@@ -70,7 +71,7 @@ def _from_csv(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     if bad is not None:
         raise table.fail(bad[0], first + bad[1], describe_value(float(block[bad])))
     feet = block.reshape(-1, 2, taxels)
-    frames = np.empty((len(times), 2, p.rows, p.cols))
+    frames = np.empty((len(times), 2, p.rows, p.cols), dtype=np.float32)
     for k, foot in enumerate(p.feet):
         frames[:, FEET.index(foot)] = _unflatten(feet[:, k], p.rows, p.cols, p.taxel_order)
     return times, frames
@@ -94,9 +95,9 @@ def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]
 
     _check_times(times, at)
     n = times.size
-    frames = np.empty((n, 2, p.rows, p.cols))
+    frames = np.empty((n, 2, p.rows, p.cols), dtype=np.float32)
     if p.frames_key:
-        both = np.asarray(arrays[p.frames_key], dtype=np.float64)
+        both = np.asarray(arrays[p.frames_key])
         if both.shape[:2] != (n, 2):
             problem = (
                 f"{p.frames_key} has shape {both.shape}, expected ({n}, 2, {p.rows}, {p.cols})"
@@ -105,8 +106,8 @@ def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]
         parts = {foot: (f"{p.frames_key}[:, {k}]", both[:, k]) for k, foot in enumerate(p.feet)}
     else:
         parts = {
-            "left": (p.left_key, np.asarray(arrays[p.left_key], dtype=np.float64)),
-            "right": (p.right_key, np.asarray(arrays[p.right_key], dtype=np.float64)),
+            "left": (p.left_key, np.asarray(arrays[p.left_key])),
+            "right": (p.right_key, np.asarray(arrays[p.right_key])),
         }
     for foot, (name, values) in parts.items():
         if values.ndim == 2 and values.shape == (n, p.rows * p.cols):
@@ -114,6 +115,8 @@ def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]
         if values.shape != (n, p.rows, p.cols):
             problem = f"{name} has shape {values.shape}; declared {n} frames of {p.rows} x {p.cols}"
             raise InputError(path, problem)
+        if values.dtype.kind not in "fiu":
+            raise InputError(path, f"{name} holds {values.dtype}, not numbers")
         bad = first_bad(values)
         if bad is not None:
             index = ", ".join(map(str, bad))
@@ -182,17 +185,17 @@ class CountMapper:
         self.kpa_per_unit = _kpa_per_unit(cfg, source, masks)
 
     def on_grid(self, frames: np.ndarray) -> np.ndarray:
-        """(N, 2, rows, cols) source units -> (N, 2, 32, 22) float64 source units."""
-        out = np.empty((frames.shape[0], 2, FRAME_ROWS, FRAME_COLS))
+        """(N, 2, rows, cols) source units -> (N, 2, 32, 22) float32 source units."""
+        out = np.empty((frames.shape[0], 2, FRAME_ROWS, FRAME_COLS), dtype=np.float32)
         for foot in range(2):
             out[:, foot] = self.mappers[foot](self.orient[foot].apply(frames[:, foot]))
         return out
 
     def to_counts(self, on_grid: np.ndarray) -> np.ndarray:
-        """Source units on our grid -> counts (float64, unrounded)."""
+        """Source units on our grid -> counts (float32, unrounded)."""
         if self.kpa_per_unit is None:
-            return np.minimum(on_grid * self.counts.gain, float(MAX_COUNT))
-        return np.asarray(counts_from_kpa(on_grid * self.kpa_per_unit), dtype=np.float64)
+            return np.minimum(on_grid * np.float32(self.counts.gain), np.float32(MAX_COUNT))
+        return counts_from_kpa(on_grid * np.float32(self.kpa_per_unit))
 
     def __call__(self, frames: np.ndarray) -> np.ndarray:
         counts = self.to_counts(self.on_grid(frames))
@@ -231,6 +234,9 @@ def resample_counts(source: PressureSource, timeline: Timeline, mapper: CountMap
     flat = source.frames.reshape(source.frames.shape[0], -1)
     for index, (a, b) in enumerate(timeline.source_ranges):
         rows = np.flatnonzero(timeline.segment == index)
-        values = box_average(source.times[a : b + 1], flat[a : b + 1], timeline.times[rows])
-        out[rows] = mapper(values.reshape(len(rows), *source.frames.shape[1:]))
+        # A chunk at a time, from resampling to counts: the arrays stay in cache.
+        for s in range(0, rows.size, _CHUNK):
+            chunk = rows[s : s + _CHUNK]
+            values = box_average(source.times[a : b + 1], flat[a : b + 1], timeline.times[chunk])
+            out[chunk] = mapper(values.reshape(chunk.size, *source.frames.shape[1:]))
     return out

@@ -2,8 +2,9 @@
 
 Each frame of each foot goes in as one FRAME_ROWS packet carrying all 32
 rows (PROTOCOL.md allows a whole frame per packet), COBS-framed as on the
-wire; both feet of a frame share one packet record, stamped with the
-frame's time on the source's clock. The insole clock is that time in
+wire (``encode_whole_frames``: many packets at once, byte for byte what
+``encode_packet(FrameRows(...))`` gives); both feet of a frame share one
+packet record, stamped with the frame's time on the source's clock. The insole clock is that time in
 microseconds (wrapping as the protocol says). Label records follow the
 same sequence numbers; source frames (thinned) let pictures show the grid
 the recording came on.
@@ -17,8 +18,8 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 import numpy as np
-from scotti.firmware_protocol.framing import encode_packets
-from scotti.firmware_protocol.packets import CLOCK_MODULUS, SEQ_MODULUS, Foot, FrameRows
+from scotti.firmware_protocol.framing import encode_whole_frames
+from scotti.firmware_protocol.packets import CLOCK_MODULUS, SEQ_MODULUS, Foot
 from scotti.firmware_protocol.session import (
     LabelRecord,
     SessionHeader,
@@ -34,7 +35,7 @@ from scotti.models.contract import (
     SAMPLE_BITS,
 )
 
-_BATCH: Final = 2048  # frames encoded at once
+_BATCH: Final = 256  # frames encoded at once (their bytes stay in cache)
 _GEOMETRY: Final = (FRAME_ROWS, FRAME_COLS, SAMPLE_BITS)
 
 
@@ -75,8 +76,9 @@ def write_imported(
         imported=provenance,
     )
     t_ns: list[int] = np.rint(frames.times * 1e9).astype(np.int64).tolist()
-    seq: list[int] = (frames.seq % SEQ_MODULUS).tolist()
-    clock: list[int] = (np.rint(frames.times * 1e6).astype(np.int64) % CLOCK_MODULUS).tolist()
+    seq = frames.seq % SEQ_MODULUS
+    clock = np.rint(frames.times * 1e6).astype(np.int64) % CLOCK_MODULUS
+    seq_list: list[int] = seq.tolist()
     labelled = _labelled(frames)
     pending_sources = sorted(source_frames, key=lambda r: r.t_ns)
     next_source = 0
@@ -84,13 +86,14 @@ def write_imported(
     with SessionWriter(path, header, flush_each=False, overwrite=overwrite) as writer:
         for start in range(0, len(t_ns), _BATCH):
             stop = min(start + _BATCH, len(t_ns))
-            packets = []
-            for k in range(start, stop):
-                for foot in (Foot.LEFT, Foot.RIGHT):
-                    packets.append(
-                        FrameRows(foot, seq[k], clock[k], *_GEOMETRY, 0, frames.counts[k, foot])
-                    )
-            encoded = encode_packets(packets)
+            feet = np.tile([int(Foot.LEFT), int(Foot.RIGHT)], stop - start)
+            encoded = encode_whole_frames(
+                feet,
+                np.repeat(seq[start:stop], 2),
+                np.repeat(clock[start:stop], 2),
+                frames.counts[start:stop].reshape(-1, FRAME_ROWS, FRAME_COLS),
+                SAMPLE_BITS,
+            )
             for k in range(start, stop):
                 while next_source < len(pending_sources) and (
                     pending_sources[next_source].t_ns <= t_ns[k]
@@ -98,7 +101,7 @@ def write_imported(
                     writer.write(pending_sources[next_source])
                     next_source += 1
                 if labelled[k]:
-                    writer.write_label(_label(frames, k, seq[k], t_ns[k]))
+                    writer.write_label(_label(frames, k, seq_list[k], t_ns[k]))
                     labels += 1
                 i = 2 * (k - start)
                 writer.write_packet(t_ns[k], encoded[i] + encoded[i + 1])

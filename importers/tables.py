@@ -165,6 +165,11 @@ def _read_hdf5(path: Path, names: list[str], found: dict[str, np.ndarray]) -> li
 
 def first_bad(values: np.ndarray) -> tuple[int, ...] | None:
     """Index of the first NaN, infinite or negative value (C order), None when all good."""
+    if values.size == 0:
+        return None
+    low, high = values.min(), values.max()  # NaN propagates: two passes, no temporaries
+    if np.isfinite(low) and np.isfinite(high) and low >= 0:
+        return None
     bad = ~np.isfinite(values) | (values < 0)
     if not bad.any():
         return None

@@ -29,7 +29,7 @@ RESTART_GAP_S: Final = WINDOW_RESTART_GAP_FRAMES / FRAME_RATE_HZ  # a longer gap
 # A gap's sequence jump: as many frames as the gap lasts, at least enough for
 # readers to see a restart, at most this (far below the u16 wrap's half).
 MAX_SEQ_JUMP: Final = 4096
-_CHUNK: Final = 1024  # output frames resampled at once (bounds the memory)
+_CHUNK: Final = 256  # output frames resampled at once (16 s: the samples stay in cache)
 
 
 @dataclass(frozen=True)
@@ -77,43 +77,45 @@ def box_average(t: np.ndarray, values: np.ndarray, t_out: np.ndarray) -> np.ndar
 
     ``t`` (n,) increasing, ``values`` (n, D); the window is clipped to
     [t[0], t[-1]]. Returns (len(t_out), D) float64. One sample: its value.
+    Works a chunk of output frames at a time, on the source samples under
+    that chunk only, so memory stays small whatever the recording's length.
     """
-    v = np.asarray(values, dtype=np.float64)
-    if t.size == 1:
-        return np.repeat(v, t_out.size, axis=0)
-    dt = np.diff(t)
-    cumulative = np.zeros_like(v)
-    cumulative[1:] = np.cumsum(0.5 * (v[1:] + v[:-1]) * dt[:, None], axis=0)
-    slope = np.diff(v, axis=0) / dt[:, None]
-    out = np.empty((t_out.size, v.shape[1]))
+    n = t.size
+    out = np.empty((t_out.size, values.shape[1]))
+    if n == 1:
+        out[:] = np.asarray(values[0], dtype=np.float64)
+        return out
     for s in range(0, t_out.size, _CHUNK):
         c = t_out[s : s + _CHUNK]
         lo = np.maximum(c - 0.5 * PERIOD_S, t[0])
         hi = np.minimum(c + 0.5 * PERIOD_S, t[-1])
+        first = max(int(np.searchsorted(t, lo[0], side="right")) - 1, 0)
+        last = min(int(np.searchsorted(t, hi[-1], side="right")), n - 1)
+        first = min(first, last - 1)
+        tl = t[first : last + 1]
+        v = np.asarray(values[first : last + 1], dtype=np.float64)
+        dt = np.diff(tl)[:, None]
+        cumulative = np.zeros_like(v)
+        np.cumsum(0.5 * (v[1:] + v[:-1]) * dt, axis=0, out=cumulative[1:])
+        slope = np.diff(v, axis=0) / dt
         width = hi - lo
-        integral = _integral_to(hi, t, v, cumulative, slope) - _integral_to(
-            lo, t, v, cumulative, slope
-        )
         point = width <= 0.0  # a window squeezed to nothing: the value at the point
-        width = np.where(point, 1.0, width)
-        chunk = integral / width[:, None]
+        i_hi, dx_hi = _locate(tl, hi)
+        i_lo, dx_lo = _locate(tl, lo)
+        integral = (cumulative[i_hi] + v[i_hi] * dx_hi + 0.5 * slope[i_hi] * dx_hi * dx_hi) - (
+            cumulative[i_lo] + v[i_lo] * dx_lo + 0.5 * slope[i_lo] * dx_lo * dx_lo
+        )
+        chunk = integral / np.where(point, 1.0, width)[:, None]
         if point.any():
-            chunk[point] = _value_at(c[point], t, v, slope)
+            chunk[point] = v[i_lo[point]] + slope[i_lo[point]] * dx_lo[point]
         out[s : s + _CHUNK] = chunk
     return out
 
 
-def _integral_to(
-    x: np.ndarray, t: np.ndarray, v: np.ndarray, cumulative: np.ndarray, slope: np.ndarray
-) -> np.ndarray:
+def _locate(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the linear piece holding each x, and x's offset into it (as a column)."""
     i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, t.size - 2)
-    dx = (x - t[i])[:, None]
-    return np.asarray(cumulative[i] + v[i] * dx + 0.5 * slope[i] * dx * dx)
-
-
-def _value_at(x: np.ndarray, t: np.ndarray, v: np.ndarray, slope: np.ndarray) -> np.ndarray:
-    i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, t.size - 2)
-    return np.asarray(v[i] + slope[i] * (x - t[i])[:, None])
+    return i, (x - t[i])[:, None]
 
 
 def interpolate_points(
