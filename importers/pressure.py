@@ -53,17 +53,17 @@ def read_pressure(cfg: ImportConfig) -> PressureSource:
 def _from_csv(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     p = cfg.pressure
     taxels = p.rows * p.cols
-    probe = read_csv(path) if isinstance(p.time_column, str) else None
-    time_col = probe.column_of(p.time_column) if probe is not None else int(p.time_column)
+    table = read_csv(path)  # every line as wide as the header (or the first line)
+    time_col = table.column_of(p.time_column)
     first = p.first_column if p.first_column is not None else time_col + 1
     if first <= time_col < first + 2 * taxels:
         raise InputError(path, f"the time column {time_col} lies among the taxel columns")
     width = max(time_col + 1, first + 2 * taxels)
-    table = read_csv(path, expected_columns=width)
-    if table.header is not None and len(table.header) != width:
-        problem = f"{len(table.header)} columns, expected {width}"
+    if table.values.shape[1] != width:
+        problem = f"{table.values.shape[1]} columns, expected {width}"
         problem += f" (time + 2 feet x {p.rows} x {p.cols} taxels)"
-        raise InputError(path, problem, line=int(table.lines[0]) - 1)
+        line = int(table.lines[0]) - 1 if table.header is not None else int(table.lines[0])
+        raise InputError(path, problem, line=line)
     times = table.values[:, time_col] * TIME_UNITS[p.time_unit]
     _check_times(times, lambda i, problem: table.fail(i, time_col, problem))
     block = table.values[:, first : first + 2 * taxels]
