@@ -83,5 +83,5 @@ def test_a_mapping_to_a_name_the_file_lacks(tmp_path: Path) -> None:
     t = np.arange(5) / 10
     np.savez(tmp_path / "k.npz", time=t, keypoints=np.zeros((5, 2, 3)), names=np.array(["a", "b"]))
     cfg = config(tmp_path, {"file": "k.npz", "set": "custom", "mapping": {"nose": "c"}})
-    with pytest.raises(InputError, match="k.npz: no keypoint 'c' for nose"):
+    with pytest.raises(InputError, match=r"k\.npz: no keypoint 'c' for nose"):
         read_keypoints(cfg)
