@@ -92,6 +92,8 @@ def load_span(
     except Exception as exc:  # the protocol's SessionError and OS errors, as one line
         msg = f"cannot read {path}: {exc}"
         raise RenderError(msg) from None
+    if header is not None and t0 is None:  # no labels at all (a pressure-only import)
+        return _unlabelled_span(path, header, start_s, duration_s)
     if header is None or not labels:
         msg = f"{path}: no labelled frames in that span"
         raise RenderError(msg)
@@ -100,6 +102,59 @@ def load_span(
     if inside:
         times = np.array([(r.t_ns - (t0 or 0)) / 1e9 for r in inside])
         span = replace(span, source_time_s=times, source_frames=[r.frames for r in inside])
+    return span
+
+
+def _unlabelled_span(
+    path: str | os.PathLike[str],
+    header: SessionHeader,
+    start_s: float,
+    duration_s: float | None,
+) -> Span:
+    """A session without labels: the frames themselves give the time axis (no skeleton)."""
+    decoder = StreamDecoder()
+    blocks: list[tuple[int, FrameRows]] = []
+    sources: list[SourceFrameRecord] = []
+    t0: int | None = None
+    try:
+        for record in iter_records(path, source_frames=True):
+            if isinstance(record, SourceFrameRecord):
+                sources.append(record)
+            elif isinstance(record, PacketRecord):
+                t0 = record.t_ns if t0 is None else t0
+                begin = t0 + round(start_s * 1e9)
+                end = begin + round(duration_s * 1e9) if duration_s is not None else 2**62
+                if record.t_ns >= end + _MARGIN_NS:
+                    break
+                if record.t_ns >= begin - _MARGIN_NS:
+                    items = decoder.feed(record.data)
+                    blocks += [(record.t_ns, p) for p in items if isinstance(p, FrameRows)]
+    except Exception as exc:  # the protocol's SessionError and OS errors, as one line
+        msg = f"cannot read {path}: {exc}"
+        raise RenderError(msg) from None
+    assembler = FrameAssembler(max_in_progress=4)
+    times: dict[int, int] = {}
+    for t_ns, block in blocks:
+        for frame in assembler.push(block, t_ns):
+            times.setdefault(frame.seq, frame.last_byte_ns)
+    for frame in assembler.flush():
+        times.setdefault(frame.seq, frame.last_byte_ns)
+    begin = (t0 or 0) + round(start_s * 1e9)
+    end = begin + round(duration_s * 1e9) if duration_s is not None else 2**62
+    nothing = np.full((len(KP), 3), np.nan, dtype=np.float32)
+    labels = [
+        LabelRecord(seq, t_ns, nothing)
+        for seq, t_ns in sorted(times.items(), key=lambda item: item[1])
+        if begin <= t_ns < end
+    ]
+    if not labels:
+        msg = f"{path}: no frames in that span"
+        raise RenderError(msg)
+    span = _assemble(header, labels, blocks, t0 or 0)
+    inside = [r for r in sources if begin - _MARGIN_NS <= r.t_ns < end + _MARGIN_NS]
+    if inside:
+        times_s = np.array([(r.t_ns - (t0 or 0)) / 1e9 for r in inside])
+        span = replace(span, source_time_s=times_s, source_frames=[r.frames for r in inside])
     return span
 
 

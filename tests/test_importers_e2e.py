@@ -173,3 +173,25 @@ def test_import_train_export_eval(
     assert scored["evaluated"] > 20
     assert np.isfinite(scored["metrics"]["mpjpe_mm"])
     assert np.isfinite(scored["metrics"]["progress_mse"])
+
+
+def test_a_pressure_only_import_has_info_and_a_picture(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    t = 50.0 + np.arange(0, 3, 1 / 25)  # 25 Hz on a clock that starts at 50 s
+    t = np.r_[t, t[-1] + 2.0 + np.arange(0, 1, 1 / 25)]  # a 2 s gap: two segments
+    np.savez(tmp_path / "p.npz", time=t, left=pressure_frames(t, 10, 5)[:, 0],
+             right=pressure_frames(t, 10, 5)[:, 1])  # fmt: skip
+    out = tmp_path / "p.scotti"
+    args = ["--pressure", str(tmp_path / "p.npz"), "--grid", "10x5", "--counts-per-kpa", "1"]
+    assert main(["import", *args, "-o", str(out)]) == 0
+    assert "in 2 segment(s)" in capsys.readouterr().out
+    assert main(["session", "info", str(out)]) == 0
+    info = capsys.readouterr().out
+    assert "labels    none" in info
+    assert "2 segments" in info
+    assert "sequence gaps                1         1" in info
+    packets = read_session(out).packets
+    assert packets[0].t_ns == 50_000_000_000  # the source's own clock, in ns
+    assert main(["sim", "render", str(out), "-o", str(tmp_path / "p.png")]) == 0
+    assert (tmp_path / "p.png").stat().st_size > 10_000
