@@ -96,3 +96,19 @@ def test_config_mistakes_name_the_line_and_field(tmp_path: Path) -> None:
     path.write_text('[pressure\nfile = "p.csv"\n')
     with pytest.raises(InputError, match=r"import\.toml line 1: "):
         load_config(path)
+
+
+def test_mapping_file_and_absolute_segment_times(tmp_path: Path) -> None:
+    from scotti.importers.config import load_mapping
+
+    path = tmp_path / "mapping.toml"
+    path.write_text('[mapping]\nleft_hip = "LH"\nright_hip = 3\n')
+    assert load_mapping(path) == {"left_hip": "LH", "right_hip": 3}
+    path.write_text('[mapping]\nleft_hip = "LH"\npelvis = "P"\n')
+    with pytest.raises(InputError, match=r"mapping\.toml line 3: 'pelvis' is not one of our"):
+        load_mapping(path)
+    seg = tmp_path / "seg.csv"
+    seg.write_text("1700000001000,1700000002000,walking\n")
+    labels = LabelsConfig(segments="seg.csv", time="absolute", time_unit="ms")
+    segments = read_segments(seg, labels, 1_700_000_000.0, 1_700_000_003.0)
+    assert (segments[0].start_s, segments[0].end_s) == (1_700_000_001.0, 1_700_000_002.0)
