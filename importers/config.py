@@ -130,6 +130,7 @@ class KeypointsConfig(_Strict):
     names_key: str = "names"  # .npz / HDF5, custom sets: the K names (optional)
     units: Literal["m", "cm", "mm"] = "m"
     up: Literal["+x", "-x", "+y", "-y", "+z", "-z", "auto"] = "+z"
+    mirror: bool = False  # the source is mirrored (a left-handed frame, a mirrored video)
     floor_z: float | Literal["auto"] = "auto"  # the floor's height along ``up``, source units
     min_score: float = Field(default=0.0, ge=0.0, le=1.0)  # lower scores are masked
     max_gap_s: float = Field(default=0.25, gt=0.0)  # longer holes in tracking stay masked

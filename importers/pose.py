@@ -7,7 +7,8 @@ source frame:
 1. units to metres (``units``);
 2. a proper rotation that takes the source's up axis (``up``: "+z" for most
    motion capture, "-y" for a camera frame with y down; "auto": the mean
-   direction from the ankles to the shoulders) onto z;
+   direction from the ankles to the shoulders) onto z; ``mirror`` flips a
+   left-handed source (a mirrored video) first;
 3. the floor to z = 0 (``floor_z``; "auto": the 5th percentile, over the
    recording, of the lowest foot point of each frame);
 4. per frame: the origin to the mid-hip's foot point, and a turn about z so
@@ -15,6 +16,8 @@ source frame:
    right hip -> left hip) and the feet (heel -> toes), averaged over 0.5 s.
 
 A frame without both hips has no origin: all its keypoints stay masked.
+Hips and feet must agree on the facing direction: a mirrored source makes
+the toes point backwards from the hips, and is refused with a hint.
 """
 
 from __future__ import annotations
@@ -192,6 +195,8 @@ def up_vector(cfg: KeypointsConfig, points: np.ndarray, path: Path) -> np.ndarra
 def to_world(cfg: KeypointsConfig, source: KeypointSource) -> np.ndarray:
     """(N, 19, 3) metres, z up, floor at z = 0 (still the source's heading and origin)."""
     scaled = source.points * LENGTH_UNITS[cfg.units]
+    if cfg.mirror:
+        scaled = scaled * np.array([-1.0, 1.0, 1.0])  # any one axis: handedness flips
     world = scaled @ up_rotation(up_vector(cfg, scaled, source.path)).T
     if cfg.floor_z == "auto":
         feet_z = world[:, _FEET_POINTS, 2]
@@ -204,24 +209,48 @@ def to_world(cfg: KeypointsConfig, source: KeypointSource) -> np.ndarray:
     else:
         floor = float(cfg.floor_z) * LENGTH_UNITS[cfg.units]
     world[..., 2] -= floor
+    _check_handedness(world, source.path)
     return np.asarray(world)
 
 
-def facing(world: np.ndarray) -> np.ndarray:
-    """(N, 2) unit vectors on the floor the way each frame's person faces (NaN: unknown)."""
+MIRRORED_SHARE: Final = 0.5  # of frames where hips and feet disagree: refuse
+
+
+def _check_handedness(world: np.ndarray, path: Path) -> None:
+    """Refuse a source whose left and right are mirrored (toes behind the hips' forward)."""
+    hips, feet = _facing_parts(world)
+    agree = np.einsum("nk,nk->n", hips, feet)
+    seen = np.isfinite(agree)
+    if seen.sum() >= 1 and float((agree[seen] < 0).mean()) > MIRRORED_SHARE:
+        share = 100 * float((agree[seen] < 0).mean())
+        problem = f"left and right look mirrored: in {share:.0f} % of frames the toes point "
+        problem += "backwards from the hips; check the keypoint set, or set mirror = true"
+        raise InputError(path, problem)
+
+
+def _facing_parts(world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit forward vectors on the floor from the hips and from the feet, (N, 2) each."""
     hips = world[:, KP["left_hip"], :2] - world[:, KP["right_hip"], :2]
-    from_hips = np.stack([hips[:, 1], -hips[:, 0]], axis=1)  # left turned by -90 degrees
+    from_hips = _unit(np.stack([hips[:, 1], -hips[:, 0]], axis=1))  # left turned by -90 deg
     feet = []
     for side in ("left", "right"):
         heel = world[:, KP[f"{side}_heel"], :2]
         for toe in ("big_toe", "small_toe"):
-            feet.append(world[:, KP[f"{side}_{toe}"], :2] - heel)
-    parts = [_unit(from_hips), *(_unit(f) for f in feet)]
-    stack = np.stack(parts)  # (P, N, 2)
-    # hips count as much as all the foot vectors together
-    weights = np.array([len(feet)] + [1.0] * len(feet))[:, None, None]
-    ok = np.isfinite(stack)
-    summed = np.where(ok, stack * weights, 0.0).sum(axis=0)
+            feet.append(_unit(world[:, KP[f"{side}_{toe}"], :2] - heel))
+    stack = np.stack(feet)  # (4, N, 2)
+    ok = np.isfinite(stack).all(axis=2)
+    summed = np.where(ok[..., None], stack, 0.0).sum(axis=0)
+    from_feet = _unit(np.where(ok.any(axis=0)[:, None], summed, np.nan))
+    return from_hips, from_feet
+
+
+def facing(world: np.ndarray) -> np.ndarray:
+    """(N, 2) unit vectors on the floor the way each frame's person faces (NaN: unknown).
+
+    The hips' and the feet's directions, equally weighted, summed over 0.5 s.
+    """
+    from_hips, from_feet = _facing_parts(world)
+    summed = np.nan_to_num(from_hips) + np.nan_to_num(from_feet)
     smooth = _moving_sum(summed, _HEADING_SMOOTH_FRAMES)
     norm = np.linalg.norm(smooth, axis=1, keepdims=True)
     out = np.where(norm > 1e-9, smooth / np.where(norm > 1e-9, norm, 1.0), np.nan)

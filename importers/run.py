@@ -10,7 +10,6 @@ from typing import Any
 import numpy as np
 from scotti.firmware_protocol.session import SourceFrameRecord
 from scotti.importers.config import ImportConfig
-from scotti.importers.errors import InputError
 from scotti.importers.labels import frame_actions, frame_progress, read_segments
 from scotti.importers.pose import pose_frame, read_keypoints, to_world
 from scotti.importers.pressure import (
@@ -21,7 +20,7 @@ from scotti.importers.pressure import (
 )
 from scotti.importers.session_out import ImportedFrames, write_imported
 from scotti.importers.timebase import Timeline, interpolate_points, plan_timeline
-from scotti.models.contract import ACTIONS, NO_ACTION
+from scotti.models.contract import ACTIONS, FRAME_RATE_HZ, NO_ACTION
 
 
 @dataclass
@@ -135,7 +134,7 @@ def import_recording(
         source_rate_hz=source.rate_hz,
         frames=len(timeline),
         segments=len(timeline.source_ranges),
-        duration_s=len(timeline) / 16.0,
+        duration_s=len(timeline) / FRAME_RATE_HZ,
         labels=labels,
         keypoints_mapped=list(mapped),
         seconds=clock.laps,
@@ -226,5 +225,3 @@ class _Stopwatch:
         self.laps[name] = now - self._last
         self._last = now
 
-
-__all__ = ["ImportReport", "InputError", "import_recording"]

@@ -85,3 +85,19 @@ def test_a_mapping_to_a_name_the_file_lacks(tmp_path: Path) -> None:
     cfg = config(tmp_path, {"file": "k.npz", "set": "custom", "mapping": {"nose": "c"}})
     with pytest.raises(InputError, match=r"k\.npz: no keypoint 'c' for nose"):
         read_keypoints(cfg)
+
+
+def test_a_mirrored_source_is_refused_and_mirror_fixes_it(tmp_path: Path) -> None:
+    t = np.arange(0, 2, 1 / 30)
+    pose = squat_pose(t)
+    camera = to_camera(pose)
+    camera[..., 0] *= -1.0  # a mirrored video: left and right swap sides
+    write_keypoints_csv(tmp_path / "k.csv", t, in_set(camera, "body25"), BODY25)
+    keypoints = {"file": "k.csv", "set": "body25", "up": "-y"}
+    cfg = config(tmp_path, keypoints)
+    source = read_keypoints(cfg)
+    with pytest.raises(InputError, match="mirrored.*set mirror = true"):
+        to_world(keypoints_of(cfg), source)
+    fixed = config(tmp_path, {**keypoints, "mirror": True})
+    ours = pose_frame(to_world(keypoints_of(fixed), read_keypoints(fixed)))
+    np.testing.assert_allclose(ours, pose, atol=1e-5)
