@@ -96,7 +96,7 @@ def test_a_mirrored_source_is_refused_and_mirror_fixes_it(tmp_path: Path) -> Non
     keypoints = {"file": "k.csv", "set": "body25", "up": "-y"}
     cfg = config(tmp_path, keypoints)
     source = read_keypoints(cfg)
-    with pytest.raises(InputError, match="mirrored.*set mirror = true"):
+    with pytest.raises(InputError, match=r"mirrored.*set mirror = true"):
         to_world(keypoints_of(cfg), source)
     fixed = config(tmp_path, {**keypoints, "mirror": True})
     ours = pose_frame(to_world(keypoints_of(fixed), read_keypoints(fixed)))
