@@ -61,7 +61,7 @@ class SessionHeader:
             raise SessionError(msg)
 
     def to_record(self) -> dict[str, Any]:
-        return {
+        record = {
             "kind": "header",
             "format_version": self.format_version,
             "source": self.source,
@@ -73,8 +73,10 @@ class SessionHeader:
             "created_unix": float(self.created_unix),
             "scene": self.scene,
             "subject": self.subject,
-            "imported": self.imported,
         }
+        if self.imported is not None:  # only imported files carry it: others stay as they were
+            record["imported"] = self.imported
+        return record
 
     @classmethod
     def from_record(cls, record: dict[str, Any]) -> SessionHeader:

@@ -62,7 +62,7 @@ def _from_csv(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     if table.values.shape[1] != width:
         problem = f"{table.values.shape[1]} columns, expected {width}"
         problem += f" (time + 2 feet x {p.rows} x {p.cols} taxels)"
-        line = int(table.lines[0]) - 1 if table.header is not None else int(table.lines[0])
+        line = table.header_line if table.header_line is not None else int(table.lines[0])
         raise InputError(path, problem, line=line)
     times = table.values[:, time_col] * TIME_UNITS[p.time_unit]
     _check_times(times, lambda i, problem: table.fail(i, time_col, problem))

@@ -27,6 +27,7 @@ class CsvTable:
     header: list[str] | None  # column names, when the file has a header line
     values: np.ndarray  # (n, k) float64
     lines: np.ndarray  # (n,) int64, 1-based line number of each row
+    header_line: int | None = None  # 1-based line of the header, when there is one
 
     def column_of(self, name_or_index: str | int) -> int:
         """0-based index of a column given by name (header) or by 0-based index."""
@@ -76,9 +77,10 @@ def read_csv(path: Path, expected_columns: int | None = None) -> CsvTable:
     if not numbered:
         raise InputError(path, "the file is empty")
     header: list[str] | None = None
+    header_line: int | None = None
     first_cells = [c.strip() for c in numbered[0][1].split(",")]
     if not all(_is_number(c) for c in first_cells):
-        header = first_cells
+        header, header_line = first_cells, numbered[0][0]
         numbered = numbered[1:]
     if not numbered:
         raise InputError(path, "no data lines after the header")
@@ -97,7 +99,7 @@ def read_csv(path: Path, expected_columns: int | None = None) -> CsvTable:
         values = np.empty(0)
     if values.shape != (len(numbered), width):
         _raise_bad_cell(path, numbered, header)
-    return CsvTable(path, header, np.asarray(values, dtype=np.float64), lines)
+    return CsvTable(path, header, np.asarray(values, dtype=np.float64), lines, header_line)
 
 
 def _raise_bad_cell(path: Path, numbered: list[tuple[int, str]], header: list[str] | None) -> None:
