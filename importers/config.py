@@ -72,6 +72,10 @@ class PressureConfig(_Strict):
     left_key: str = "left"
     right_key: str = "right"
     frames_key: str | None = None
+    # ActionNet-style recorders keep one stream per insole, each with its own
+    # time stamps: then ``time_key`` is the left foot's and this the right's;
+    # the right foot is interpolated onto the left foot's times.
+    right_time_key: str | None = None
     left: FootGrid = FootGrid()
     right: FootGrid = FootGrid()
 

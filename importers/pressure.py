@@ -86,14 +86,13 @@ def _unflatten(values: np.ndarray, rows: int, cols: int, order: str) -> np.ndarr
 def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     p = cfg.pressure
     keys = [p.time_key] + ([p.frames_key] if p.frames_key else [p.left_key, p.right_key])
+    if p.right_time_key is not None:
+        keys.append(p.right_time_key)
     arrays = load_arrays(path, keys)
-    raw_times = np.asarray(arrays[p.time_key], dtype=np.float64).reshape(-1)
-    times = raw_times * TIME_UNITS[p.time_unit]
-
-    def at(i: int, problem: str) -> InputError:
-        return InputError(path, problem, column=f"{p.time_key}[{i}]")
-
-    _check_times(times, at)
+    times = _times(path, arrays, p.time_key, TIME_UNITS[p.time_unit])
+    own = {"left": times, "right": times}
+    if p.right_time_key is not None:
+        own["right"] = _times(path, arrays, p.right_time_key, TIME_UNITS[p.time_unit])
     n = times.size
     frames = np.empty((n, 2, p.rows, p.cols), dtype=np.float32)
     if p.frames_key:
@@ -110,10 +109,12 @@ def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]
             "right": (p.right_key, np.asarray(arrays[p.right_key])),
         }
     for foot, (name, values) in parts.items():
-        if values.ndim == 2 and values.shape == (n, p.rows * p.cols):
+        count = own[foot].size
+        if values.ndim == 2 and values.shape == (count, p.rows * p.cols):
             values = _unflatten(values, p.rows, p.cols, p.taxel_order)
-        if values.shape != (n, p.rows, p.cols):
-            problem = f"{name} has shape {values.shape}; declared {n} frames of {p.rows} x {p.cols}"
+        if values.shape != (count, p.rows, p.cols):
+            problem = f"{name} has shape {values.shape}; declared {count} frames of "
+            problem += f"{p.rows} x {p.cols}"
             raise InputError(path, problem)
         if values.dtype.kind not in "fiu":
             raise InputError(path, f"{name} holds {values.dtype}, not numbers")
@@ -121,8 +122,30 @@ def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]
         if bad is not None:
             index = ", ".join(map(str, bad))
             raise InputError(path, describe_value(float(values[bad])), column=f"{name}[{index}]")
+        if own[foot] is not times:
+            values = _onto(own[foot], values, times)
         frames[:, FEET.index(foot)] = values
     return times, frames
+
+
+def _times(path: Path, arrays: dict[str, np.ndarray], key: str, unit: float) -> np.ndarray:
+    times = np.asarray(arrays[key], dtype=np.float64).reshape(-1) * unit
+
+    def at(i: int, problem: str) -> InputError:
+        return InputError(path, problem, column=f"{key}[{i}]")
+
+    _check_times(times, at)
+    return times
+
+
+def _onto(t_from: np.ndarray, values: np.ndarray, t_to: np.ndarray) -> np.ndarray:
+    """Frames (n, rows, cols) sampled at ``t_from``, linearly interpolated at ``t_to``
+    (the first and last frames held beyond the ends)."""
+    if t_from.size == 1:
+        return np.repeat(values[:1], t_to.size, axis=0)
+    i = np.clip(np.searchsorted(t_from, t_to, side="right") - 1, 0, t_from.size - 2)
+    w = np.clip((t_to - t_from[i]) / (t_from[i + 1] - t_from[i]), 0.0, 1.0)[:, None, None]
+    return np.asarray((1.0 - w) * values[i] + w * values[i + 1])
 
 
 def _check_times(times: np.ndarray, fail: Callable[[int, str], InputError]) -> None:

@@ -195,3 +195,35 @@ def test_a_pressure_only_import_has_info_and_a_picture(
     assert packets[0].t_ns == 50_000_000_000  # the source's own clock, in ns
     assert main(["sim", "render", str(out), "-o", str(tmp_path / "p.png")]) == 0
     assert (tmp_path / "p.png").stat().st_size > 10_000
+
+
+def test_one_stream_per_insole_with_its_own_clock(tmp_path: Path) -> None:
+    # ActionNet-style: /insole-left and /insole-right, each with data and time_s,
+    # at 40 Hz and 37 Hz. Pressure that grows linearly in time interpolates exactly,
+    # so the import equals one made from both feet on the left foot's times.
+    h5py = pytest.importorskip("h5py")
+    base = pressure_frames(np.zeros(1), 12, 6)[0]  # (2, 12, 6) kPa
+
+    def at(t: np.ndarray, foot: int) -> np.ndarray:
+        return base[foot][None] * (1.0 + 0.2 * t[:, None, None])
+
+    t_left = 10.0 + np.arange(0, 3, 1 / 40)
+    t_right = 9.9 + np.arange(0, 3.3, 1 / 37)  # covers the left's span
+    with h5py.File(tmp_path / "p.h5", "w") as f:
+        for name, t, foot in (("left", t_left, 0), ("right", t_right, 1)):
+            f[f"insole-{name}/tactile_data/data"] = at(t, foot)
+            f[f"insole-{name}/tactile_data/time_s"] = t
+    (tmp_path / "a.toml").write_text(
+        '[pressure]\nfile = "p.h5"\nrows = 12\ncols = 6\n'
+        'time_key = "insole-left/tactile_data/time_s"\n'
+        'right_time_key = "insole-right/tactile_data/time_s"\n'
+        'left_key = "insole-left/tactile_data/data"\n'
+        'right_key = "insole-right/tactile_data/data"\n'
+        '[counts]\nmethod = "per_kpa"\nunits_per_kpa = 1.0\n'
+    )
+    np.savez(tmp_path / "b.npz", time=t_left, left=at(t_left, 0), right=at(t_left, 1))
+    assert main(["import", str(tmp_path / "a.toml"), "-o", str(tmp_path / "a.scotti")]) == 0
+    args = ["--pressure", str(tmp_path / "b.npz"), "--grid", "12x6", "--counts-per-kpa", "1"]
+    assert main(["import", *args, "-o", str(tmp_path / "b.scotti")]) == 0
+    a, b = session_counts(tmp_path / "a.scotti"), session_counts(tmp_path / "b.scotti")
+    assert np.abs(a.astype(int) - b.astype(int)).max() <= 1  # float32 rounding at most
