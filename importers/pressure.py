@@ -186,7 +186,8 @@ def source_masks(cfg: ImportConfig) -> tuple[np.ndarray | None, np.ndarray | Non
         except (OSError, ValueError) as exc:
             raise InputError(path, f"cannot read the outline ({exc.__class__.__name__})") from None
         if mask.shape != (p.rows, p.cols):
-            problem = f"outline is {mask.shape[0]} x {mask.shape[1]}, the grid {p.rows} x {p.cols}"
+            shape = " x ".join(map(str, mask.shape))
+            problem = f"outline is {shape}, the grid {p.rows} x {p.cols}"
             raise InputError(path, problem)
         out.append(np.asarray(mask) > 0)
     return out[0], out[1]

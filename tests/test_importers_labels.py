@@ -112,3 +112,35 @@ def test_mapping_file_and_absolute_segment_times(tmp_path: Path) -> None:
     labels = LabelsConfig(segments="seg.csv", time="absolute", time_unit="ms")
     segments = read_segments(seg, labels, 1_700_000_000.0, 1_700_000_003.0)
     assert (segments[0].start_s, segments[0].end_s) == (1_700_000_001.0, 1_700_000_002.0)
+
+
+def test_an_outline_file_zeroes_taxels_the_source_lacks(tmp_path: Path) -> None:
+    # 4 x 11 source; the outline (as stored) lacks the last column, which is medial
+    # (medial = "last_col"): after turning, our columns 0 and 1 get nothing.
+    n = 4
+    np.savez(tmp_path / "p.npz", time=np.arange(n) / 10,
+             left=np.full((n, 4, 11), 128.0), right=np.full((n, 4, 11), 128.0))  # fmt: skip
+    outline = np.ones((4, 11), dtype=int)
+    outline[:, -1] = 0
+    np.savetxt(tmp_path / "outline.csv", outline, fmt="%d", delimiter=",")
+    cfg = config_from_dict(
+        {
+            "pressure": {
+                "file": "p.npz",
+                "rows": 4,
+                "cols": 11,
+                "left": {"medial": "last_col", "outline": "outline.csv"},
+            },
+            "counts": {"method": "per_kpa", "units_per_kpa": 1.0},
+            "base_dir": str(tmp_path),
+        }
+    )
+    source = read_pressure(cfg)
+    counts = CountMapper(cfg, source)(source.frames[:1])[0]
+    mask = insole_mask()
+    assert (counts[0][:, :2] == 0).all()
+    assert (counts[0][:, 2:][mask[:, 2:]] == 1365).all()
+    assert (counts[1][mask] == 1365).all()  # the right foot has no outline file
+    np.savetxt(tmp_path / "outline.csv", outline[:, :5], fmt="%d", delimiter=",")
+    with pytest.raises(InputError, match=r"outline is 4 x 5, the grid 4 x 11"):
+        CountMapper(cfg, source)
