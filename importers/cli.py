@@ -2,7 +2,7 @@
 
     scotti import walk.toml -o data/real/p01-walk.scotti
     scotti import --pressure p.npz --grid 16x8 --counts-per-kpa 10 \\
-                  --keypoints pose.csv --keypoint-set body25 --up -y \\
+                  --keypoints pose.csv --keypoint-set body25 --up=-y \\
                   --action walking --subject p01 -o p01.scotti
 
 A TOML file describes everything (importers/config.py, importers/IMPORT.md);
@@ -36,7 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--keypoint-set", choices=("coco_wholebody", "mediapipe33", "body25", "custom")
     )
-    parser.add_argument("--up", choices=("+x", "-x", "+y", "-y", "+z", "-z", "auto"))
+    parser.add_argument(
+        "--up",
+        choices=("+x", "-x", "+y", "-y", "+z", "-z", "auto"),
+        help="the keypoints' up axis; a value with a sign wants '=': --up=-y",
+    )
     parser.add_argument("--units", choices=("m", "cm", "mm"), help="keypoint units")
     labels = parser.add_mutually_exclusive_group()
     labels.add_argument("--segments", help="CSV of start,end,action")

@@ -14,7 +14,7 @@ from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
 from scotti.firmware_protocol.session import read_session
 from scotti.importers.keypoint_sets import MEDIAPIPE33
-from scotti.models.contract import NO_ACTION
+from scotti.models.contract import ACTIONS, NO_ACTION
 from scotti.models.insole import insole_mask
 
 from tests.support.foreign import (
@@ -227,3 +227,20 @@ def test_one_stream_per_insole_with_its_own_clock(tmp_path: Path) -> None:
     assert main(["import", *args, "-o", str(tmp_path / "b.scotti")]) == 0
     a, b = session_counts(tmp_path / "a.scotti"), session_counts(tmp_path / "b.scotti")
     assert np.abs(a.astype(int) - b.astype(int)).max() <= 1  # float32 rounding at most
+
+
+def test_flags_alone_import_pressure_keypoints_and_one_action(
+    camera_recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    d = camera_recording
+    args = ["--pressure", str(d / "insoles.csv"), "--grid", "16x8", "--time-unit", "ms"]
+    args += ["--counts-per-kpa", "1", "--keypoints", str(d / "pose.csv")]
+    args += ["--keypoint-set", "mediapipe33", "--up=-y", "--units", "mm", "--action", "squat"]
+    out = d / "flags.scotti"
+    assert main(["import", *args, "--subject", "p02", "-o", str(out)]) == 0
+    session = read_session(out)
+    assert session.header.subject == {"id": "p02"}
+    labels = session.labels
+    assert len(labels) == 160
+    assert {lab.action for lab in labels} == {ACTIONS.index("squat")}
+    assert np.isfinite(labels[80].keypoints).all(axis=1).sum() == 17
