@@ -319,11 +319,11 @@ def _subject_of(subject: dict[str, Any] | None) -> str | None:
 
 def task_metrics(frames: FrameSet) -> dict[str, float | int]:
     """The four tasks' figures (MPJPE and MPJAE for pose) over one set of frames."""
-    pose_ok = np.isfinite(frames.pose_true).all(axis=(1, 2))
-    pose_true = np.nan_to_num(frames.pose_true)
+    # Frames with any labelled keypoint; the metrics leave out missing ones (NaN).
+    pose_ok = np.any(np.all(np.isfinite(frames.pose_true), axis=2), axis=1)
     return {
-        "mpjpe_mm": metrics.mpjpe_mm(frames.pose_pred, pose_true, pose_ok),
-        "mpjae_deg": metrics.mpjae_deg(frames.pose_pred, pose_true, pose_ok),
+        "mpjpe_mm": metrics.mpjpe_mm(frames.pose_pred, frames.pose_true, pose_ok),
+        "mpjae_deg": metrics.mpjae_deg(frames.pose_pred, frames.pose_true, pose_ok),
         "action_accuracy": metrics.action_accuracy(frames.action_pred, frames.action_true),
         "progress_mse": metrics.progress_mse(frames.progress_pred, frames.progress_true),
         "app": metrics.app(frames.progress_pred, frames.progress_true),

@@ -83,7 +83,8 @@ def evaluate(
     targets = to_targets([Targets(labels["keypoints"], labels["action"], labels["progress"])])
     loss, parts = scotti_loss(out, targets, weights or LossWeights())
     pose = out.pose.numpy()
-    pose_ok = np.isfinite(labels["keypoints"]).all(axis=(1, 2))
+    # Windows with any labelled keypoint; the metrics leave out missing ones (NaN).
+    pose_ok = np.isfinite(labels["keypoints"]).all(axis=2).any(axis=1)
     predicted_action = out.action_logits.argmax(dim=1).numpy().astype(np.int64)
     progress = out.progress.numpy()
     # Progress counts only where there is an action (the loss's mask too).
@@ -94,8 +95,8 @@ def evaluate(
         "loss_pose": float(parts["pose"]),
         "loss_action": float(parts["action"]),
         "loss_progress": float(parts["progress"]),
-        "mpjpe_mm": metrics.mpjpe_mm(pose, np.nan_to_num(labels["keypoints"]), pose_ok),
-        "mpjae_deg": metrics.mpjae_deg(pose, np.nan_to_num(labels["keypoints"]), pose_ok),
+        "mpjpe_mm": metrics.mpjpe_mm(pose, labels["keypoints"], pose_ok),
+        "mpjae_deg": metrics.mpjae_deg(pose, labels["keypoints"], pose_ok),
         "action_accuracy": metrics.action_accuracy(predicted_action, labels["action"]),
         "progress_mse": metrics.progress_mse(progress, progress_true),
         "app": metrics.app(progress, progress_true),

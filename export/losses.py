@@ -39,7 +39,7 @@ class LossWeights:
 class ScottiTargets:
     """Labels for the predicted time t of each window in a batch."""
 
-    pose: torch.Tensor  # (B, 19, 3) metres; rows with any NaN are left out
+    pose: torch.Tensor  # (B, 19, 3) metres; a keypoint with a NaN is left out
     action: torch.Tensor  # (B,) int64 index into ACTIONS, NO_ACTION (-1) = unlabelled
     progress: torch.Tensor  # (B,) float in [0, 1], NaN where there is no action
 
@@ -74,6 +74,18 @@ def mpjae_deg(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return math.degrees(1.0) * diff.mean(dim=-1)
 
 
+def angle_mask(keypoint_ok: torch.Tensor) -> torch.Tensor:
+    """(..., 19) keypoints present -> (..., n_angles): both bones of the angle present."""
+    bone_ok = keypoint_ok[..., _BONES[:, 0]] & keypoint_ok[..., _BONES[:, 1]]  # (..., n_bones)
+    return bone_ok[..., _ANGLE_PAIRS[:, 0]] & bone_ok[..., _ANGLE_PAIRS[:, 1]]
+
+
+def _row_means(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(B, K) -> (B,): mean over the masked-in entries of each row (0 for an empty row)."""
+    m = mask.to(values.dtype)
+    return (values * m).sum(dim=-1) / m.sum(dim=-1).clamp_min(1.0)
+
+
 def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Mean of values where mask holds; 0 (not NaN) when nothing is masked in."""
     m = mask.to(values.dtype)
@@ -87,10 +99,17 @@ def scotti_loss(
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Weighted total and its detached parts (pose, mpjpe_mm, mpjae_deg, action, progress)."""
     # Unlabelled values are replaced before any arithmetic: NaN * 0 is still NaN.
-    pose_ok = torch.isfinite(targets.pose).all(dim=-1).all(dim=-1)  # (B,)
-    pose_target = torch.where(pose_ok[:, None, None], targets.pose, outputs.pose.detach())
-    mpjpe = _masked_mean(mpjpe_mm(outputs.pose, pose_target), pose_ok)
-    mpjae = _masked_mean(mpjae_deg(outputs.pose, pose_target), pose_ok)
+    # A keypoint is left out on its own (imported data may lack some): MPJPE
+    # over the keypoints present, MPJAE over the angles whose bones are present.
+    keypoint_ok = torch.isfinite(targets.pose).all(dim=-1)  # (B, 19)
+    pose_target = torch.where(keypoint_ok[..., None], targets.pose, outputs.pose.detach())
+    distance_mm = 1000.0 * safe_norm(outputs.pose - pose_target)  # (B, 19)
+    mpjpe = _masked_mean(
+        _row_means(distance_mm, keypoint_ok), keypoint_ok.any(dim=-1)
+    )  # mean per window, then over windows with any keypoint
+    angle_ok = angle_mask(keypoint_ok)  # (B, n_angles)
+    angle_error = math.degrees(1.0) * (joint_angles(outputs.pose) - joint_angles(pose_target)).abs()
+    mpjae = _masked_mean(_row_means(angle_error, angle_ok), angle_ok.any(dim=-1))
     pose = mpjpe + mpjae
 
     labelled = targets.action != contract.NO_ACTION  # (B,)

@@ -57,9 +57,73 @@ class TrainOptions:
     max_minutes: float = 0.0  # stop (and checkpoint) after this much training; 0 = no limit
     progress_bar: bool = True
     loss_weights: LossWeights = field(default_factory=LossWeights)
+    freeze: tuple[str, ...] = ()  # parts kept as they are (FREEZE_GROUPS), e.g. to fine-tune
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+# Parts of the model that fine-tuning may keep fixed: the per-frame CNN, and the
+# encoder (class token, positions, transformer layers, final norm, pooling).
+FREEZE_GROUPS = ("cnn", "encoder")
+
+
+def freeze_parts(model: Scotti, groups: Sequence[str]) -> list[torch.nn.Module]:
+    """Stop gradients into the named parts; returns their modules (kept in eval mode
+    while training, so batch-norm statistics and dropout stay as they were)."""
+    unknown = sorted(set(groups) - set(FREEZE_GROUPS))
+    if unknown:
+        msg = f"cannot freeze {', '.join(unknown)}: the parts are {', '.join(FREEZE_GROUPS)}"
+        raise ExportError(msg)
+    modules: list[torch.nn.Module] = []
+    params: list[torch.nn.Parameter] = []
+    if "cnn" in groups:
+        modules.append(model.cnn)
+        params += list(model.cnn.parameters())
+    if "encoder" in groups:
+        modules += [model.encoder, model.ln_final]
+        params += [model.class_token, model.positions, model.pool_weights]
+        params += list(model.encoder.parameters()) + list(model.ln_final.parameters())
+    for p in params:
+        p.requires_grad_(False)
+    return modules
+
+
+def load_initial_weights(model: Scotti, state: dict[str, torch.Tensor]) -> list[str]:
+    """Start from another run's weights (``--init``); returns what could not be copied whole.
+
+    The action head may have grown since the checkpoint (the contract appends
+    actions at the end): its rows for the actions both know are copied, the new
+    ones keep their fresh initialisation. Any other difference is an error.
+    """
+    own = model.state_dict()
+    notes: list[str] = []
+    missing = sorted(set(own) - set(state))
+    unexpected = sorted(set(state) - set(own))
+    if missing or unexpected:
+        msg = f"--init checkpoint does not fit this model (missing {missing[:3]}, extra "
+        msg += f"{unexpected[:3]})"
+        raise ExportError(msg)
+    merged: dict[str, torch.Tensor] = {}
+    for name, value in state.items():
+        mine = own[name]
+        if value.shape == mine.shape:
+            merged[name] = value
+        elif (
+            name.startswith("action_head.")
+            and value.shape[1:] == mine.shape[1:]
+            and value.shape[0] < mine.shape[0]
+        ):
+            grown = mine.clone()
+            grown[: value.shape[0]] = value
+            merged[name] = grown
+            notes.append(f"{name}: {value.shape[0]} of {mine.shape[0]} rows from the checkpoint")
+        else:
+            msg = f"--init checkpoint's {name} is {tuple(value.shape)}, this model's "
+            msg += f"{tuple(mine.shape)}"
+            raise ExportError(msg)
+    model.load_state_dict(merged)
+    return notes
 
 
 @dataclass(frozen=True)
@@ -146,8 +210,11 @@ class Trainer:
         self.run_dir = run_dir
         self.training_data = training_data or {}
         self.window = model.cfg.window
+        self.frozen = freeze_parts(model, opts.freeze)
         self.optimizer = torch.optim.Adam(
-            model.parameters(), lr=opts.lr, weight_decay=opts.weight_decay
+            [p for p in model.parameters() if p.requires_grad],
+            lr=opts.lr,
+            weight_decay=opts.weight_decay,
         )
         self.total_steps = max(1, opts.epochs * len(plan_epoch(train_set, opts, 0)))
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
@@ -162,6 +229,8 @@ class Trainer:
     def train_step(self, batch: Sequence[PlannedChunk]) -> tuple[float, int]:
         """One optimiser step; returns the batch's mean loss and its window count."""
         self.model.train()
+        for module in self.frozen:
+            module.eval()  # frozen: batch-norm statistics and dropout as they were
         frames, targets = batch_tensors(self.train_set, batch)
         outputs = chunked_outputs(self.model, frames, self.window, self.opts.stride)
         loss, _ = scotti_loss(outputs, targets, self.opts.loss_weights)
@@ -174,7 +243,8 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()  # type: ignore[no-untyped-call]
         if self.opts.grad_clip > 0:
-            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.opts.grad_clip)
+            trainable = [p for p in self.model.parameters() if p.requires_grad]
+            torch.nn.utils.clip_grad_norm_(trainable, self.opts.grad_clip)
         self.optimizer.step()
         self.scheduler.step()
         return float(loss.detach()), int(targets.action.shape[0])

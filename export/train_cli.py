@@ -21,7 +21,13 @@ from scotti.export.data import SessionArrays, find_sessions, load_session
 from scotti.export.errors import ExportError
 from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
-from scotti.export.train import Trainer, TrainOptions, measure_throughput
+from scotti.export.train import (
+    FREEZE_GROUPS,
+    Trainer,
+    TrainOptions,
+    load_initial_weights,
+    measure_throughput,
+)
 from scotti.export.windows import WindowDataset, split_by_subject
 
 log = logging.getLogger("scotti.train")
@@ -52,8 +58,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=Path, required=True, help="run directory")
     parser.add_argument(
         "--config",
-        default="small",
-        help="model size: " + "|".join(CONFIG_PRESETS) + ", a JSON object or a .json file",
+        default=None,
+        help="model size: "
+        + "|".join(CONFIG_PRESETS)
+        + ", a JSON object or a .json file"
+        + " (default small; with --init, the checkpoint's)",
+    )
+    parser.add_argument(
+        "--init",
+        type=Path,
+        default=None,
+        metavar="CHECKPOINT",
+        help="start from this checkpoint's weights (fine-tuning); fresh optimiser and schedule",
+    )
+    parser.add_argument(
+        "--freeze",
+        nargs="+",
+        choices=FREEZE_GROUPS,
+        default=[],
+        help="keep these parts as they are (with --init: fine-tune the rest)",
     )
     parser.add_argument("--epochs", type=int, default=d.epochs)
     parser.add_argument("--batch", type=int, default=d.batch, help="windows per step")
@@ -153,6 +176,7 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         seed=args.seed,
         max_minutes=args.max_minutes,
         progress_bar=not args.no_progress and sys.stderr.isatty(),
+        freeze=tuple(args.freeze),
     )
 
 
@@ -164,7 +188,16 @@ def _run(args: argparse.Namespace) -> int:
     ckpt = load_checkpoint(resume_from) if args.resume and resume_from.is_file() else None
     if args.resume and ckpt is None:
         log.info("no %s yet: starting a new run", resume_from)
-    cfg = ScottiConfig.from_dict(ckpt["config"]) if ckpt else parse_config(args.config)
+    init = load_checkpoint(args.init) if args.init is not None and ckpt is None else None
+    if init is not None and args.config is not None:
+        msg = "--init takes the model size from its checkpoint; leave out --config"
+        raise TrainCliError(msg)
+    if ckpt is not None:
+        cfg = ScottiConfig.from_dict(ckpt["config"])
+    elif init is not None:
+        cfg = ScottiConfig.from_dict(init["config"])
+    else:
+        cfg = parse_config(args.config or "small")
 
     cache = args.cache or out.parent / ".session-cache"
     sessions = [load_session(p, cache) for p in find_sessions(args.sessions)]
@@ -185,6 +218,10 @@ def _run(args: argparse.Namespace) -> int:
         "windows": {"train": train_set.count(1), "test": test_set.count(1)},
         "problems": _sum_counters(sessions),
     }
+    if args.init is not None:
+        training_data["init"] = str(
+            ckpt["training_data"].get("init", args.init) if ckpt else args.init
+        )
     if ckpt is not None and sorted(ckpt["training_data"]["files"]) != sorted(
         training_data["files"]
     ):
@@ -202,6 +239,10 @@ def _run(args: argparse.Namespace) -> int:
 
     torch.manual_seed(opts.seed)
     model = Scotti(cfg)
+    if init is not None:
+        for note in load_initial_weights(model, init["model"]):
+            log.info("--init: %s", note)
+        log.info("--init: weights from %s%s", args.init, _frozen_note(opts.freeze))
     if args.benchmark:
         rates = measure_throughput(model, train_set, replace(opts, max_shift=0), args.benchmark)
         print(
@@ -231,6 +272,10 @@ def _run(args: argparse.Namespace) -> int:
     status = trainer.fit()
     log.info("%s: %s after %d epochs, checkpoint %s", out, status, trainer.state.epoch, resume_from)
     return 0
+
+
+def _frozen_note(freeze: tuple[str, ...]) -> str:
+    return f", {' and '.join(freeze)} frozen" if freeze else ""
 
 
 def _warn_changed_options(before: dict[str, Any], now: dict[str, Any]) -> None:

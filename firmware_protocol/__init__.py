@@ -41,6 +41,7 @@ from scotti.firmware_protocol.session import (
     SessionHeader,
     SessionReader,
     SessionWriter,
+    SourceFrameRecord,
     iter_records,
     read_session,
 )
@@ -72,6 +73,7 @@ __all__ = [
     "SessionHeader",
     "SessionReader",
     "SessionWriter",
+    "SourceFrameRecord",
     "StreamDecoder",
     "TooLongError",
     "UnknownTypeError",

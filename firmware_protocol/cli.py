@@ -69,6 +69,32 @@ def _scene(scene: dict[str, Any] | None) -> str:
     return " ".join(simple) + (f" (+{more} more)" if more else "")
 
 
+def _imported(info: dict[str, Any]) -> str:
+    """Where an imported session came from, in one line."""
+    parts = []
+    p = info.get("pressure") or {}
+    if p:
+        parts.append(
+            f"{p.get('file')} ({p.get('rows')} x {p.get('cols')}, {p.get('frames')} frames at"
+            f" {float(p.get('rate_hz') or 0):.3g} Hz)"
+        )
+    counts = info.get("counts") or {}
+    if counts:
+        parts.append(f"counts {counts.get('method')}")
+    k = info.get("keypoints") or {}
+    if k:
+        parts.append(
+            f"keypoints {k.get('file')} ({k.get('set')}, {len(k.get('mapped', []))} of 19)"
+        )
+    labels = info.get("labels") or {}
+    if labels:
+        parts.append("labels " + ", ".join(f"{a}={b}" for a, b in labels.items()))
+    segments = info.get("segments") or []
+    if len(segments) > 1:
+        parts.append(f"{len(segments)} segments")
+    return "; ".join(parts) or "-"
+
+
 def render(s: SessionSummary) -> str:
     """The human-readable report."""
     h = s.header
@@ -80,6 +106,8 @@ def render(s: SessionSummary) -> str:
     ]
     if h.source == "simulated" or h.scene:
         lines.append(f"scene     {_scene(h.scene)}")
+    if h.imported:
+        lines.append(f"import    {_imported(h.imported)}")
     lines.append(
         f"duration  {s.duration_s:.2f} s, {s.packet_records} packet records,"
         f" {s.stream_bytes} stream bytes, file {s.file_bytes} bytes"

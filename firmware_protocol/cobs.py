@@ -59,29 +59,38 @@ def encode_batch(chunks: Sequence[bytes]) -> list[bytes]:
     for i, chunk in enumerate(chunks):
         by_length.setdefault(len(chunk), []).append(i)
     for length, idx in by_length.items():
-        n = len(idx)
-        a = np.frombuffer(b"".join([chunks[i] for i in idx]), np.uint8).reshape(n, length)
-        pos = np.int16 if length < np.iinfo(np.int16).max else np.int64  # small: fast
-        cols = np.arange(length, dtype=pos)
-        is_zero = a == 0
-        # next_zero[:, j]: the first zero at or after j, ``length`` if none (j = 0..length)
-        marks = np.full((n, length + 1), length, dtype=pos)
-        marks[:, :-1] = np.where(is_zero, cols, pos(length))
-        next_zero = np.minimum.accumulate(marks[:, ::-1], axis=1)[:, ::-1]
-        block = next_zero[:, 1:] - cols  # at a zero: the code that replaces it
-        codes = np.where(is_zero, block, a)
-        first = next_zero[:, 0] + 1  # the leading code byte
-        full = (block > MAX_BLOCK) & is_zero  # a block after a zero needs splitting
-        simple = (first <= MAX_BLOCK) & ~full.any(axis=1)
-        enc = np.empty((n, length + 1), np.uint8)
-        enc[:, 0] = first
-        enc[:, 1:] = codes
-        flat = enc.tobytes()
-        width = length + 1
-        for row, i in enumerate(idx):
-            simple_row = simple[row]
-            out[i] = flat[row * width : (row + 1) * width] if simple_row else encode(chunks[i])
+        a = np.frombuffer(b"".join([chunks[i] for i in idx]), np.uint8).reshape(len(idx), length)
+        for i, encoded in zip(idx, encode_rows(a), strict=True):
+            out[i] = encoded
     return out
+
+
+def encode_rows(a: np.ndarray) -> list[bytes]:
+    """``[encode(row) for row in a]`` for a (n, length) uint8 array, vectorised.
+
+    Each row is laid out as [0, row..., 0]: a zero in front for the code
+    byte and one behind for the end. Every zero but the last then becomes
+    the distance to the next zero, and the last is dropped. A row in which
+    some distance exceeds 254 (a run COBS splits into full blocks) goes
+    through ``encode`` itself.
+    """
+    n, length = a.shape
+    width = length + 2
+    ext = np.zeros((n, width), np.uint8)
+    ext[:, 1:-1] = a
+    flat = ext.reshape(-1)
+    zeros = np.flatnonzero(flat == 0)
+    step = np.diff(zeros)  # within a row: to the next zero; at a row's end: to the next row
+    flat[zeros[:-1]] = np.minimum(step, 255).astype(np.uint8)  # ends are dropped below
+    ends = (zeros[:-1] % width) == width - 1
+    too_long = np.flatnonzero((step > MAX_BLOCK) & ~ends)
+    slow = set((zeros[too_long] // width).tolist())
+    body = ext[:, :-1].tobytes()
+    stride = length + 1
+    return [
+        encode(a[row].tobytes()) if row in slow else body[row * stride : (row + 1) * stride]
+        for row in range(n)
+    ]
 
 
 def decode(frame: bytes) -> bytes:

@@ -8,13 +8,25 @@ than one maximal encoded packet in memory.
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Final
 
+import numpy as np
 from scotti.firmware_protocol import cobs
-from scotti.firmware_protocol.errors import DecodeError, TooLongError
-from scotti.firmware_protocol.packets import MAX_PACKET_LEN, Packet, parse_packet
+from scotti.firmware_protocol.errors import DecodeError, PacketValueError, TooLongError
+from scotti.firmware_protocol.packets import (
+    CLOCK_MODULUS,
+    CRC_LEN,
+    MAX_PACKET_LEN,
+    MAX_SAMPLE_BITS,
+    SEQ_MODULUS,
+    TYPE_FRAME_ROWS,
+    VERSION,
+    Packet,
+    parse_packet,
+)
 
 DELIMITER: Final = 0x00  # ends every COBS-encoded packet on the wire
 MAX_ENCODED_LEN: Final = cobs.max_encoded_len(MAX_PACKET_LEN)  # longest legal run (2057 bytes)
@@ -28,6 +40,75 @@ def encode_packet(packet: Packet) -> bytes:
 def encode_packets(packets: Sequence[Packet]) -> list[bytes]:
     """``[encode_packet(p) for p in packets]``, byte for byte, COBS vectorised."""
     return [e + b"\x00" for e in cobs.encode_batch([p.to_bytes() for p in packets])]
+
+
+# The FRAME_ROWS header as numpy lays it out, for encoding many packets at once:
+# [version:1] [type:1] [foot:1] [seq:2] [board_clock_us:4] [rows:1] [cols:1]
+# [sample_bits:1] [row_start:1] [row_count:1]  (packed, little endian)
+_WHOLE_FRAME_HEAD: Final = np.dtype(
+    [
+        ("version", "u1"),
+        ("type", "u1"),
+        ("foot", "u1"),
+        ("seq", "<u2"),
+        ("clock", "<u4"),
+        ("rows", "u1"),
+        ("cols", "u1"),
+        ("bits", "u1"),
+        ("row_start", "u1"),
+        ("row_count", "u1"),
+    ]
+)
+
+
+def encode_whole_frames(
+    feet: Sequence[int] | np.ndarray,
+    seqs: Sequence[int] | np.ndarray,
+    clocks_us: Sequence[int] | np.ndarray,
+    frames: np.ndarray,
+    sample_bits: int,
+) -> list[bytes]:
+    """Wire bytes of one FRAME_ROWS packet per frame carrying all its rows, many at once.
+
+    Byte for byte ``encode_packet(FrameRows(foot, seq, clock, rows, cols, sample_bits,
+    0, frame))`` for each, checked once for the whole batch (``frames``: (n, rows,
+    cols) integers) instead of once per packet: what an importer writing hours
+    of frames needs.
+    """
+    f = np.asarray(frames)
+    n, rows, cols = f.shape
+    length = _WHOLE_FRAME_HEAD.itemsize + 2 * rows * cols + CRC_LEN
+    if f.dtype.kind not in "ui" or not (1 <= rows <= 255 and 1 <= cols <= 255):
+        msg = f"frames must be integers (n, rows<=255, cols<=255), got {f.dtype} {f.shape}"
+        raise PacketValueError(msg)
+    if not 1 <= sample_bits <= MAX_SAMPLE_BITS or length > MAX_PACKET_LEN:
+        msg = f"sample_bits={sample_bits} or a {length}-byte packet is outside the protocol"
+        raise PacketValueError(msg)
+    if f.size and (int(f.min()) < 0 or int(f.max()) >> sample_bits):
+        msg = f"sample values must fit {sample_bits} bits"
+        raise PacketValueError(msg)
+    seq = np.asarray(seqs, dtype=np.int64)
+    clock = np.asarray(clocks_us, dtype=np.int64)
+    foot = np.asarray(feet, dtype=np.int64)
+    if ((seq < 0) | (seq >= SEQ_MODULUS)).any() or ((clock < 0) | (clock >= CLOCK_MODULUS)).any():
+        msg = "seq must be 0..65535 and board_clock_us 0..2**32-1"
+        raise PacketValueError(msg)
+    if ((foot != 0) & (foot != 1)).any():
+        msg = "foot must be 0 (left) or 1 (right)"
+        raise PacketValueError(msg)
+    head = np.zeros(n, dtype=_WHOLE_FRAME_HEAD)
+    head["version"], head["type"], head["foot"] = VERSION, TYPE_FRAME_ROWS, foot
+    head["seq"], head["clock"] = seq, clock
+    head["rows"], head["cols"], head["bits"], head["row_count"] = rows, cols, sample_bits, rows
+    packets = np.empty((n, length), dtype=np.uint8)
+    body = _WHOLE_FRAME_HEAD.itemsize + 2 * rows * cols
+    packets[:, : _WHOLE_FRAME_HEAD.itemsize] = head.view(np.uint8).reshape(n, -1)
+    samples = np.ascontiguousarray(f, dtype="<u2").reshape(n, -1).view(np.uint8)
+    packets[:, _WHOLE_FRAME_HEAD.itemsize : body] = samples
+    raw = packets.reshape(-1).data  # a view: slicing it copies nothing
+    crcs = [zlib.crc32(raw[i * length : i * length + body]) for i in range(n)]
+    packets[:, body:] = np.array(crcs, dtype="<u4").view(np.uint8).reshape(n, CRC_LEN)
+    return [e + b"\x00" for e in cobs.encode_rows(packets)]
 
 
 @dataclass

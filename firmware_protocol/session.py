@@ -51,6 +51,9 @@ class SessionHeader:
     scene: dict[str, Any] | None = None  # the scene a simulated session was made from
     subject: dict[str, Any] | None = None  # who wore the insoles (simulated or recorded)
     format_version: int = FORMAT_VERSION
+    # An imported session's provenance: source files, their grid and rate, the
+    # mapping onto the contract (importers/IMPORT.md). None for the others.
+    imported: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -58,7 +61,7 @@ class SessionHeader:
             raise SessionError(msg)
 
     def to_record(self) -> dict[str, Any]:
-        return {
+        record = {
             "kind": "header",
             "format_version": self.format_version,
             "source": self.source,
@@ -71,6 +74,9 @@ class SessionHeader:
             "scene": self.scene,
             "subject": self.subject,
         }
+        if self.imported is not None:  # only imported files carry it: others stay as they were
+            record["imported"] = self.imported
+        return record
 
     @classmethod
     def from_record(cls, record: dict[str, Any]) -> SessionHeader:
@@ -90,6 +96,7 @@ class SessionHeader:
                 scene=record.get("scene"),
                 subject=record.get("subject"),
                 format_version=version,
+                imported=record.get("imported"),
             )
         except (KeyError, TypeError, ValueError) as exc:
             msg = f"session header is incomplete or malformed ({exc!r})"
@@ -176,7 +183,40 @@ class LabelRecord:
     __hash__ = None  # type: ignore[assignment]  # holds an array: not hashable
 
 
-Record: TypeAlias = SessionHeader | PacketRecord | LabelRecord
+@dataclass(frozen=True, eq=False)
+class SourceFrameRecord:
+    """An imported session's pressure as its source stored it, before resampling.
+
+    Kept (thinned) so pictures can show the original grid beside the 32 x 22
+    one; readers skip these unless asked (``SessionReader(source_frames=True)``).
+    """
+
+    t_ns: int  # the source's own time stamp of this frame
+    frames: np.ndarray = field(repr=False)  # (2, rows, cols) float32, left then right, as stored
+
+    def __post_init__(self) -> None:
+        frames = np.asarray(self.frames, dtype=np.float32)
+        if frames.ndim != 3 or frames.shape[0] != 2:
+            msg = f"source frames must be (2, rows, cols), got {frames.shape}"
+            raise SessionError(msg)
+        object.__setattr__(self, "frames", frames)
+
+    def to_record(self) -> dict[str, Any]:
+        _, rows, cols = self.frames.shape
+        data = self.frames.astype("<f4").tobytes()
+        return {"kind": "source_frame", "t_ns": self.t_ns, "rows": rows, "cols": cols, "data": data}
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any]) -> SourceFrameRecord:
+        rows, cols, raw = int(record["rows"]), int(record["cols"]), record["data"]
+        if not isinstance(raw, bytes) or len(raw) != 2 * rows * cols * 4:
+            msg = f"source frame data must be 2 x {rows} x {cols} float32"
+            raise ValueError(msg)
+        frames = np.frombuffer(raw, dtype="<f4").reshape(2, rows, cols).astype(np.float32)
+        return cls(t_ns=int(record["t_ns"]), frames=frames)
+
+
+Record: TypeAlias = SessionHeader | PacketRecord | LabelRecord | SourceFrameRecord
 
 
 def _pack(record: dict[str, Any]) -> bytes:
@@ -253,7 +293,7 @@ class SessionWriter(_ClosedOnExit):
     def write_label(self, label: LabelRecord) -> None:
         self._write(label.to_record())
 
-    def write(self, record: PacketRecord | LabelRecord) -> None:
+    def write(self, record: PacketRecord | LabelRecord | SourceFrameRecord) -> None:
         self._write(record.to_record())
 
     def flush(self) -> None:
@@ -296,14 +336,16 @@ class SessionWriter(_ClosedOnExit):
 class SessionReader(_ClosedOnExit):
     """Streams the records of a session file; the header is read on open.
 
-    Iterating yields ``PacketRecord`` and ``LabelRecord`` in file order. When
+    Iterating yields ``PacketRecord`` and ``LabelRecord`` in file order (and
+    ``SourceFrameRecord`` when ``source_frames`` is set; skipped otherwise). When
     it ends, ``truncated`` says whether the file stopped inside a record,
     ``bad_records`` how many whole records could not be understood and
     ``unknown_records`` how many had a kind this reader does not know.
     """
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    def __init__(self, path: str | os.PathLike[str], *, source_frames: bool = False) -> None:
         self.path = Path(path)
+        self.source_frames = source_frames
         self.truncated = False
         self.bad_records = 0
         self.unknown_records = 0
@@ -363,6 +405,12 @@ class SessionReader(_ClosedOnExit):
         return record
 
     def __iter__(self) -> Iterator[PacketRecord | LabelRecord]:
+        for record in self.records():
+            if not isinstance(record, SourceFrameRecord):
+                yield record
+
+    def records(self) -> Iterator[PacketRecord | LabelRecord | SourceFrameRecord]:
+        """Every whole record after the header, source frames when asked for."""
         while (record := self._next_map()) is not None:
             kind = record.get("kind")
             try:
@@ -370,6 +418,9 @@ class SessionReader(_ClosedOnExit):
                     yield PacketRecord.from_record(record)
                 elif kind == "label":
                     yield LabelRecord.from_record(record)
+                elif kind == "source_frame":
+                    if self.source_frames:
+                        yield SourceFrameRecord.from_record(record)
                 elif record is _BAD_RECORD:
                     pass  # already counted by _next_map
                 elif not isinstance(kind, str):
@@ -410,11 +461,14 @@ def read_session(path: str | os.PathLike[str]) -> Session:
     )
 
 
-def iter_records(path: str | os.PathLike[str]) -> Iterator[Record]:
-    """Stream the header, then every whole packet and label record, in file order."""
-    with SessionReader(path) as reader:
+def iter_records(path: str | os.PathLike[str], *, source_frames: bool = False) -> Iterator[Record]:
+    """Stream the header, then every whole packet and label record, in file order.
+
+    ``source_frames``: also an imported session's source frames, where they lie.
+    """
+    with SessionReader(path, source_frames=source_frames) as reader:
         yield reader.header
-        yield from reader
+        yield from reader.records()
 
 
 def find_session_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:

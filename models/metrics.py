@@ -30,8 +30,9 @@ class PrecisionMargin:
 def mpjpe_mm(pred: npt.ArrayLike, true: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> float:
     """Mean per joint position error in millimetres; keypoints (..., 19, 3) in metres."""
     p, t = _pair_of_poses(pred, true)
-    distance = np.linalg.norm(p - t, axis=-1).mean(axis=-1)  # (N,) metres
-    return _masked_mean(distance, mask) * 1000.0
+    # A keypoint the label lacks (NaN, e.g. imported data) is left out on its own.
+    distance = _nan_row_mean(np.linalg.norm(p - t, axis=-1))  # (N,) metres
+    return _masked_mean(distance, _with_any(mask, distance)) * 1000.0
 
 
 def joint_angles_deg(keypoints: npt.ArrayLike) -> FloatArray:
@@ -52,8 +53,8 @@ def joint_angles_deg(keypoints: npt.ArrayLike) -> FloatArray:
 def mpjae_deg(pred: npt.ArrayLike, true: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> float:
     """Mean per joint angle error in degrees over ``contract.JOINT_ANGLES``."""
     p, t = _pair_of_poses(pred, true)
-    error = np.abs(joint_angles_deg(p) - joint_angles_deg(t)).mean(axis=-1)  # (N,)
-    return _masked_mean(error, mask)
+    error = _nan_row_mean(np.abs(joint_angles_deg(p) - joint_angles_deg(t)))  # (N,)
+    return _masked_mean(error, _with_any(mask, error))
 
 
 def action_mask(true: npt.ArrayLike) -> npt.NDArray[np.bool_]:
@@ -123,6 +124,26 @@ def app(pred: npt.ArrayLike, true: npt.ArrayLike) -> float:
 
 
 # --- helpers ---------------------------------------------------------------
+
+
+def _nan_row_mean(values: FloatArray) -> FloatArray:
+    """(N, K) -> (N,): mean over the finite entries of each row, NaN when none is."""
+    ok = np.isfinite(values)
+    count = ok.sum(axis=-1)
+    total = np.where(ok, values, 0.0).sum(axis=-1)
+    return np.asarray(np.where(count > 0, total / np.maximum(count, 1), np.nan), np.float64)
+
+
+def _with_any(mask: npt.ArrayLike | None, per_frame: FloatArray) -> npt.NDArray[np.bool_]:
+    """The caller's frame mask, less the frames that had nothing to compare."""
+    ok = np.isfinite(per_frame)
+    if mask is None:
+        return ok
+    m = np.asarray(mask, dtype=bool).reshape(-1)
+    if m.shape != ok.shape:
+        msg = f"mask must have {ok.size} entries, got {m.size}"
+        raise ModelInputError(msg)
+    return np.asarray(m & ok)
 
 
 def _masked_mean(values: FloatArray, mask: npt.ArrayLike | None) -> float:

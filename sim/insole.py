@@ -39,9 +39,11 @@ from typing import Final, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+from scotti.models import insole as models_insole
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
 
 InsoleName = Literal["realistic", "ideal"]
+_NOMINAL: Final = models_insole.DEFAULT_TRANSFER
 
 
 @dataclass(frozen=True)
@@ -49,14 +51,24 @@ class Insole:
     """One insole model with every parameter resolved."""
 
     model: InsoleName = "realistic"
-    threshold_kpa: float = 20.0  # activation pressure, below it a taxel reads 0
-    p_half_kpa: float = 180.0  # pressure above threshold reading half of full scale
-    exponent: float = 0.8  # power of the film's conductance law
-    saturation_counts: float = 3800.0  # where the amplifier rails
+    # The nominal curve is the contract's count scale (models/insole.py).
+    threshold_kpa: float = _NOMINAL.threshold_kpa  # activation pressure, below it reads 0
+    p_half_kpa: float = _NOMINAL.p_half_kpa  # pressure above threshold reading half scale
+    exponent: float = _NOMINAL.exponent  # power of the film's conductance law
+    saturation_counts: float = _NOMINAL.saturation_counts  # where the amplifier rails
     gain_sigma: float = 0.15  # lognormal taxel-to-taxel sensitivity spread
 
     def as_dict(self) -> dict[str, float | str]:
         return dict(asdict(self))
+
+    def transfer(self) -> models_insole.Transfer:
+        """The count curve (the contract's form, models/insole.py) with this insole's values."""
+        return models_insole.Transfer(
+            p_half_kpa=self.p_half_kpa,
+            threshold_kpa=self.threshold_kpa,
+            exponent=self.exponent,
+            saturation_counts=self.saturation_counts,
+        )
 
 
 MODELS: Final[dict[str, Insole]] = {
@@ -106,24 +118,8 @@ def draw_insole(rng: np.random.Generator) -> Insole:
 
 
 def counts_from_kpa(kpa: np.ndarray, insole: Insole = IDEAL) -> np.ndarray:
-    """Float32 counts of pressures (same shape), without gain spread; round when packing.
-
-    Only pressed taxels are computed (most of an insole reads 0 most of the time).
-    """
-    f32 = np.float32
-    q = np.asarray(kpa, dtype=f32) - f32(insole.threshold_kpa)
-    pressed = q > 0.0
-    counts = np.zeros(q.shape, f32)
-    v = q[pressed]
-    half = f32(insole.p_half_kpa)
-    if insole.exponent != 1.0:
-        v **= f32(insole.exponent)
-        half **= f32(insole.exponent)
-    v /= v + half
-    v *= f32(MAX_COUNT)
-    np.minimum(v, f32(min(insole.saturation_counts, MAX_COUNT)), out=v)
-    counts[pressed] = v
-    return counts
+    """Float32 counts of pressures (same shape), without gain spread; round when packing."""
+    return models_insole.counts_from_kpa(kpa, insole.transfer())
 
 
 def to_uint16(counts: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ foot mirrored, giving an anatomical pair (big toes towards the middle).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -20,7 +20,13 @@ import numpy as np
 from scotti.firmware_protocol.assembly import FrameAssembler
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
-from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionHeader, iter_records
+from scotti.firmware_protocol.session import (
+    LabelRecord,
+    PacketRecord,
+    SessionHeader,
+    SourceFrameRecord,
+    iter_records,
+)
 from scotti.models.contract import ACTIONS, BONES, KP, MAX_COUNT, NO_ACTION
 from scotti.sim import SimError
 
@@ -43,6 +49,10 @@ class Span:
     action: np.ndarray  # (n,)
     progress: np.ndarray  # (n,)
     header: SessionHeader
+    # Imported sessions: source frames as the other insole stored them (thinned),
+    # their times on the same axis as ``time_s``; empty for the others.
+    source_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    source_frames: list[np.ndarray] = field(default_factory=list)  # each (2, rows, cols)
 
 
 def load_span(
@@ -52,11 +62,12 @@ def load_span(
     header: SessionHeader | None = None
     labels: list[LabelRecord] = []
     blocks: list[tuple[int, FrameRows]] = []
+    sources: list[SourceFrameRecord] = []
     decoder = StreamDecoder()
     t0: int | None = None
     begin = end = 0
     try:
-        for record in iter_records(path):
+        for record in iter_records(path, source_frames=True):
             if isinstance(record, SessionHeader):
                 header = record
             elif isinstance(record, LabelRecord):
@@ -68,6 +79,8 @@ def load_span(
                     labels.append(record)
                 elif record.t_ns >= end + _MARGIN_NS:
                     break
+            elif isinstance(record, SourceFrameRecord):
+                sources.append(record)
             elif (
                 isinstance(record, PacketRecord)
                 and begin - _MARGIN_NS <= record.t_ns < end + _MARGIN_NS
@@ -79,10 +92,70 @@ def load_span(
     except Exception as exc:  # the protocol's SessionError and OS errors, as one line
         msg = f"cannot read {path}: {exc}"
         raise RenderError(msg) from None
+    if header is not None and t0 is None:  # no labels at all (a pressure-only import)
+        return _unlabelled_span(path, header, start_s, duration_s)
     if header is None or not labels:
         msg = f"{path}: no labelled frames in that span"
         raise RenderError(msg)
-    return _assemble(header, labels, blocks, t0 or 0)
+    span = _assemble(header, labels, blocks, t0 or 0)
+    inside = [r for r in sources if begin - _MARGIN_NS <= r.t_ns < end + _MARGIN_NS]
+    if inside:
+        times = np.array([(r.t_ns - (t0 or 0)) / 1e9 for r in inside])
+        span = replace(span, source_time_s=times, source_frames=[r.frames for r in inside])
+    return span
+
+
+def _unlabelled_span(
+    path: str | os.PathLike[str],
+    header: SessionHeader,
+    start_s: float,
+    duration_s: float | None,
+) -> Span:
+    """A session without labels: the frames themselves give the time axis (no skeleton)."""
+    decoder = StreamDecoder()
+    blocks: list[tuple[int, FrameRows]] = []
+    sources: list[SourceFrameRecord] = []
+    t0: int | None = None
+    try:
+        for record in iter_records(path, source_frames=True):
+            if isinstance(record, SourceFrameRecord):
+                sources.append(record)
+            elif isinstance(record, PacketRecord):
+                t0 = record.t_ns if t0 is None else t0
+                begin = t0 + round(start_s * 1e9)
+                end = begin + round(duration_s * 1e9) if duration_s is not None else 2**62
+                if record.t_ns >= end + _MARGIN_NS:
+                    break
+                if record.t_ns >= begin - _MARGIN_NS:
+                    items = decoder.feed(record.data)
+                    blocks += [(record.t_ns, p) for p in items if isinstance(p, FrameRows)]
+    except Exception as exc:  # the protocol's SessionError and OS errors, as one line
+        msg = f"cannot read {path}: {exc}"
+        raise RenderError(msg) from None
+    assembler = FrameAssembler(max_in_progress=4)
+    times: dict[int, int] = {}
+    for t_ns, block in blocks:
+        for frame in assembler.push(block, t_ns):
+            times.setdefault(frame.seq, frame.last_byte_ns)
+    for frame in assembler.flush():
+        times.setdefault(frame.seq, frame.last_byte_ns)
+    begin = (t0 or 0) + round(start_s * 1e9)
+    end = begin + round(duration_s * 1e9) if duration_s is not None else 2**62
+    nothing = np.full((len(KP), 3), np.nan, dtype=np.float32)
+    labels = [
+        LabelRecord(seq, t_ns, nothing)
+        for seq, t_ns in sorted(times.items(), key=lambda item: item[1])
+        if begin <= t_ns < end
+    ]
+    if not labels:
+        msg = f"{path}: no frames in that span"
+        raise RenderError(msg)
+    span = _assemble(header, labels, blocks, t0 or 0)
+    inside = [r for r in sources if begin - _MARGIN_NS <= r.t_ns < end + _MARGIN_NS]
+    if inside:
+        times_s = np.array([(r.t_ns - (t0 or 0)) / 1e9 for r in inside])
+        span = replace(span, source_time_s=times_s, source_frames=[r.frames for r in inside])
+    return span
 
 
 def _assemble(
@@ -201,18 +274,54 @@ def render_png(span: Span, out: str | os.PathLike[str]) -> Path:
 
     n = len(span.time_s)
     picks = np.unique(np.linspace(0, n - 1, min(_SNAPSHOTS, n)).round().astype(int))
-    fig = plt.figure(figsize=(3.0 * len(picks), 7.0), dpi=100)
+    if span.source_frames:  # imported: snapshots where a source frame was kept
+        picks = _picks_at_sources(span, picks)
+    rows = 3 if span.source_frames else 2
+    fig = plt.figure(figsize=(3.0 * len(picks), 7.0 + 2.2 * (rows - 2)), dpi=100)
     fig.subplots_adjust(left=0.06, right=0.94, top=0.93, bottom=0.07)
-    grid = fig.add_gridspec(2, len(picks), height_ratios=[3.0, 1.0], hspace=0.2)
+    ratios = [3.0, 1.2, 1.0] if rows == 3 else [3.0, 1.0]
+    grid = fig.add_gridspec(rows, len(picks), height_ratios=ratios, hspace=0.25)
     for col, i in enumerate(picks):
         _snapshot(fig, grid[0, col], span, int(i))
-    _draw_timeline(fig.add_subplot(grid[1, :]), span, [float(span.time_s[i]) for i in picks])
+        if span.source_frames:
+            _draw_source(fig.add_subplot(grid[1, col]), span, int(i))
+    timeline = fig.add_subplot(grid[rows - 1, :])
+    _draw_timeline(timeline, span, [float(span.time_s[i]) for i in picks])
     scene = span.header.scene or {}
     fig.suptitle(f"{Path(out).stem}: {scene.get('name', span.header.source)}", fontsize=9)
     path = Path(out)
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def _nearest_source(span: Span, i: int) -> int:
+    return int(np.argmin(np.abs(span.source_time_s - span.time_s[i])))
+
+
+def _picks_at_sources(span: Span, picks: np.ndarray) -> np.ndarray:
+    """Move each snapshot to the labelled frame nearest a kept source frame."""
+    inside = span.source_time_s[
+        (span.source_time_s >= span.time_s[0]) & (span.source_time_s <= span.time_s[-1])
+    ]
+    if not inside.size:
+        return picks
+    wanted = inside[np.unique(np.linspace(0, inside.size - 1, picks.size).round().astype(int))]
+    return np.unique([int(np.argmin(np.abs(span.time_s - t))) for t in wanted])
+
+
+def _draw_source(ax: Any, span: Span, i: int) -> None:
+    """The source frame nearest frame i, both feet as the other insole stored them."""
+    k = _nearest_source(span, i)
+    frames = span.source_frames[k]
+    gap = np.full((frames.shape[1], 1), np.nan)
+    ax.imshow(np.hstack([frames[0], gap, frames[1]]), cmap="inferno", vmin=0)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    rows, cols = frames.shape[1:]
+    ax.set_title(
+        f"source t={span.source_time_s[k]:.2f}s, {rows} x {cols}\nL | R as stored", fontsize=7
+    )
 
 
 def render_gif(span: Span, out: str | os.PathLike[str], fps: float = _GIF_FPS) -> Path:

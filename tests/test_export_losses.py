@@ -11,6 +11,7 @@ import torch
 from scotti.export.losses import (
     LossWeights,
     ScottiTargets,
+    angle_mask,
     joint_angles,
     mpjae_deg,
     mpjpe_mm,
@@ -169,15 +170,33 @@ def test_weights_are_configurable_and_default_to_the_paper() -> None:
     assert float(total) == pytest.approx(float(expected), rel=1e-6)
 
 
-def test_nan_pose_label_is_left_out() -> None:
-    target = standing_pose().expand(2, -1, -1).clone()
+def test_a_missing_keypoint_is_left_out_on_its_own() -> None:
+    # Frame 0 exact; frame 1 off by 0.2 m on every axis with its nose unlabelled;
+    # frame 2 entirely unlabelled. MPJPE: mean of 0 and 0.2 * sqrt(3) m over the
+    # 18 labelled keypoints; frame 2 counts nowhere.
+    target = standing_pose().expand(3, -1, -1).clone()
     pred = target.clone()
     pred[1] += 0.2
-    target[1, 0, 0] = math.nan
+    pred[2] += 1.0
+    target[1, contract.KP["nose"], 0] = math.nan
+    target[2] = math.nan
     p = pred.clone().requires_grad_(True)
-    out = ScottiOutputs(p, torch.zeros(2, contract.NUM_ACTIONS), torch.zeros(2))
-    tgt = ScottiTargets(target, torch.tensor([0, 0]), torch.tensor([0.0, 0.0]))
+    out = ScottiOutputs(p, torch.zeros(3, contract.NUM_ACTIONS), torch.zeros(3))
+    tgt = ScottiTargets(target, torch.tensor([0, 0, 0]), torch.tensor([0.0, 0.0, 0.0]))
     total, parts = scotti_loss(out, tgt)
-    assert float(parts["mpjpe_mm"]) < 0.01  # only the clean frame counts
+    assert float(parts["mpjpe_mm"]) == pytest.approx(0.5 * 200.0 * math.sqrt(3.0), rel=1e-4)
+    # A pure translation keeps every joint angle: MPJAE 0 over the angles present.
+    assert float(parts["mpjae_deg"]) == pytest.approx(0.0, abs=1e-3)
     total.backward()  # type: ignore[no-untyped-call]
     assert grads_finite(p)
+    assert p.grad is not None
+    assert float(p.grad[2].abs().sum()) == 0.0  # nothing learnt from the unlabelled frame
+    assert float(p.grad[1, contract.KP["nose"]].abs().sum()) == 0.0
+
+
+def test_angles_need_both_bones() -> None:
+    ok = torch.ones(1, contract.NUM_KEYPOINTS, dtype=torch.bool)
+    ok[0, contract.KP["left_wrist"]] = False
+    mask = angle_mask(ok)[0]
+    # Only the left elbow angle (upper arm, forearm) uses the left wrist.
+    assert mask.tolist() == [i != 0 for i in range(len(contract.JOINT_ANGLES))]

@@ -104,3 +104,17 @@ def test_batch_encoding_equals_encode_on_random_chunks_of_one_length(length: int
     data[rng.uniform(size=(64, length)) < zero_share] = 0
     chunks = [row.tobytes() for row in data]
     assert cobs.encode_batch(chunks) == [cobs.encode(c) for c in chunks]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 700),
+    st.integers(1, 12),
+    st.floats(0.0, 1.0),
+    st.integers(0, 2**32 - 1),
+)
+def test_row_encoding_equals_encode(length: int, rows: int, zero_share: float, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    a = rng.integers(1, 256, (rows, length), dtype=np.uint8)
+    a[rng.random((rows, length)) < zero_share] = 0
+    assert cobs.encode_rows(a) == [cobs.encode(row.tobytes()) for row in a]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scotti.firmware_protocol import cobs
@@ -186,3 +187,27 @@ def test_any_garbage_then_a_delimiter_is_followed_by_every_packet(
     decoder = StreamDecoder()
     items = decoder.feed(garbage + b"\x00" + STREAM[:split]) + decoder.feed(STREAM[split:])
     assert packets_of(items)[-len(PACKETS) :] == PACKETS
+
+
+def test_whole_frames_encode_like_one_packet_each() -> None:
+    from scotti.firmware_protocol.errors import PacketValueError
+    from scotti.firmware_protocol.framing import encode_whole_frames
+    from scotti.firmware_protocol.packets import FrameRows
+
+    rng = np.random.default_rng(7)
+    frames = rng.integers(0, 4096, (9, 32, 22)).astype(np.uint16)
+    frames[:3] = 0
+    frames[3:6] = 257  # every byte non-zero: full COBS blocks
+    feet = [0, 1] * 4 + [0]
+    seqs = rng.integers(0, 1 << 16, 9)
+    clocks = rng.integers(0, 1 << 32, 9)
+    got = encode_whole_frames(feet, seqs, clocks, frames, 12)
+    expected = [
+        encode_packet(FrameRows(Foot(f), int(s), int(c), 32, 22, 12, 0, x))
+        for f, s, c, x in zip(feet, seqs, clocks, frames, strict=True)
+    ]
+    assert got == expected
+    too_big = frames.copy()
+    too_big[0, 0, 0] = 4096
+    with pytest.raises(PacketValueError, match="12 bits"):
+        encode_whole_frames(feet, seqs, clocks, too_big, 12)

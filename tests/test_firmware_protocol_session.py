@@ -265,3 +265,27 @@ def test_unstorable_values_are_a_session_error(tmp_path: Path) -> None:
     with SessionWriter(tmp_path / "b.scot", HEADER) as writer, pytest.raises(SessionError):
         writer.write_packet(2**70, b"")
     assert read_session(tmp_path / "b.scot").packets == []
+
+
+def test_source_frames_are_kept_and_skipped_unless_asked(tmp_path: Path) -> None:
+    from scotti.firmware_protocol.session import SourceFrameRecord
+
+    path = tmp_path / "imported.scotti"
+    provenance = {"pressure": {"file": "p.csv", "rows": 3, "cols": 2}}
+    header = SessionHeader(source="imported", imported=provenance)
+    source = SourceFrameRecord(5, np.arange(12, dtype=np.float32).reshape(2, 3, 2))
+    with SessionWriter(path, header) as writer:
+        writer.write(source)
+        writer.write_packet(10, b"\x01\x02")
+    session = read_session(path)
+    assert session.header.imported == provenance
+    assert len(session.packets) == 1
+    assert session.labels == []
+    assert session.unknown_records == 0  # a kind this reader knows, skipped on purpose
+    with SessionReader(path, source_frames=True) as reader:
+        records = list(reader.records())
+    assert isinstance(records[0], SourceFrameRecord)
+    np.testing.assert_array_equal(records[0].frames, source.frames)
+    assert records[0].t_ns == 5
+    kinds = [type(r).__name__ for r in iter_records(path, source_frames=True)]
+    assert kinds == ["SessionHeader", "SourceFrameRecord", "PacketRecord"]

@@ -157,3 +157,15 @@ def test_no_labelled_progress_is_nan() -> None:
     assert np.isnan(result.app)
     assert result.frames == 0
     assert np.isnan(progress_mse(np.array([0.5]), np.array([np.nan])))
+
+
+def test_pose_metrics_leave_out_missing_keypoints_one_by_one() -> None:
+    rng = np.random.default_rng(3)
+    true = rng.normal(size=(3, NUM_KEYPOINTS, 3))
+    pred = true + np.array([0.03, 0.0, 0.04])  # 50 mm off everywhere, angles unchanged
+    true[0, KP["left_small_toe"]] = np.nan  # an imported label without small toes
+    true[2] = np.nan  # no pose label at all
+    assert mpjpe_mm(pred, true) == pytest.approx(50.0)
+    assert mpjpe_mm(pred, true, [True, False, True]) == pytest.approx(50.0)  # frame 2 empty
+    assert mpjae_deg(pred, true) == pytest.approx(0.0, abs=1e-9)
+    assert np.isnan(mpjpe_mm(pred[2:], true[2:]))

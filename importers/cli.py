@@ -1,0 +1,108 @@
+"""``scotti import [CONFIG.toml] -o OUT.scotti``: another recording into a session file.
+
+    scotti import walk.toml -o data/real/p01-walk.scotti
+    scotti import --pressure p.npz --grid 16x8 --counts-per-kpa 10 \\
+                  --keypoints pose.csv --keypoint-set body25 --up=-y \\
+                  --action walking --subject p01 -o p01.scotti
+
+A TOML file describes everything (importers/config.py, importers/IMPORT.md);
+the flags cover the simple cases and override the file's keys. Any mistake
+in a file is one line naming the file, the line and the column, exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from scotti.importers.errors import ImporterError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.description = __doc__
+    parser.add_argument("config", nargs="?", type=Path, help="import TOML (optional)")
+    parser.add_argument("-o", "--output", type=Path, required=True, help="session file to write")
+    parser.add_argument("--force", action="store_true", help="replace an existing output")
+    parser.add_argument("--pressure", help="pressure file (.csv, .npz, .h5)")
+    parser.add_argument("--grid", metavar="ROWSxCOLS", help="the source grid of one foot")
+    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"))
+    scale = parser.add_mutually_exclusive_group()
+    scale.add_argument("--counts-per-kpa", type=float, help="source units per kPa")
+    scale.add_argument("--gain", type=float, help="source values are counts; times this")
+    parser.add_argument("--keypoints", help="keypoint file (.csv, .npz, .h5)")
+    parser.add_argument(
+        "--keypoint-set", choices=("coco_wholebody", "mediapipe33", "body25", "custom")
+    )
+    parser.add_argument(
+        "--up",
+        choices=("+x", "-x", "+y", "-y", "+z", "-z", "auto"),
+        help="the keypoints' up axis; a value with a sign wants '=': --up=-y",
+    )
+    parser.add_argument("--units", choices=("m", "cm", "mm"), help="keypoint units")
+    labels = parser.add_mutually_exclusive_group()
+    labels.add_argument("--segments", help="CSV of start,end,action")
+    labels.add_argument("--action", help="the one action of the whole recording")
+    parser.add_argument("--subject", help="subject id (default: the output's stem)")
+
+
+def overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The flags as configuration keys (only those given)."""
+    out: dict[str, Any] = {}
+    pressure: dict[str, Any] = {}
+    if args.pressure is not None:
+        pressure["file"] = str(Path(args.pressure).resolve())
+    if args.grid is not None:
+        try:
+            rows, cols = (int(x) for x in args.grid.lower().split("x"))
+        except ValueError:
+            msg = f"--grid wants ROWSxCOLS, e.g. 16x8, got {args.grid!r}"
+            raise ImporterError(msg) from None
+        pressure |= {"rows": rows, "cols": cols}
+    if args.time_unit is not None:
+        pressure["time_unit"] = args.time_unit
+    if pressure:
+        out["pressure"] = pressure
+    if args.counts_per_kpa is not None:
+        out["counts"] = {"method": "per_kpa", "units_per_kpa": args.counts_per_kpa}
+    if args.gain is not None:
+        out["counts"] = {"method": "counts", "gain": args.gain}
+    keypoints: dict[str, Any] = {}
+    if args.keypoints is not None:
+        keypoints["file"] = str(Path(args.keypoints).resolve())
+    for flag, key in (("keypoint_set", "set"), ("up", "up"), ("units", "units")):
+        if getattr(args, flag) is not None:
+            keypoints[key] = getattr(args, flag)
+    if keypoints:
+        out["keypoints"] = keypoints
+    if args.segments is not None:
+        out["labels"] = {"segments": str(Path(args.segments).resolve())}
+    if args.action is not None:
+        out["labels"] = {"action": args.action}
+    if args.subject is not None:
+        out["subject"] = args.subject
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from scotti.importers.config import config_from_dict, load_config
+    from scotti.importers.run import import_recording
+
+    try:
+        extra = overrides(args)
+        if args.config is not None:
+            cfg = load_config(args.config, extra)
+        else:
+            cfg = config_from_dict(extra, name="the command line")
+        if args.output.exists() and not args.force:
+            msg = f"{args.output} exists; --force replaces it"
+            raise ImporterError(msg)
+        report = import_recording(cfg, args.output, overwrite=args.force)
+    except ImporterError as exc:
+        print(f"scotti import: {exc}", file=sys.stderr)
+        return 2
+    for line in report.lines():
+        print(line)
+    return 0

@@ -1,0 +1,226 @@
+"""One import from start to end: read, check, map onto the contract, write the session."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scotti.firmware_protocol.session import SourceFrameRecord
+from scotti.importers.config import ImportConfig
+from scotti.importers.labels import frame_actions, frame_progress, read_segments
+from scotti.importers.pose import pose_frame, read_keypoints, to_world
+from scotti.importers.pressure import (
+    CountMapper,
+    PressureSource,
+    read_pressure,
+    resample_counts,
+)
+from scotti.importers.session_out import ImportedFrames, write_imported
+from scotti.importers.timebase import Timeline, interpolate_points, plan_timeline
+from scotti.models.contract import ACTIONS, FRAME_RATE_HZ, NO_ACTION
+
+
+@dataclass
+class ImportReport:
+    """What went into the session file, and how long each part took."""
+
+    path: str
+    source_frames: int
+    source_rate_hz: float
+    frames: int
+    segments: int
+    duration_s: float
+    labels: int = 0
+    keypoints_mapped: list[str] = field(default_factory=list)
+    keypoints_masked_share: float = 0.0  # of all keypoints in labelled frames
+    actions: dict[str, int] = field(default_factory=dict)  # frames per action
+    progress_frames: int = 0
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def lines(self) -> list[str]:
+        out = [
+            f"{self.path}: {self.frames} frames at 16 Hz ({self.duration_s:.1f} s) in "
+            f"{self.segments} segment(s) from {self.source_frames} source frames at "
+            f"{self.source_rate_hz:.3g} Hz; {self.labels} labels",
+        ]
+        if self.keypoints_mapped:
+            out.append(
+                f"  keypoints: {len(self.keypoints_mapped)} of 19 mapped, "
+                f"{100 * self.keypoints_masked_share:.1f} % masked in labelled frames"
+            )
+        if self.actions:
+            shown = ", ".join(f"{a} {n}" for a, n in self.actions.items())
+            out.append(f"  actions (frames): {shown}; progress on {self.progress_frames} frames")
+        return out
+
+
+def import_recording(
+    cfg: ImportConfig, output: str | Path, *, overwrite: bool = False
+) -> ImportReport:
+    """Import what ``cfg`` describes into the session file ``output``."""
+    clock = _Stopwatch()
+    source = read_pressure(cfg)
+    clock.lap("read_pressure")
+    timeline = plan_timeline(source.times)
+    mapper = CountMapper(cfg, source)
+    counts = resample_counts(source, timeline, mapper)
+    clock.lap("resample_pressure")
+
+    keypoints = None
+    mapped: tuple[str, ...] = ()
+    kp_info: dict[str, Any] | None = None
+    if cfg.keypoints is not None:
+        kp_source = read_keypoints(cfg)
+        world = to_world(cfg.keypoints, kp_source)
+        on_frames = interpolate_points(
+            kp_source.times, world, timeline.times, cfg.keypoints.max_gap_s
+        )
+        keypoints = np.empty_like(on_frames)
+        for index in range(len(timeline.source_ranges)):
+            rows = timeline.segment == index
+            keypoints[rows] = pose_frame(on_frames[rows])
+        keypoints = keypoints.astype(np.float32)
+        mapped = kp_source.mapped
+        kp_info = {
+            "file": kp_source.path.name,
+            "set": cfg.keypoints.set,
+            "mapped": list(mapped),
+            "frames": int(kp_source.times.size),
+            "units": cfg.keypoints.units,
+            "up": cfg.keypoints.up,
+            "time_offset_s": cfg.keypoints.time_offset_s,
+        }
+        clock.lap("keypoints")
+
+    action = progress = repetition = None
+    label_info: dict[str, Any] | None = None
+    if cfg.labels is not None:
+        if cfg.labels.segments is not None:
+            seg_path = cfg.path(cfg.labels.segments)
+            segments = read_segments(
+                seg_path, cfg.labels, float(source.times[0]), float(source.times[-1])
+            )
+            action = frame_actions(timeline.times, segments)
+            label_info = {"segments": seg_path.name, "count": len(segments)}
+        else:
+            assert cfg.labels.action is not None
+            action = np.full(len(timeline), ACTIONS.index(cfg.labels.action), dtype=np.int64)
+            label_info = {"action": cfg.labels.action}
+        if keypoints is not None:
+            progress, repetition = frame_progress(keypoints, action, timeline.segment)
+        clock.lap("labels")
+
+    frames = ImportedFrames(
+        timeline.times, timeline.seq, counts, keypoints, action, progress, repetition
+    )
+    provenance = _provenance(cfg, source, timeline, mapper, kp_info, label_info)
+    labels = write_imported(
+        output,
+        frames,
+        device=cfg.device,
+        created_unix=_mtime(source.path),
+        subject=_subject(cfg, Path(output)),
+        provenance=provenance,
+        source_frames=_source_frames(source, cfg.source_every_s),
+        overwrite=overwrite,
+    )
+    clock.lap("write")
+    report = ImportReport(
+        path=str(output),
+        source_frames=int(source.times.size),
+        source_rate_hz=source.rate_hz,
+        frames=len(timeline),
+        segments=len(timeline.source_ranges),
+        duration_s=len(timeline) / FRAME_RATE_HZ,
+        labels=labels,
+        keypoints_mapped=list(mapped),
+        seconds=clock.laps,
+    )
+    if keypoints is not None:
+        has = np.isfinite(keypoints).all(axis=2)
+        report.keypoints_masked_share = float(1.0 - has.mean()) if has.size else 0.0
+    if action is not None:
+        names, counts_per = np.unique(action, return_counts=True)
+        report.actions = {
+            ("none" if a == NO_ACTION else ACTIONS[a]): int(n)
+            for a, n in zip(names.tolist(), counts_per.tolist(), strict=True)
+        }
+    if progress is not None:
+        report.progress_frames = int(np.isfinite(progress).sum())
+    return report
+
+
+def _subject(cfg: ImportConfig, output: Path) -> dict[str, Any]:
+    subject: dict[str, Any] = {"id": cfg.subject or output.stem}
+    if cfg.mass_kg is not None:
+        subject["mass_kg"] = cfg.mass_kg
+    if cfg.height_m is not None:
+        subject["height_m"] = cfg.height_m
+    return subject
+
+
+def _mtime(path: Path) -> float:
+    try:
+        return float(path.stat().st_mtime)
+    except OSError:
+        return 0.0
+
+
+def _source_frames(source: PressureSource, every_s: float) -> list[SourceFrameRecord]:
+    """One source frame per ``every_s`` seconds (the first of each interval)."""
+    if every_s <= 0:
+        return []
+    bucket = np.floor((source.times - source.times[0]) / every_s)
+    keep = np.flatnonzero(np.r_[True, bucket[1:] != bucket[:-1]])
+    return [
+        SourceFrameRecord(round(float(source.times[i]) * 1e9), source.frames[i])
+        for i in keep.tolist()
+    ]
+
+
+def _provenance(
+    cfg: ImportConfig,
+    source: PressureSource,
+    timeline: Timeline,
+    mapper: CountMapper,
+    keypoints: dict[str, Any] | None,
+    labels: dict[str, Any] | None,
+) -> dict[str, Any]:
+    p = cfg.pressure
+    return {
+        "pressure": {
+            "file": source.path.name,
+            "rows": p.rows,
+            "cols": p.cols,
+            "frames": int(source.times.size),
+            "rate_hz": source.rate_hz,
+            "first_s": float(source.times[0]),
+            "last_s": float(source.times[-1]),
+            "left": p.left.model_dump(),
+            "right": p.right.model_dump(),
+        },
+        "counts": {
+            "method": cfg.counts.method,
+            "gain": cfg.counts.gain,
+            "kpa_per_unit": mapper.kpa_per_unit,
+        },
+        "segments": [
+            [float(source.times[a]), float(source.times[b])] for a, b in timeline.source_ranges
+        ],
+        "keypoints": keypoints,
+        "labels": labels,
+    }
+
+
+class _Stopwatch:
+    def __init__(self) -> None:
+        self.laps: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.laps[name] = now - self._last
+        self._last = now

@@ -1,0 +1,137 @@
+"""Imported frames and labels into a session file, as a board and the simulator write them.
+
+Each frame of each foot goes in as one FRAME_ROWS packet carrying all 32
+rows (PROTOCOL.md allows a whole frame per packet), COBS-framed as on the
+wire (``encode_whole_frames``: many packets at once, byte for byte what
+``encode_packet(FrameRows(...))`` gives); both feet of a frame share one
+packet record, stamped with the frame's time on the source's clock. The insole clock is that time in
+microseconds (wrapping as the protocol says). Label records follow the
+same sequence numbers; source frames (thinned) let pictures show the grid
+the recording came on.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+from scotti.firmware_protocol.framing import encode_whole_frames
+from scotti.firmware_protocol.packets import CLOCK_MODULUS, SEQ_MODULUS, Foot
+from scotti.firmware_protocol.session import (
+    LabelRecord,
+    SessionHeader,
+    SessionWriter,
+    SourceFrameRecord,
+)
+from scotti.models.contract import (
+    FRAME_COLS,
+    FRAME_RATE_HZ,
+    FRAME_ROWS,
+    NO_ACTION,
+    NUM_KEYPOINTS,
+    SAMPLE_BITS,
+)
+
+_BATCH: Final = 256  # frames encoded at once (their bytes stay in cache)
+_GEOMETRY: Final = (FRAME_ROWS, FRAME_COLS, SAMPLE_BITS)
+
+
+@dataclass(frozen=True)
+class ImportedFrames:
+    """Everything that goes into the file, on the 16 Hz timeline."""
+
+    times: np.ndarray  # (M,) float64 seconds, the source's clock
+    seq: np.ndarray  # (M,) int64 unwrapped
+    counts: np.ndarray  # (M, 2, 32, 22) uint16
+    keypoints: np.ndarray | None  # (M, 19, 3) float32 pose frame, NaN where masked
+    action: np.ndarray | None  # (M,) int64, NO_ACTION where none
+    progress: np.ndarray | None  # (M,) float32, NaN where missing
+    repetition: np.ndarray | None  # (M,) int32, -1 where none
+
+
+def write_imported(
+    path: str | os.PathLike[str],
+    frames: ImportedFrames,
+    *,
+    device: str,
+    created_unix: float,
+    subject: dict[str, Any] | None,
+    provenance: dict[str, Any],
+    source_frames: Sequence[SourceFrameRecord] = (),
+    overwrite: bool = False,
+) -> int:
+    """Write the session; returns the number of label records written."""
+    header = SessionHeader(
+        source="imported",
+        device=device,
+        rows=FRAME_ROWS,
+        cols=FRAME_COLS,
+        sample_bits=SAMPLE_BITS,
+        rate_hz=FRAME_RATE_HZ,
+        created_unix=created_unix,
+        subject=subject,
+        imported=provenance,
+    )
+    t_ns: list[int] = np.rint(frames.times * 1e9).astype(np.int64).tolist()
+    seq = frames.seq % SEQ_MODULUS
+    clock = np.rint(frames.times * 1e6).astype(np.int64) % CLOCK_MODULUS
+    seq_list: list[int] = seq.tolist()
+    labelled = _labelled(frames)
+    pending_sources = sorted(source_frames, key=lambda r: r.t_ns)
+    next_source = 0
+    labels = 0
+    with SessionWriter(path, header, flush_each=False, overwrite=overwrite) as writer:
+        for start in range(0, len(t_ns), _BATCH):
+            stop = min(start + _BATCH, len(t_ns))
+            feet = np.tile([int(Foot.LEFT), int(Foot.RIGHT)], stop - start)
+            encoded = encode_whole_frames(
+                feet,
+                np.repeat(seq[start:stop], 2),
+                np.repeat(clock[start:stop], 2),
+                frames.counts[start:stop].reshape(-1, FRAME_ROWS, FRAME_COLS),
+                SAMPLE_BITS,
+            )
+            for k in range(start, stop):
+                while next_source < len(pending_sources) and (
+                    pending_sources[next_source].t_ns <= t_ns[k]
+                ):
+                    writer.write(pending_sources[next_source])
+                    next_source += 1
+                if labelled[k]:
+                    writer.write_label(_label(frames, k, seq_list[k], t_ns[k]))
+                    labels += 1
+                i = 2 * (k - start)
+                writer.write_packet(t_ns[k], encoded[i] + encoded[i + 1])
+        for record in pending_sources[next_source:]:
+            writer.write(record)
+    return labels
+
+
+def _labelled(frames: ImportedFrames) -> np.ndarray:
+    """Frames with anything to learn from: a keypoint or an action."""
+    n = frames.times.size
+    has = np.zeros(n, dtype=bool)
+    if frames.keypoints is not None:
+        has |= np.isfinite(frames.keypoints).all(axis=2).any(axis=1)
+    if frames.action is not None:
+        has |= frames.action >= 0
+    return has
+
+
+def _label(frames: ImportedFrames, k: int, seq: int, t_ns: int) -> LabelRecord:
+    keypoints = (
+        frames.keypoints[k]
+        if frames.keypoints is not None
+        else np.full((NUM_KEYPOINTS, 3), np.nan, dtype=np.float32)
+    )
+    return LabelRecord(
+        seq=seq,
+        t_ns=t_ns,
+        keypoints=keypoints,
+        action=NO_ACTION if frames.action is None else int(frames.action[k]),
+        progress=float("nan") if frames.progress is None else float(frames.progress[k]),
+        rep=-1 if frames.repetition is None else int(frames.repetition[k]),
+    )

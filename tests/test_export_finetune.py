@@ -1,0 +1,95 @@
+"""Fine-tuning: --init from a checkpoint (a grown action head included), --freeze."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("torch")
+import torch
+from scotti.cli.main import main
+from scotti.export.data import load_session
+from scotti.export.errors import ExportError
+from scotti.export.model import Scotti, ScottiConfig
+from scotti.export.train import Trainer, TrainOptions, freeze_parts, load_initial_weights
+from scotti.export.windows import WindowDataset
+
+from tests.support.export_sessions import write_session
+
+pytestmark = pytest.mark.torch
+
+TINY: dict[str, Any] = {
+    "window": 8,
+    "embed_dim": 16,
+    "layers": 1,
+    "heads": 2,
+    "head_hidden": 16,
+    "conv_channels": [4, 4],
+    "dropout": 0.0,
+}
+
+
+def tiny(seed: int) -> Scotti:
+    torch.manual_seed(seed)
+    return Scotti(ScottiConfig.from_dict(TINY))
+
+
+def test_init_copies_weights_and_keeps_known_action_rows() -> None:
+    source, target = tiny(1), tiny(2)
+    state = {k: v.clone() for k, v in source.state_dict().items()}
+    # A checkpoint from before the contract grew: one action fewer.
+    state["action_head.3.weight"] = state["action_head.3.weight"][:-1]
+    state["action_head.3.bias"] = state["action_head.3.bias"][:-1]
+    fresh_last_row = target.action_head[3].weight[-1].detach().clone()
+    notes = load_initial_weights(target, state)
+    assert len(notes) == 2
+    assert torch.equal(target.cnn.conv1.weight, source.cnn.conv1.weight)
+    w = target.action_head[3].weight
+    assert torch.equal(w[:-1], source.action_head[3].weight[:-1])
+    assert torch.equal(w[-1], fresh_last_row)  # the new action starts fresh
+    state["pose_head.3.weight"] = state["pose_head.3.weight"][:, :-1]
+    with pytest.raises(ExportError, match=r"pose_head\.3\.weight"):
+        load_initial_weights(target, state)
+
+
+def test_frozen_parts_do_not_move(tmp_path: Path) -> None:
+    write_session(tmp_path / "a.scotti", 80, subject="a")
+    data = WindowDataset([load_session(tmp_path / "a.scotti")], window=TINY["window"])
+    model = tiny(0)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    opts = TrainOptions(epochs=1, batch=8, chunk=4, progress_bar=False, freeze=("encoder",))
+    trainer = Trainer(model, data, None, opts)
+    trainer.fit(max_steps=3)
+    after = model.state_dict()
+    for name in ("class_token", "positions", "pool_weights", "encoder.0.attn.qkv.weight"):
+        assert torch.equal(before[name], after[name]), name
+    assert not torch.equal(before["cnn.conv1.weight"], after["cnn.conv1.weight"])
+    assert not torch.equal(before["pose_head.0.weight"], after["pose_head.0.weight"])
+    with pytest.raises(ExportError, match="the parts are cnn, encoder"):
+        freeze_parts(model, ["heads"])
+
+
+def test_cli_init_takes_the_size_from_the_checkpoint(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    write_session(tmp_path / "a.scotti", 80, subject="a")
+    base = [str(tmp_path / "a.scotti"), "--epochs", "1", "--batch", "8", "--chunk", "4"]
+    first = tmp_path / "runs" / "first"
+    assert main(["train", *base, "-o", str(first), "--config", json.dumps(TINY)]) == 0
+    second = tmp_path / "runs" / "second"
+    init = ["--init", str(first / "last.pt"), "--freeze", "cnn"]
+    assert main(["train", *base, "-o", str(second), *init]) == 0
+    a = torch.load(first / "last.pt", weights_only=True)
+    b = torch.load(second / "last.pt", weights_only=True)
+    assert b["config"] == a["config"]
+    assert list(b["options"]["freeze"]) == ["cnn"]
+    assert b["training_data"]["init"] == str(first / "last.pt")
+    assert torch.equal(a["model"]["cnn.conv1.weight"], b["model"]["cnn.conv1.weight"])
+    assert b["epoch"] == 1  # a new run, not a resume
+    capsys.readouterr()
+    bad = ["--config", "tiny", "-o", str(tmp_path / "r")]
+    assert main(["train", *base, *init, *bad]) == 2
+    assert "leave out --config" in capsys.readouterr().err
