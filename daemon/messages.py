@@ -26,7 +26,14 @@ from scotti.daemon.schemas import (
     Status,
 )
 from scotti.firmware_protocol.framing import DecoderCounters
-from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_RATE_HZ, KEYPOINTS, NO_ACTION
+from scotti.models.contract import (
+    ACTIONS,
+    FRAME_COLS,
+    FRAME_RATE_HZ,
+    KEYPOINTS,
+    NO_ACTION,
+    has_progress,
+)
 
 if TYPE_CHECKING:
     from scotti.daemon.pipeline import PipelineState, Prediction
@@ -54,7 +61,8 @@ def frame_payloads(
     probs = [float(x) for x in p.action_probs]
     action = ACTIONS[p.action] if p.action != NO_ACTION else None
     confidence = probs[p.action] if action is not None else 0.0
-    progress = None if action is None or not np.isfinite(p.progress) else float(p.progress)
+    defined = action is not None and has_progress(p.action) and np.isfinite(p.progress)
+    progress = float(p.progress) if defined else None  # null while standing
     out: list[tuple[str, BaseModel]] = [
         ("pose", Pose(**stamp, keypoints=np.asarray(p.pose, dtype=np.float64).tolist())),
         (

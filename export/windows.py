@@ -42,8 +42,8 @@ class Chunk:
 @dataclass(frozen=True)
 class Targets:
     keypoints: np.ndarray  # (K, 19, 3) float32
-    action: np.ndarray  # (K,) int64, NO_ACTION for a stand
-    progress: np.ndarray  # (K,) float32, NaN without an action
+    action: np.ndarray  # (K,) int64, NO_ACTION for a transition
+    progress: np.ndarray  # (K,) float32, NaN where undefined (standing, transition)
 
 
 class WindowDataset:

@@ -261,7 +261,10 @@ def _check_metadata(meta: dict[str, str]) -> tuple[str, int, int, dict[str, Any]
             raise ModelContractError(msg)
     version = meta[c.META_CONTRACT_VERSION]
     if version != str(c.CONTRACT_VERSION):
-        msg = f"model has contract version {version}, this runtime needs {c.CONTRACT_VERSION}"
+        msg = (
+            f"model has contract version {version}, this runtime needs {c.CONTRACT_VERSION} "
+            f"(export one with this version of scotti)"
+        )
         raise ModelContractError(msg)
     graph = meta[c.META_GRAPH]
     if graph not in ("step", "window"):

@@ -13,7 +13,7 @@ that names the file, the line and the field, e.g.
     [[script]]
     action = "squat"    # one of ACTIONS
     reps = 5            # or duration_s
-    stand_s = 1.5       # quiet stand after it (NO_ACTION)
+    stand_s = 1.5       # quiet stand after it (labelled standing)
     [[effects]]
     name = "noise"      # see scotti.sim.effects.registry
     std_counts = 4

@@ -16,6 +16,16 @@ from scotti.sim.actions.strength import lunge, squat
 
 Recipe = Callable[[Context, ActionSpec, Place], Segment]
 
+# A scripted stand counts its "repetitions" in sway cycles (0.4 Hz, see ``stand``).
+STANDING_CYCLE_S = 2.5
+
+
+def standing(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
+    """Standing as a scripted action: the quiet stand for ``duration_s`` or ``reps`` cycles."""
+    reps = spec.reps if spec.reps is not None else 1
+    return stand(ctx, place, spec.duration_s or reps * STANDING_CYCLE_S)
+
+
 RECIPES: dict[str, Recipe] = {
     "squat": squat,
     "lunge": lunge,
@@ -25,6 +35,7 @@ RECIPES: dict[str, Recipe] = {
     "in_place_walking": in_place_walking,
     "backward_walking": backward_walking,
     "walking": walking,
+    "standing": standing,
 }
 
 __all__ = ["RECIPES", "ActionSpec", "Context", "Place", "Recipe", "Segment", "stand"]

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scotti.models.contract import NO_ACTION
+from scotti.models.contract import STANDING
 from scotti.sim.actions.curves import bump, soft_min
 from scotti.sim.motion import Subject
 from scotti.sim.skeleton import Body, PoseParams, axes, foot_points, hip_points, leg_reach_z
@@ -134,7 +134,7 @@ def finalize(body: Body, p: PoseParams) -> PoseParams:
 
 
 def stand(ctx: Context, place: Place, duration_s: float) -> Segment:
-    """A quiet stand (NO_ACTION): a small sway of the body over the feet."""
+    """A quiet stand (labelled ``standing``): a small sway of the body over the feet."""
     t = ctx.times(duration_s)
     n = len(t)
     p = neutral(ctx.body, place, n)
@@ -147,5 +147,5 @@ def stand(ctx: Context, place: Place, duration_s: float) -> Segment:
     )
     p = p.replace(pelvis=p.pelvis + sway, shoulder_flex=p.shoulder_flex + 0.03 * envelope[:, None])
     return Segment(
-        finalize(ctx.body, p), np.full(n, NO_ACTION, dtype=np.int64), place, np.zeros((n, 2))
+        finalize(ctx.body, p), np.full(n, STANDING, dtype=np.int64), place, np.zeros((n, 2))
     )
