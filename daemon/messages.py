@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import BaseModel
 from scotti.daemon.schemas import (
+    ACTION_NAMES,
     TOPICS,
     Action,
     DeviceSeq,
@@ -59,7 +60,8 @@ def frame_payloads(
         "flags": list(p.flags),
     }
     probs = [float(x) for x in p.action_probs]
-    action = ACTIONS[p.action] if p.action != NO_ACTION else None
+    # ACTION_NAMES is ACTIONS typed as the schema's literal (a test keeps them equal).
+    action = ACTION_NAMES[p.action] if p.action != NO_ACTION else None
     confidence = probs[p.action] if action is not None else 0.0
     defined = action is not None and has_progress(p.action) and np.isfinite(p.progress)
     progress = float(p.progress) if defined else None  # null while standing

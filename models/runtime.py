@@ -53,8 +53,8 @@ class WindowResult:
     """Predictions for B windows (window graph)."""
 
     pose: F32  # (B, 19, 3)
-    action_logits: F32  # (B, 8)
-    action_probs: F32  # (B, 8)
+    action_logits: F32  # (B, NUM_ACTIONS)
+    action_probs: F32  # (B, NUM_ACTIONS)
     progress: F32  # (B,)
 
 

@@ -1,4 +1,4 @@
-"""A training corpus: N drawn subjects, each doing all eight actions, one file each.
+"""A training corpus: N drawn subjects, each doing every action of the contract, one file each.
 
 Subject ``i`` gets its own scene: every action in the contract's order for
 ``minutes_per_action`` minutes with a short stand between, a seed derived
