@@ -93,6 +93,10 @@ def test_standing_windows_are_trained_on_as_often_as_they_occur(tmp_path: Path) 
         [ds.targets(p.chunk).action for batch in plan_epoch(ds, opts, 0) for p in batch]
     )
     np.testing.assert_array_equal(np.sort(planned), np.sort(usable))
+    counts = ds.target_counts()  # what scotti train logs and the card records
+    assert counts["standing"] == (usable == contract.STANDING).sum()
+    assert counts["transition"] == (usable == contract.NO_ACTION).sum()
+    assert sum(counts.values()) == usable.size == len(ds)
     batch = next(
         b
         for b in plan_epoch(ds, opts, 0)
