@@ -116,9 +116,11 @@ def format_report(report: dict[str, Any]) -> list[str]:
     )
     for name, row in report["per_action"].items():
         lines.append(
-            f"  {name:18s} {row['frames']:7d} {row['mpjpe_mm']:8.2f} "
-            f"{100 * row['action_accuracy']:7.2f} {row['progress_mse']:8.4f} {row['app']:7.4f}"
+            f"  {name:18s} {row['frames']:7d} {_cell(row['mpjpe_mm'], 8, '.2f')} "
+            f"{_cell(100 * row['action_accuracy'], 7, '.2f')} "
+            f"{_cell(row['progress_mse'], 8, '.4f')} {_cell(row['app'], 7, '.4f')}"
         )
+    lines.append("  (-: nothing to score; standing and transitions have no progress)")
     lines.append("  confusion (rows true, columns predicted): " + " ".join(ACTIONS))
     for name, counts in zip(ACTIONS, report["confusion"]["matrix"], strict=True):
         lines.append(f"  {name:18s} " + " ".join(f"{c:6d}" for c in counts))
@@ -175,6 +177,13 @@ def write_plots(report: dict[str, Any], directory: Path) -> list[str]:
     fig.savefig(confusion)
     plt.close(fig)
     return [str(curve), str(confusion)]
+
+
+def _cell(value: float | None, width: int, spec: str) -> str:
+    """A figure, or '-' right-aligned when there is nothing to score (NaN)."""
+    if value is None or not math.isfinite(value):
+        return "-".rjust(width)
+    return f"{value:{width}{spec}}"
 
 
 def _finite(value: Any) -> Any:

@@ -36,7 +36,7 @@ class Prediction:
 
     ext: int
     pose: F32  # (19, 3)
-    probs: F32  # (8,)
+    probs: F32  # (NUM_ACTIONS,)
     progress: float
 
 

@@ -36,12 +36,13 @@ from scotti.firmware_protocol.packets import FrameRows
 from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
 from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models import metrics
-from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS
+from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS, has_progress
 from scotti.models.runtime import ScottiRuntime, load_pair
 
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
 RANDOM_SEED: Final = 0  # the random baseline's draws, fixed so that reruns agree
+TRANSITION: Final = "transition"  # per-action row of frames labelled NO_ACTION
 
 
 class EvaluationError(DaemonError):
@@ -55,9 +56,9 @@ class FrameSet:
     pose_pred: F32  # (N, 19, 3) metres
     pose_true: F32  # (N, 19, 3) metres, NaN where unknown
     action_pred: I64  # (N,) argmax of the action probabilities
-    action_true: I64  # (N,) NO_ACTION where the label has none
-    progress_pred: npt.NDArray[np.float64]  # (N,)
-    progress_true: npt.NDArray[np.float64]  # (N,) NaN where there is no action
+    action_true: I64  # (N,) NO_ACTION where the label names none (a transition)
+    progress_pred: npt.NDArray[np.float64]  # (N,) the progress head's output, as it is
+    progress_true: npt.NDArray[np.float64]  # (N,) NaN where undefined (standing, transition)
 
     @classmethod
     def empty(cls) -> FrameSet:
@@ -299,9 +300,9 @@ def _align(made: list[Prediction], labels: list[LabelRecord]) -> tuple[FrameSet,
 
 
 def _progress_true(labels: Sequence[LabelRecord]) -> npt.NDArray[np.float64]:
-    """Progress counts only where there is an action (as in training's loss)."""
+    """Progress counts only where it is defined: a repeated action (as in training's loss)."""
     return np.array(
-        [lb.progress if lb.action != NO_ACTION else np.nan for lb in labels], dtype=np.float64
+        [lb.progress if has_progress(lb.action) else np.nan for lb in labels], dtype=np.float64
     )
 
 
@@ -346,12 +347,17 @@ def random_baseline(frames: FrameSet, seed: int = RANDOM_SEED) -> dict[str, floa
 
 
 def score(frames: FrameSet) -> dict[str, Any]:
-    """Overall and per-action figures, confusion matrix, precision-margin curve."""
+    """Overall and per-action figures, confusion matrix, precision-margin curve.
+
+    Standing is scored like any action (accuracy, its row of the confusion
+    matrix); its progress figures are NaN (no frame has a progress label).
+    Frames labelled as a transition get their own row, ``transition``.
+    """
     curve = metrics.precision_margin(frames.progress_pred, frames.progress_true)
     per_action = {
         name: task_metrics(frames.subset(frames.action_true == a)) for a, name in enumerate(ACTIONS)
     }
-    per_action["none"] = task_metrics(frames.subset(frames.action_true == NO_ACTION))
+    per_action[TRANSITION] = task_metrics(frames.subset(frames.action_true == NO_ACTION))
     return {
         "metrics": task_metrics(frames),
         "per_action": per_action,

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import BaseModel
 from scotti.daemon.schemas import (
+    ACTION_NAMES,
     TOPICS,
     Action,
     DeviceSeq,
@@ -26,7 +27,14 @@ from scotti.daemon.schemas import (
     Status,
 )
 from scotti.firmware_protocol.framing import DecoderCounters
-from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_RATE_HZ, KEYPOINTS, NO_ACTION
+from scotti.models.contract import (
+    ACTIONS,
+    FRAME_COLS,
+    FRAME_RATE_HZ,
+    KEYPOINTS,
+    NO_ACTION,
+    has_progress,
+)
 
 if TYPE_CHECKING:
     from scotti.daemon.pipeline import PipelineState, Prediction
@@ -52,9 +60,11 @@ def frame_payloads(
         "flags": list(p.flags),
     }
     probs = [float(x) for x in p.action_probs]
-    action = ACTIONS[p.action] if p.action != NO_ACTION else None
+    # ACTION_NAMES is ACTIONS typed as the schema's literal (a test keeps them equal).
+    action = ACTION_NAMES[p.action] if p.action != NO_ACTION else None
     confidence = probs[p.action] if action is not None else 0.0
-    progress = None if action is None or not np.isfinite(p.progress) else float(p.progress)
+    defined = action is not None and has_progress(p.action) and np.isfinite(p.progress)
+    progress = float(p.progress) if defined else None  # null while standing
     out: list[tuple[str, BaseModel]] = [
         ("pose", Pose(**stamp, keypoints=np.asarray(p.pose, dtype=np.float64).tolist())),
         (

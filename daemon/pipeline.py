@@ -31,7 +31,7 @@ from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
 from scotti.firmware_protocol.errors import DecodeError
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import BoardStatus, FrameRows
-from scotti.models.contract import FRAME_RATE_HZ
+from scotti.models.contract import FRAME_RATE_HZ, has_progress
 from scotti.models.runtime import ScottiRuntime
 
 log = logging.getLogger(__name__)
@@ -51,10 +51,10 @@ class Prediction:
     predicted_for_mono_ns: int  # newest frame's time + 1/16 s: the model looks one ahead
     last_byte_mono_ns: int  # last byte of the newest frame
     pose: npt.NDArray[np.float32]  # (19, 3) metres, pose frame
-    action_probs: npt.NDArray[np.float32]  # (8,)
+    action_probs: npt.NDArray[np.float32]  # (NUM_ACTIONS,)
     action: int  # index into ACTIONS
-    progress: float  # 0..1
-    repetition: int  # repetitions completed in the current action
+    progress: float  # 0..1, NaN when the action has none (standing)
+    repetition: int  # repetitions completed in the current action, -1: none (standing)
     flags: tuple[str, ...]  # "left_held", "right_filled", "rows_missing", ...
     inference_ms: float
     # (H, 2W) uint16: the model input that made this prediction (the window's newest
@@ -229,6 +229,8 @@ class Pipeline:
         now_mono = time.monotonic_ns()
         last_byte = pair.last_byte_mono_ns
         action = int(np.argmax(probs))
+        if not has_progress(action):
+            progress = float("nan")  # the progress head says nothing while standing
         left_clock, right_clock = pair.clocks
         prediction = Prediction(
             seq=result.job.seq,

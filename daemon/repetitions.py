@@ -6,11 +6,18 @@ stays the same counts one repetition; the gap between the two thresholds
 keeps noise around one value from counting twice. The action itself must
 hold for ``confirm_frames`` predictions before the count starts over, so
 one misclassified frame does not reset it.
+
+An action without repetitions (``standing``) counts nothing: while it holds,
+the count is -1 (none) and progress is not looked at; the next repeated
+action counts from 0. A flicker to standing shorter than ``confirm_frames``
+(the top of a squat can look like standing) neither counts nor resets.
 """
 
 from __future__ import annotations
 
 import math
+
+from scotti.models.contract import has_progress
 
 
 class RepetitionCounter:
@@ -38,6 +45,11 @@ class RepetitionCounter:
         return self._action
 
     def update(self, action: int, progress: float) -> int:
+        """Repetitions completed in the current action, -1 while it has none (standing)."""
+        count = self._update(action, progress)
+        return count if self._action is None or has_progress(self._action) else -1
+
+    def _update(self, action: int, progress: float) -> int:
         if action != self._action:
             if action == self._candidate:
                 self._candidate_frames += 1
@@ -50,7 +62,7 @@ class RepetitionCounter:
                 return self._count  # a flicker: neither counted nor reset
         else:
             self._candidate = None
-        if math.isnan(progress):
+        if math.isnan(progress) or not has_progress(action):
             return self._count
         if progress >= self.high:
             self._armed = True

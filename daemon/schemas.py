@@ -4,6 +4,11 @@ Per-frame payloads (``pose``, ``action``, ``progress``, ``pressure``) share a
 ``FrameStamp`` so a consumer joins them on ``seq``. ``status``, ``info`` and
 ``health`` carry the schema version and the host's clocks.
 
+Each payload has its own ``schema_version``, bumped when that payload changes
+in a way a consumer must know about. ``action`` and ``progress`` are at 2
+since model contract 2: the action ``standing`` (no repetitions), with
+``progress`` null and ``repetition`` -1 while it holds.
+
 Run ``python -m scotti.daemon.schemas --write`` to regenerate
 ``docs/schemas/*.schema.json`` and the generated section of ``docs/mqtt.md``;
 ``--check`` fails when the committed files differ.
@@ -15,16 +20,37 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any, Final, Literal, TypeVar
+from typing import Annotated, Any, Final, Literal, TypeVar, get_args
 
 import msgpack
 from pydantic import BaseModel, ConfigDict, Field
 
-SCHEMA_VERSION: Final = 1
+SCHEMA_VERSION: Final = 1  # of the payloads unchanged since the first release
 CONTENT_TYPES: Final = {"json": "application/json", "msgpack": "application/msgpack"}
 
 P = TypeVar("P", bound=BaseModel)
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+# The model contract's actions (models.contract.ACTIONS), spelled out so that the
+# JSON Schema lists them; a test keeps the two the same.
+ActionName = Literal[
+    "squat",
+    "lunge",
+    "step_up",
+    "jump",
+    "side_walking",
+    "in_place_walking",
+    "backward_walking",
+    "walking",
+    "standing",
+]
+ACTION_NAMES: Final[tuple[ActionName, ...]] = get_args(ActionName)
+
+
+def _version(n: int, why: str = "") -> Any:
+    """The ``schema_version`` field of one payload: pinned, so a consumer's model of
+    another version refuses it instead of misreading it."""
+    text = f"{n}; bumped on a breaking change of this payload."
+    return Field(default=n, description=f"{text} {why}".strip())
 
 
 class _Payload(BaseModel):
@@ -32,9 +58,7 @@ class _Payload(BaseModel):
         extra="forbid", frozen=True, ser_json_bytes="base64", val_json_bytes="base64"
     )
 
-    schema_version: Literal[1] = Field(
-        default=SCHEMA_VERSION, description="Bumped on breaking change."
-    )
+    schema_version: int = _version(SCHEMA_VERSION)  # each payload pins its own below
 
 
 class DeviceSeq(BaseModel):
@@ -58,26 +82,43 @@ class FrameStamp(_Payload):
 
 
 class Pose(FrameStamp):
+    schema_version: Literal[1] = _version(1)
     keypoints: Annotated[list[Vec3], Field(min_length=19, max_length=19)] = Field(
         description="19 x [x, y, z] metres; order and frame in info.keypoints / info.pose_frame."
     )
 
 
+_V2 = "2 since model contract 2: the action `standing`."
+
+
 class Action(FrameStamp):
-    action: str | None = Field(description="Most likely action, or null when none is likely.")
+    schema_version: Literal[2] = _version(2, _V2)
+    action: ActionName | None = Field(
+        description="Most likely action (`standing`: weight on both feet, no repetition "
+        "running), or null when none is likely."
+    )
     confidence: float = Field(ge=0, le=1, description="Probability of `action`.")
-    probabilities: dict[str, float] = Field(description="Probability of every action by name.")
+    probabilities: dict[str, float] = Field(
+        description="Probability of every action by name (the names of info.actions)."
+    )
 
 
 class Progress(FrameStamp):
-    action: str | None = Field(description="The action this progress belongs to.")
-    progress: float | None = Field(description="0..1 through the current repetition.")
-    repetition: int = Field(description="Repetitions of `action` counted so far (-1: none).")
+    schema_version: Literal[2] = _version(2, _V2)
+    action: ActionName | None = Field(description="The action this progress belongs to.")
+    progress: float | None = Field(
+        description="0..1 through the current repetition; null while `standing` (it runs "
+        "no repetitions) or without an action."
+    )
+    repetition: int = Field(
+        description="Repetitions of `action` counted so far; -1: none (`standing`, or no action)."
+    )
 
 
 class Pressure(FrameStamp):
     """Optional (mqtt.pressure = true): downsampled counts for viewers."""
 
+    schema_version: Literal[1] = _version(1)
     rows: int = Field(description="Rows per foot after downsampling.")
     cols: int = Field(description="Columns per foot after downsampling.")
     downsample: int = Field(description="Block size averaged into one value.")
@@ -86,6 +127,7 @@ class Pressure(FrameStamp):
 
 
 class Status(_Payload):
+    schema_version: Literal[1] = _version(1)
     state: Literal["online", "degraded", "offline"]
     reasons: list[str] = Field(description="Why degraded or offline; empty when online.")
     source: Literal["connected", "disconnected", "stopped"]
@@ -95,6 +137,7 @@ class Status(_Payload):
 
 
 class Info(_Payload):
+    schema_version: Literal[1] = _version(1)
     device_id: str
     versions: dict[str, str] = Field(description="scotti, python, onnxruntime, aiomqtt, ...")
     model: dict[str, Any] = Field(description="File, sha256, graph metadata and model card.")
@@ -119,6 +162,7 @@ class Latency(BaseModel):
 
 
 class Health(_Payload):
+    schema_version: Literal[1] = _version(1)
     uptime_s: float
     host_wall_ns: int
     host_mono_ns: int

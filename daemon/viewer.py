@@ -25,7 +25,7 @@ import msgpack
 import numpy as np
 from scotti.daemon.settings import ConfigError, MqttSettings
 from scotti.daemon.waiting import wait_event
-from scotti.models.contract import MAX_COUNT
+from scotti.models.contract import ACTIONS, MAX_COUNT, has_progress
 
 # xterm-256 colours from cold to hot (blue, cyan, green, yellow, red).
 _RAMP: Final = (16, 17, 18, 19, 20, 21, 27, 33, 39, 45, 51, 50, 49, 48, 47, 46, 82, 118, 154)
@@ -140,9 +140,15 @@ def _action(action: dict[str, Any] | None) -> list[str]:
     return out
 
 
+# Actions that run no repetitions (standing): no progress bar, no count.
+WITHOUT_PROGRESS: Final = frozenset(a for i, a in enumerate(ACTIONS) if not has_progress(i))
+
+
 def _progress(progress: dict[str, Any] | None) -> str:
     if progress is None:
         return "progress  (waiting)"
+    if progress.get("action") in WITHOUT_PROGRESS:
+        return f"progress  ({progress['action']}: no repetition running)"
     value = progress.get("progress")
     rep = progress.get("repetition", -1)
     reps = f"rep {rep}" if rep >= 0 else "no repetition"

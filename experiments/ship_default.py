@@ -61,6 +61,22 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
         values = [p[k] for p in over if p[k] is not None]
         mean, sd = mean_sd(values)
         summary[k] = {"mean": mean, "sd": sd, "n": len(values)}
+    # Per action, pooled over every report: accuracy is each action's recall; standing
+    # is scored like any action, its progress is not labelled (NaN, left out).
+    per_action = {}
+    for name in reports[0]["per_action"]:
+        rows = [r["per_action"][name] for r in reports]
+        frames = sum(int(row["frames"]) for row in rows)
+        hits = sum(
+            row["action_accuracy"] * row["frames_action"]
+            for row in rows
+            if row["frames_action"] and row["action_accuracy"] is not None
+        )
+        labelled = sum(int(row["frames_action"]) for row in rows)
+        per_action[name] = {
+            "frames": frames,
+            "action_accuracy": hits / labelled if labelled else None,
+        }
     every = max(int(r.get("every", 1)) for r in reports)
     how = (
         "scotti eval: held-out subjects' session files replayed through the daemon's "
@@ -74,6 +90,7 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
         "partitions": per,
         "per_subject": subjects,
         "summary": summary,
+        "per_action": per_action,
         "spread_over": spread,
         "commands": commands,
     }
@@ -134,6 +151,20 @@ def card_md(card: dict[str, Any]) -> str:
                 for p in ev["partitions"]
             ),
         ]
+        if ev.get("per_action"):
+            lines += [
+                "",
+                "Accuracy per true action (recall, pooled; `transition`: frames between "
+                "actions, not scored):",
+                "",
+                "; ".join(
+                    f"{name} {100 * row['action_accuracy']:.1f} % of {row['frames']}"
+                    if row["action_accuracy"] is not None
+                    else f"{name} - ({row['frames']} frames)"
+                    for name, row in ev["per_action"].items()
+                )
+                + ".",
+            ]
         lines += ["", "Commands:", "", "```", *ev["commands"], "```"]
     else:
         lines.append("Not evaluated.")

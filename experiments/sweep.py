@@ -48,6 +48,7 @@ from common import (
     write_json,
 )
 from measure import conv_int8, graph_flops
+from scotti.models.contract import NUM_ACTIONS
 from scotti.models.runtime import window_graph_for
 from sweep_doc import choose_default, rows_of, write_sweep_doc
 from training import RunSpec, export, measure, train
@@ -311,8 +312,8 @@ def ship(
     plan = plans[lead.name]
     data = (
         f"Simulated corpus (experiments/partitions.json): partition {lead.name}'s "
-        f"{len(lead.train)} training subjects ({', '.join(lead.train)}), all 8 actions, "
-        "with the realistic sensor and transport effects. Config "
+        f"{len(lead.train)} training subjects ({', '.join(lead.train)}), "
+        f"all {NUM_ACTIONS} actions, with the realistic sensor and transport effects. Config "
         f"{name}; {plan['trained_s'] / 60:.1f} min of training on this shared 2-core CPU "
         f"({plan.get('epochs_done', 0)}/{plan['epochs']} epochs at stride {plan['stride']}, "
         f"lr {LEARNING_RATE[CONFIGS[name]['embed_dim']]:g}); undertrained. Chosen by "

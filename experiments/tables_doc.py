@@ -8,6 +8,13 @@ from pathlib import Path
 from typing import Any
 
 from common import Partition, fmt, mean_sd, table
+from scotti.models.contract import NUM_ACTIONS
+
+# Per-action rows that are not an action: transitions ("none" in reports before contract 2).
+ROW_NAMES = {
+    "none": "none (stand between actions)",
+    "transition": "transition (between actions)",
+}
 
 PAPER = {"mpjpe_mm": 96.63, "action_accuracy": 0.9006, "app": 0.8952, "progress_mse": 0.0223}
 METRICS = (  # key, column, digits, scale, lower is better
@@ -72,7 +79,8 @@ def write_evaluation_doc(
         "## Data and protocol",
         "",
         f"- Corpus: {corpus['subjects']} subjects drawn by the simulator (stature, mass, foot",
-        f"  length, movement style), each doing all 8 actions for {corpus['minutes_per_action']}",
+        f"  length, movement style), each doing all {NUM_ACTIONS} actions for "
+        f"{corpus['minutes_per_action']}",
         f"  minutes per action; {corpus['total_hours']} hours in all, "
         f"corpus seed {corpus['seed']}.",
         f"  Effects (the simulator's `realistic` preset, drawn per subject): "
@@ -254,7 +262,7 @@ def per_action(multi: list[dict[str, Any]]) -> list[str]:
     for name in names:
         per = [r["per_action"][name] for r in multi]
         frames = sum(int(p["frames"]) for p in per)
-        cells = [name if name != "none" else "none (stand between actions)", str(frames)]
+        cells = [ROW_NAMES.get(name, name), str(frames)]
         cells += [fmt([_num(p[k]) for p in per], d, s) for k, _, d, s, _ in METRICS]
         rows.append(cells)
     return [
@@ -277,7 +285,8 @@ def paper_comparison(multi: list[dict[str, Any]]) -> list[str]:
         "Where the comparison holds: the protocol (three subject-wise partitions of 10",
         "training and 5 test subjects, mean over the three), the timing (frames t-T..t-1",
         "predict t), the architecture family and the metric definitions (MPJPE in mm over",
-        "19 keypoints, accuracy over 8 actions, progress MSE, APP as the area under the",
+        f"19 keypoints, accuracy over {NUM_ACTIONS} actions, progress MSE, APP as the area "
+        "under the",
         f"precision-margin curve, with chance at 2/3: our random baseline gives {rnd:.4f}).",
         "",
         "Where it does not:",

@@ -46,7 +46,7 @@ from scotti.models import contract
 log = logging.getLogger(__name__)
 
 # Bump when the decoded arrays change meaning: old cache files are then ignored.
-CACHE_VERSION = 2
+CACHE_VERSION = 3  # 3: progress NaN wherever the action has none (contract v2)
 # What the daemon's pairing does live (models.contract), so training sees the same:
 HOLD_FRAMES = contract.SILENT_FOOT_HOLD_FRAMES  # a missing foot frame: previous one, this long
 MAX_GAP = contract.WINDOW_RESTART_GAP_FRAMES  # a longer run of empty slots: new segment
@@ -70,8 +70,8 @@ class SessionArrays:
     segment: np.ndarray  # (N,) int32, increases at gaps longer than MAX_GAP
     has_label: np.ndarray  # (N,) bool
     keypoints: np.ndarray  # (N, 19, 3) float32 metres, NaN without a label
-    action: np.ndarray  # (N,) int64 index into ACTIONS, NO_ACTION for a stand or no label
-    progress: np.ndarray  # (N,) float32 in [0, 1], NaN without an action
+    action: np.ndarray  # (N,) int64 index into ACTIONS, NO_ACTION for a transition or no label
+    progress: np.ndarray  # (N,) float32 in [0, 1], NaN where undefined (standing, transition)
     counters: dict[str, int] = field(default_factory=dict)  # what was bad, how often
 
     def __len__(self) -> int:
@@ -248,7 +248,9 @@ def _to_grid(
         has_label[slot] = True
         keypoints[slot] = kp
         action[slot] = act
-        progress[slot] = float(lab.progress) if act != contract.NO_ACTION else np.nan
+        # Progress only where the action has one: a label file's value for standing
+        # or a transition is not trusted (an old writer may have put 0.5 there).
+        progress[slot] = float(lab.progress) if contract.has_progress(act) else np.nan
     counters["bad_labels"] = bad_labels
     counters["unlabelled_slots"] = int(n - has_label.sum())
     return SessionArrays(

@@ -14,7 +14,7 @@ import torch
 from scotti.export.losses import LossWeights, ScottiTargets, scotti_loss
 from scotti.export.model import Scotti, ScottiOutputs
 from scotti.export.windows import Targets, WindowDataset
-from scotti.models import metrics
+from scotti.models import contract, metrics
 
 
 def unfold_windows(emb: torch.Tensor, window: int, stride: int) -> torch.Tensor:
@@ -62,7 +62,11 @@ def predict(
             progress.append(t.progress)
     model.train(was_training)
     if not outs:
-        empty = ScottiOutputs(torch.zeros(0, 19, 3), torch.zeros(0, 8), torch.zeros(0))
+        empty = ScottiOutputs(
+            torch.zeros(0, contract.NUM_KEYPOINTS, 3),
+            torch.zeros(0, contract.NUM_ACTIONS),
+            torch.zeros(0),
+        )
         return empty, {}
     joined = ScottiOutputs(*(torch.cat(parts) for parts in zip(*outs, strict=True)))
     labels = {

@@ -2,7 +2,13 @@
 
 Paper weights: total = 0.01 * pose + 1 * action + 1 * progress. The pose term
 is in the units the paper reports (millimetres and degrees), which is what
-makes 0.01 a sensible balance against a cross-entropy of about ln(8) ~ 2.
+makes 0.01 a sensible balance against a cross-entropy of about ln(9) ~ 2.
+
+What each term is over: the pose term over every frame with a pose label;
+the action term over frames with an action, standing included (transitions,
+``NO_ACTION``, are left out); the progress term only where the progress
+label is finite, so standing, transitions and missing labels are left out
+whatever the action target says.
 
 Every term is finite with finite gradients on any input: zero-length bones,
 coincident points, a batch with no labelled action, NaN progress labels.
@@ -20,6 +26,7 @@ from scotti.models import contract
 
 _BONES = torch.as_tensor(contract.BONE_INDEX)  # (n_bones, 2) parent, child
 _ANGLE_PAIRS = torch.as_tensor(contract.JOINT_ANGLES, dtype=torch.int64)  # (n_angles, 2)
+_REPEATED = torch.tensor(sorted(contract.REPEATED_ACTIONS), dtype=torch.int64)  # have progress
 
 # Floor for |a x b| in atan2 (m^2, about two 1 cm bones): keeps atan2 and its
 # gradient defined when a bone has zero length, at a bias below 0.001 rad.
@@ -40,8 +47,8 @@ class ScottiTargets:
     """Labels for the predicted time t of each window in a batch."""
 
     pose: torch.Tensor  # (B, 19, 3) metres; a keypoint with a NaN is left out
-    action: torch.Tensor  # (B,) int64 index into ACTIONS, NO_ACTION (-1) = unlabelled
-    progress: torch.Tensor  # (B,) float in [0, 1], NaN where there is no action
+    action: torch.Tensor  # (B,) int64 index into ACTIONS, NO_ACTION (-1) = transition
+    progress: torch.Tensor  # (B,) float in [0, 1], NaN where undefined (standing, transition)
 
 
 def safe_norm(v: torch.Tensor, eps: float = DIST_EPS) -> torch.Tensor:
@@ -112,11 +119,15 @@ def scotti_loss(
     mpjae = _masked_mean(_row_means(angle_error, angle_ok), angle_ok.any(dim=-1))
     pose = mpjpe + mpjae
 
-    labelled = targets.action != contract.NO_ACTION  # (B,)
+    labelled = targets.action != contract.NO_ACTION  # (B,) standing counts
     ce = F.cross_entropy(outputs.action_logits, targets.action.clamp_min(0), reduction="none")
     action = _masked_mean(ce, labelled)
 
-    has_progress = labelled & torch.isfinite(targets.progress)  # (B,)
+    # Progress counts only for a repeated action with a finite label: the label is
+    # NaN where progress is undefined (standing, transitions, unlabelled), and a
+    # stray number on a standing frame is not trusted either.
+    repeated = torch.isin(targets.action, _REPEATED)  # (B,)
+    has_progress = repeated & torch.isfinite(targets.progress)  # (B,)
     progress_target = torch.where(has_progress, targets.progress, 0.0)
     progress = _masked_mean((outputs.progress - progress_target) ** 2, has_progress)
 

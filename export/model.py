@@ -95,7 +95,7 @@ class ScottiConfig:
 
 class ScottiOutputs(NamedTuple):
     pose: torch.Tensor  # (B, 19, 3) metres, pose frame
-    action_logits: torch.Tensor  # (B, 8)
+    action_logits: torch.Tensor  # (B, NUM_ACTIONS)
     progress: torch.Tensor  # (B,) in [0, 1]
 
 
@@ -228,7 +228,7 @@ class Scotti(nn.Module):
         w = self.pool_weights.softmax(dim=0)  # (T+1,), sums to 1
         pooled = torch.einsum("bte,t->be", x, w)  # (B, E), weighted mean over tokens
         pose = self.pose_head(pooled).view(b, contract.NUM_KEYPOINTS, 3)  # (B, 19, 3)
-        action_logits = self.action_head(pooled)  # (B, 8)
+        action_logits = self.action_head(pooled)  # (B, NUM_ACTIONS)
         progress = torch.sigmoid(self.progress_head(pooled)).squeeze(-1)  # (B,)
         return ScottiOutputs(pose, action_logits, progress)
 

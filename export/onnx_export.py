@@ -154,6 +154,15 @@ def _load_weights(model: Scotti, state: Any, path: Path) -> None:
         msg = f"{path}: 'model' is not a state_dict"
         raise ExportError(msg)
     expected = model.state_dict()
+    logits = next(k for k in reversed(expected) if k.startswith("action_head.") and "weight" in k)
+    got = state.get(logits)
+    if isinstance(got, torch.Tensor) and got.ndim == 2 and got.shape[0] != contract.NUM_ACTIONS:
+        msg = (
+            f"{path}: the action head has {got.shape[0]} logits, contract version "
+            f"{contract.CONTRACT_VERSION} needs {contract.NUM_ACTIONS} "
+            f"({', '.join(contract.ACTIONS)}): train it again with this version"
+        )
+        raise ExportError(msg)
     missing = sorted(set(expected) - set(state))
     unexpected = sorted(set(state) - set(expected))
     wrong = sorted(

@@ -216,6 +216,7 @@ def _run(args: argparse.Namespace) -> int:
         "split": split.describe(),
         "frames": sum(len(s) for s in sessions),
         "windows": {"train": train_set.count(1), "test": test_set.count(1)},
+        "train_targets": train_set.target_counts(),  # windows per action: no class balancing
         "problems": _sum_counters(sessions),
     }
     if args.init is not None:
@@ -235,6 +236,12 @@ def _run(args: argparse.Namespace) -> int:
         split.kind,
         train_set.count(1),
         test_set.count(1),
+    )
+    targets = training_data["train_targets"]
+    total = max(1, sum(targets.values()))
+    log.info(
+        "training windows per target action: %s",
+        ", ".join(f"{name} {n} ({100 * n / total:.1f} %)" for name, n in targets.items()),
     )
 
     torch.manual_seed(opts.seed)

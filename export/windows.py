@@ -42,8 +42,8 @@ class Chunk:
 @dataclass(frozen=True)
 class Targets:
     keypoints: np.ndarray  # (K, 19, 3) float32
-    action: np.ndarray  # (K,) int64, NO_ACTION for a stand
-    progress: np.ndarray  # (K,) float32, NaN without an action
+    action: np.ndarray  # (K,) int64, NO_ACTION for a transition
+    progress: np.ndarray  # (K,) float32, NaN where undefined (standing, transition)
 
 
 class WindowDataset:
@@ -78,6 +78,20 @@ class WindowDataset:
 
     def __len__(self) -> int:
         return self.count(stride=1)
+
+    def target_counts(self) -> dict[str, int]:
+        """Usable windows (stride 1) per target action by name, "transition" for NO_ACTION.
+
+        Training draws windows uniformly (no class balancing), so these are
+        the weights the actions get in the action loss.
+        """
+        names = (*contract.ACTIONS, "transition")  # index -1 picks the last
+        counts = dict.fromkeys(names, 0)
+        for i, s in enumerate(self.sessions):
+            targets = s.action[self.starts(i) + self.window]
+            for action, n in zip(*np.unique(targets, return_counts=True), strict=True):
+                counts[names[int(action)]] += int(n)
+        return counts
 
     def count(self, stride: int = 1, phase: int = 0) -> int:
         return sum(int(u[phase::stride].sum()) for u in self._usable)

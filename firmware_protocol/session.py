@@ -129,8 +129,8 @@ class LabelRecord:
     seq: int  # the u16 foot-frame sequence number this label belongs to
     t_ns: int  # host monotonic time of that frame
     keypoints: np.ndarray = field(repr=False)  # (19, 3) float32 metres, pose frame
-    action: int = -1  # index into models.contract.ACTIONS, -1 (NO_ACTION) when none
-    progress: float = float("nan")  # 0..1 through the repetition, NaN when no action
+    action: int = -1  # index into models.contract.ACTIONS, -1 (NO_ACTION): a transition
+    progress: float = float("nan")  # 0..1 through the repetition, NaN where undefined (standing)
     rep: int = -1  # repetition count within the action, -1 when none
 
     def __post_init__(self) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 
 # Bumped whenever a name, an order, a shape or a unit below changes; a model
 # whose metadata carries another version is refused by the runtime.
-CONTRACT_VERSION: Final = 1
+CONTRACT_VERSION: Final = 2  # 2: "standing" became the ninth action
 
 # --- Geometry of one foot frame and of the model input --------------------
 FRAME_ROWS: Final = 32  # taxel rows per insole (heel at row 31, toes at row 0)
@@ -111,6 +111,7 @@ def derived_points(keypoints: np.ndarray) -> dict[str, np.ndarray]:
 
 
 # --- Actions, in the fixed order of the action head's logits --------------
+# New actions are appended, so an index keeps its meaning across versions.
 ACTIONS: Final[tuple[str, ...]] = (
     "squat",
     "lunge",
@@ -120,11 +121,27 @@ ACTIONS: Final[tuple[str, ...]] = (
     "in_place_walking",
     "backward_walking",
     "walking",
+    "standing",  # weight on both feet, no repetition running (contract version 2)
 )
 NUM_ACTIONS: Final = len(ACTIONS)
-# Label value for frames without an action (a stand between actions):
-# training leaves them out of the action and progress losses.
+STANDING: Final = ACTIONS.index("standing")
+# Actions that run in repetitions: they have a progress indicator, a progress
+# label in [0, 1] and a repetition count. Every other action (standing) has
+# neither: its progress is undefined (NaN in labels, null on MQTT) and
+# training leaves it out of the progress loss.
+REPEATED_ACTIONS: Final[frozenset[int]] = frozenset(
+    i for i, name in enumerate(ACTIONS) if name != "standing"
+)
+# Label value for a transition between actions (walking to a spot, the sink
+# before a set of jumps): no action is named, so training leaves these frames
+# out of the action and progress losses (the pose loss still uses them).
 NO_ACTION: Final = -1
+
+
+def has_progress(action: int) -> bool:
+    """Whether frames of ``action`` (an index, or ``NO_ACTION``) have a progress label."""
+    return action in REPEATED_ACTIONS
+
 
 # --- ONNX graph I/O names --------------------------------------------------
 # Streaming step: one new frame + cached embeddings of the previous T-1.
@@ -133,8 +150,8 @@ STEP_INPUT_PAST: Final = "past_embeddings"  # float32 (B, T-1, E), oldest first
 # Window graph: B windows of T frames.
 WINDOW_INPUT_FRAMES: Final = "frames"  # float32 (B, T, H, 2W) raw counts
 OUTPUT_POSE: Final = "pose"  # float32 (B, 19, 3) metres, pose frame
-OUTPUT_ACTION_LOGITS: Final = "action_logits"  # float32 (B, 8)
-OUTPUT_PROGRESS: Final = "progress"  # float32 (B,) in [0, 1]
+OUTPUT_ACTION_LOGITS: Final = "action_logits"  # float32 (B, NUM_ACTIONS)
+OUTPUT_PROGRESS: Final = "progress"  # float32 (B,) in [0, 1]; meaningless while standing
 STEP_OUTPUT_EMBEDDING: Final = "embedding"  # float32 (B, E), the new frame's
 
 # Metadata keys (onnx metadata_props) every exported graph carries.

@@ -1,8 +1,10 @@
 """Task metrics: pose (MPJPE, MPJAE), action (accuracy, confusion), progress (MSE, APP).
 
 Frames without a label are left out with explicit masks: actions equal to
-``NO_ACTION`` and progress that is NaN. A metric over no frames is NaN (the
-confusion matrix is then all zeros).
+``NO_ACTION`` (transitions) and progress that is NaN (standing, transitions:
+progress is defined only for ``contract.REPEATED_ACTIONS``). Standing is an
+action like the others in accuracy and the confusion matrix. A metric over no
+frames is NaN (the confusion matrix is then all zeros).
 """
 
 from __future__ import annotations
@@ -70,7 +72,8 @@ def action_accuracy(pred: npt.ArrayLike, true: npt.ArrayLike) -> float:
 
 
 def confusion_matrix(pred: npt.ArrayLike, true: npt.ArrayLike) -> npt.NDArray[np.int64]:
-    """(8, 8) counts, rows = true action, columns = predicted; unlabelled frames left out."""
+    """(NUM_ACTIONS, NUM_ACTIONS) counts, rows = true action, columns = predicted;
+    transitions (``NO_ACTION``) left out."""
     p, t = _pair_of_actions(pred, true)
     keep = action_mask(t)
     if np.any((p[keep] < 0) | (p[keep] >= NUM_ACTIONS)):
@@ -82,7 +85,7 @@ def confusion_matrix(pred: npt.ArrayLike, true: npt.ArrayLike) -> npt.NDArray[np
 
 
 def progress_mask(true: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-    """Frames with a progress label (finite)."""
+    """Frames with a progress label (finite: NaN where progress is undefined)."""
     return np.asarray(np.isfinite(np.asarray(true, dtype=np.float64)))
 
 

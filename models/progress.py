@@ -31,6 +31,9 @@ Choices the paper leaves open, fixed here:
   movement, no evidence of progress, and no repetition to count.
 - Non-finite h (NaN keypoints) is filled from the nearest finite frames; an
   all-NaN run is flat. Output is always finite and clipped to [0, 1].
+- Only repeated actions (``contract.REPEATED_ACTIONS``) have an indicator.
+  Standing runs no repetition: its frames, like transitions (``NO_ACTION``),
+  get NaN progress and repetition -1.
 """
 
 from __future__ import annotations
@@ -41,7 +44,14 @@ from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-from scotti.models.contract import ACTIONS, KP, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS
+from scotti.models.contract import (
+    ACTIONS,
+    KP,
+    NO_ACTION,
+    NUM_ACTIONS,
+    NUM_KEYPOINTS,
+    has_progress,
+)
 from scotti.models.errors import ModelInputError
 
 FloatArray = npt.NDArray[np.float64]
@@ -66,15 +76,16 @@ class PeakParams:
 class ProgressLabels(NamedTuple):
     """Per-frame labels; unpacks as ``progress, repetition = label_progress(...)``."""
 
-    progress: npt.NDArray[np.float32]  # (N,) in [0, 1], NaN where action == NO_ACTION
+    progress: npt.NDArray[np.float32]  # (N,) in [0, 1], NaN where the action has none
     repetition: npt.NDArray[np.int32]  # (N,) index within the action's run, -1 where none
 
 
 def progress_indicator(keypoints: npt.ArrayLike, action: int) -> FloatArray:
     """The paper's indicator h(t) for one action: (N, 19, 3) metres -> (N,)."""
     k = _check_keypoints(keypoints)
-    if not 0 <= action < NUM_ACTIONS:
-        msg = f"action {action} has no progress indicator (0..{NUM_ACTIONS - 1})"
+    if not has_progress(action):
+        shown = ACTIONS[action] if 0 <= action < NUM_ACTIONS else action
+        msg = f"action {shown} has no progress indicator (it runs no repetitions)"
         raise ModelInputError(msg)
     name = ACTIONS[action]
     heels = k[:, [KP["left_heel"], KP["right_heel"]], :]  # (N, 2, 3)
@@ -153,7 +164,8 @@ def label_progress(
     """Label every frame of a session, one contiguous run of one action at a time.
 
     ``keypoints`` (N, 19, 3) metres, ``actions`` (N,) ints, ``NO_ACTION`` for
-    stands. Repetitions are counted from 0 within each run.
+    transitions. Repetitions are counted from 0 within each run of a repeated
+    action; standing and transitions get NaN progress and repetition -1.
     """
     k = _check_keypoints(keypoints)
     a = np.asarray(actions)
@@ -168,7 +180,7 @@ def label_progress(
     repetition = np.full(len(k), -1, dtype=np.int32)
     for start, end in _runs(a):
         action = int(a[start])
-        if action == NO_ACTION:
+        if not has_progress(action):
             continue
         h = progress_indicator(k[start:end], action)
         run_progress, run_repetition = progress_from_indicator(h, params)

@@ -53,8 +53,8 @@ class WindowResult:
     """Predictions for B windows (window graph)."""
 
     pose: F32  # (B, 19, 3)
-    action_logits: F32  # (B, 8)
-    action_probs: F32  # (B, 8)
+    action_logits: F32  # (B, NUM_ACTIONS)
+    action_probs: F32  # (B, NUM_ACTIONS)
     progress: F32  # (B,)
 
 
@@ -261,7 +261,10 @@ def _check_metadata(meta: dict[str, str]) -> tuple[str, int, int, dict[str, Any]
             raise ModelContractError(msg)
     version = meta[c.META_CONTRACT_VERSION]
     if version != str(c.CONTRACT_VERSION):
-        msg = f"model has contract version {version}, this runtime needs {c.CONTRACT_VERSION}"
+        msg = (
+            f"model has contract version {version}, this runtime needs {c.CONTRACT_VERSION} "
+            f"(export one with this version of scotti)"
+        )
         raise ModelContractError(msg)
     graph = meta[c.META_GRAPH]
     if graph not in ("step", "window"):

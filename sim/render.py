@@ -219,7 +219,7 @@ def _name(index: int) -> str:
 
 
 def _action_name(action: int) -> str:
-    return ACTIONS[action] if 0 <= action < len(ACTIONS) else "none"
+    return ACTIONS[action] if 0 <= action < len(ACTIONS) else "transition"
 
 
 def _draw_timeline(ax: Any, span: Span, marks: list[float]) -> None:

@@ -17,7 +17,7 @@ that names the file, the line and the field, e.g.
     [[script]]
     action = "squat"    # one of ACTIONS
     reps = 5            # or duration_s
-    stand_s = 1.5       # quiet stand after it (standing)
+    stand_s = 1.5       # quiet stand after it (labelled standing)
     [[effects]]
     name = "noise"      # see scotti.sim.effects.registry
     std_counts = 4
@@ -45,7 +45,6 @@ from pydantic import model_validator as _model_validator
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
 from scotti.sim import SimError
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
-from scotti.sim.actions.base import standing_label
 from scotti.sim.foot import BALL_WIDTH_RANGE, ArchType
 from scotti.sim.insole import InsoleSpec
 from scotti.sim.motion import Motion, Subject
@@ -255,20 +254,14 @@ def build_motion(scene: Scene, oversample: int = 1) -> Motion:
             body, subject, rate, session_segments(scene.session, ctx, scene.seed)
         )
     place = Place(0.0, 0.0, 0.0)
-    segments: list[Segment] = [_standing(ctx, place, LEAD_IN_S)]
+    segments: list[Segment] = [stand(ctx, place, LEAD_IN_S)]
     for entry in scene.script:
         segment = RECIPES[entry.action](ctx, entry.spec(), place)
         place = segment.end
         segments.append(segment)
         if entry.stand_s > 0:
-            segments.append(_standing(ctx, place, entry.stand_s))
+            segments.append(stand(ctx, place, entry.stand_s))
     return motion_from_segments(body, subject, rate, segments)
-
-
-def _standing(ctx: Context, place: Place, seconds: float) -> Segment:
-    """A quiet stand labelled ``standing`` (NO_ACTION before the contract has it)."""
-    s = stand(ctx, place, seconds)
-    return Segment(s.params, np.full(len(s), standing_label(), np.int64), s.end, s.ground_z)
 
 
 def motion_from_segments(

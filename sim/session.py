@@ -10,7 +10,7 @@ them as in a lab:
     SET | stand, resting | walk to the next spot ... | SET | stand, resting
 
 Stands are labelled ``standing`` (NO_ACTION until the contract has it, see
-``standing_label``); the walks between sets are transitions, NO_ACTION. Sets
+``STANDING``); the walks between sets are transitions, NO_ACTION. Sets
 vary (``ActionSpec.vary``): walking sets follow a walkway with turns and
 speed changes, side walking changes direction from set to set. Should a set
 come out shorter than asked (repetitions are whole), more sets of that
@@ -25,9 +25,8 @@ from typing import Final, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from scotti.models.contract import ACTIONS
+from scotti.models.contract import ACTIONS, STANDING
 from scotti.sim.actions import EXERCISES, RECIPES, ActionSpec, Context, Place, Segment, stand
-from scotti.sim.actions.base import standing_label
 from scotti.sim.actions.gait import transition_walk
 
 LEAD_IN_S: Final = (2.0, 5.0)  # standing before the first transition
@@ -186,7 +185,7 @@ def _build(
 ) -> Segment:
     if item.kind == "stand":
         segment = stand(ctx, place, item.seconds)
-        label = standing_label()
+        label = STANDING
         return Segment(
             segment.params, np.full(len(segment), label, np.int64), segment.end, segment.ground_z
         )

@@ -59,6 +59,26 @@ def test_render_shows_feet_action_progress_and_latency() -> None:
     assert screen.count("\x1b[48;5;16m") == 16 * 11  # right foot all cold
 
 
+def test_render_shows_standing_without_a_progress_bar() -> None:
+    state = ViewState()
+    state.update(
+        "action",
+        {"action": "standing", "confidence": 0.95, "probabilities": {"standing": 0.95}},
+        "scotti/dev/action",
+    )
+    state.update(
+        "progress",
+        {"action": "standing", "progress": None, "repetition": -1},
+        "scotti/dev/progress",
+    )
+    screen = render(state)
+    progress_line = next(line for line in screen.splitlines() if line.startswith("progress"))
+    assert progress_line == "progress  (standing: no repetition running)"
+    assert "█" not in progress_line
+    assert "░" not in progress_line
+    assert "rep" not in progress_line.replace("repetition", "")
+
+
 def test_render_before_anything_arrived() -> None:
     screen = render(ViewState())
     assert "waiting" in screen

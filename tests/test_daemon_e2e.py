@@ -140,6 +140,27 @@ def test_replay_publishes_joinable_valid_frames_deterministically(
     assert not recorded.truncated
 
 
+def test_a_model_that_says_standing_publishes_null_progress_over_mqtt(
+    mosquitto: Mosquitto, session: SyntheticSession, standing_model_path: Path, tmp_path: Path
+) -> None:
+    msgs = replay(mosquitto, session.path, standing_model_path, tmp_path, "e2e-standing")
+    actions = [Action.model_validate_json(m.payload) for m in msgs if m.topic.endswith("/action")]
+    progress = [
+        Progress.model_validate_json(m.payload) for m in msgs if m.topic.endswith("/progress")
+    ]
+    # (A loaded machine may drop frames on the way: how many is not what this is about.)
+    assert 0 < len(progress) <= FRAMES - WINDOW + 1
+    assert [a.seq for a in actions] == [p.seq for p in progress]
+    assert {a.action for a in actions} == {"standing"}
+    assert all(a.schema_version == 2 and a.probabilities["standing"] > 0.99 for a in actions)
+    assert {(p.action, p.progress, p.repetition) for p in progress} == {("standing", None, -1)}
+    raw = json.loads(next(m for m in msgs if m.topic.endswith("/progress")).payload)
+    assert raw["progress"] is None  # JSON null on the wire, not NaN or a number
+    info = Info.model_validate_json(next(m for m in msgs if m.topic.endswith("/info")).payload)
+    assert info.actions[-1] == "standing"
+    assert info.model["card"]["contract_version"] == 2
+
+
 def test_live_board_subscriber_example_and_last_will_on_sigkill(
     mosquitto: Mosquitto,
     session: SyntheticSession,

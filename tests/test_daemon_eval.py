@@ -17,7 +17,8 @@ from scotti.daemon.evaluation import (
     replay_session,
     score,
 )
-from scotti.firmware_protocol.session import read_session
+from scotti.firmware_protocol.session import LabelRecord, read_session
+from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS, STANDING
 from scotti.models.runtime import ScottiRuntime
 
 from tests.support.export_sessions import write_session
@@ -75,11 +76,47 @@ def test_numbers_are_finite_and_labels_against_themselves_are_perfect(
     assert perfect["app"] == pytest.approx(1.0)
 
 
+def test_standing_is_scored_as_an_action_and_its_progress_left_out() -> None:
+    standing, squat = STANDING, ACTIONS.index("squat")
+    kp = np.zeros((NUM_KEYPOINTS, 3), dtype=np.float32)
+    labels = [
+        LabelRecord(seq=i, t_ns=i, keypoints=kp, action=a, progress=p, rep=0)
+        for i, (a, p) in enumerate(
+            [(squat, 0.2), (squat, 0.6), (standing, 0.5), (standing, 0.5), (NO_ACTION, 0.5)]
+        )
+    ]
+    truth = FrameSet.from_labels(labels)
+    # A number in a label file on a standing or transition frame is not a progress label.
+    np.testing.assert_array_equal(np.isnan(truth.progress_true), [False, False, True, True, True])
+    predicted = FrameSet(
+        truth.pose_pred,
+        truth.pose_true,
+        np.array([squat, standing, standing, squat, standing]),
+        truth.action_true,
+        np.array([0.3, 0.6, 0.9, 0.1, 0.0]),
+        truth.progress_true,
+    )
+    report = score(predicted)
+    assert np.shape(report["confusion"]["matrix"]) == (NUM_ACTIONS, NUM_ACTIONS)
+    assert report["confusion"]["matrix"][standing][standing] == 1
+    assert report["confusion"]["matrix"][standing][squat] == 1
+    still = report["per_action"]["standing"]
+    assert still["frames"] == 2
+    assert still["action_accuracy"] == 0.5
+    assert still["frames_progress"] == 0
+    assert math.isnan(still["progress_mse"])
+    assert report["per_action"]["transition"]["frames"] == 1
+    overall = report["metrics"]
+    assert overall["frames_progress"] == 2  # the two squat frames only
+    assert overall["progress_mse"] == pytest.approx((0.1**2 + 0.0) / 2)
+    assert overall["action_accuracy"] == pytest.approx(2 / 4)  # the transition is left out
+
+
 def test_random_baseline_is_near_chance(session: Path, runtime: ScottiRuntime) -> None:
     frames = FrameSet.concat([replay_session(session, runtime).frames] * 40)
     base = score(frames)["random_baseline"]
     assert 0.55 < base["app"] < 0.78  # 2/3 in expectation
-    assert 0.0 < base["action_accuracy"] < 0.3  # 1/8 in expectation
+    assert 0.0 < base["action_accuracy"] < 0.3  # 1/9 in expectation
 
 
 def test_cli_json_and_plots(

@@ -17,6 +17,7 @@ from scotti.firmware_protocol.packets import Foot
 from scotti.models.contract import META_CONTRACT_VERSION, WINDOW
 
 from tests.support.broker import Received, collect, payloads, start_daemon
+from tests.support.fixtures_models import TINY_V1_STEP
 from tests.support.sessions import SyntheticSession, write_synthetic_session
 
 DAEMON = str(Path(sys.executable).with_name("scotti-daemon"))
@@ -240,6 +241,10 @@ def test_model_that_does_not_fit_the_contract(tiny_model_path: Path, tmp_path: P
     onnx.save(model, str(wrong))
     out = run_daemon("--port", "/dev/x", "--model", str(wrong))
     assert_one_line(out, "scotti-daemon: model error: wrong-contract.onnx")
+    out = run_daemon("--port", "/dev/x", "--model", str(TINY_V1_STEP))
+    assert_one_line(
+        out, "scotti-daemon: model error: scotti-tiny.onnx: model has contract version 1,"
+    )
     junk = tmp_path / "junk.onnx"
     junk.write_bytes(b"not a model")
     assert_one_line(

@@ -15,7 +15,7 @@ from scotti.daemon.inference import InferenceJob, InferenceResult, InferenceWork
 from scotti.daemon.pairing import PairedFrame
 from scotti.daemon.repetitions import RepetitionCounter
 from scotti.daemon.window import Window
-from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
+from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_ROWS, MAX_COUNT, STANDING
 from scotti.models.runtime import ScottiRuntime
 
 
@@ -125,6 +125,28 @@ def test_repetitions_count_wraps_of_progress_with_hysteresis() -> None:
         got = counter.update(6, 0.1)
     assert got == 0
     assert counter.action == 6
+
+
+def test_standing_counts_nothing_and_a_short_flicker_to_it_does_not_reset() -> None:
+    counter = RepetitionCounter()
+    squat, standing = ACTIONS.index("squat"), STANDING
+    wrap = [0.2, 0.5, 0.9, 0.1]  # one completed repetition per pass
+    reps = [counter.update(squat, p) for p in wrap * 3]
+    assert reps[-1] == 3
+    # Two frames of standing at the top of a squat: a flicker, the count holds.
+    assert counter.update(standing, 0.05) == 3
+    assert counter.update(standing, 0.9) == 3
+    assert counter.update(squat, 0.5) == 3
+    # Standing held: the count is -1 (none), whatever the progress head says.
+    got = [counter.update(standing, p) for p in wrap * 2]
+    assert got[:3] == [3, 3, 3]
+    assert got[3:] == [-1] * (len(got) - 3)
+    assert counter.action == standing
+    # The next repeated action counts from 0.
+    for _ in range(4):
+        got_back = counter.update(squat, 0.5)
+    assert got_back == 0
+    assert [counter.update(squat, p) for p in wrap][-1] == 1
 
 
 def test_noise_around_one_level_does_not_count() -> None:

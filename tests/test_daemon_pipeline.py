@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 from scotti.daemon.board_emulator import BoardEmulator
 from scotti.daemon.counters import Counters
+from scotti.daemon.messages import frame_payloads
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
+from scotti.daemon.schemas import Action, Progress
 from scotti.daemon.sources import ReplaySource, SerialSource, Source
 from scotti.daemon.sources_sim import SimulatedSource
 from scotti.daemon.waiting import Backoff
-from scotti.models.contract import NUM_ACTIONS, NUM_KEYPOINTS
+from scotti.models.contract import ACTIONS, NUM_ACTIONS, NUM_KEYPOINTS, STANDING
 from scotti.models.runtime import ScottiRuntime
 
 from tests.support.sessions import write_synthetic_session
@@ -102,8 +104,31 @@ def test_replaying_the_same_session_twice_gives_identical_predictions(
         assert a.seq == b.seq
         assert np.array_equal(a.pose, b.pose)
         assert np.array_equal(a.action_probs, b.action_probs)
-        assert a.progress == b.progress
+        assert a.progress == b.progress or (np.isnan(a.progress) and np.isnan(b.progress))
         assert a.repetition == b.repetition
+
+
+def test_while_the_model_says_standing_progress_is_null_and_nothing_is_counted(
+    tmp_path: Path, standing_model_path: Path
+) -> None:
+    runtime = ScottiRuntime(standing_model_path)
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=runtime.window + 24)
+    predictions, _, _ = run_pipeline(ReplaySource(session.path, speed="max"), runtime)
+    assert len(predictions) == 25
+    assert all(p.action == STANDING for p in predictions)
+    assert all(np.isnan(p.progress) for p in predictions)
+    assert all(p.repetition == -1 for p in predictions)
+    topics = dict(frame_payloads(predictions[-1], latency_ms=1.0))
+    action, progress = topics["action"], topics["progress"]
+    assert isinstance(action, Action)
+    assert isinstance(progress, Progress)
+    assert action.action == "standing"
+    assert action.confidence > 0.99
+    assert set(action.probabilities) == set(ACTIONS)
+    assert progress.action == "standing"
+    assert progress.progress is None
+    assert progress.repetition == -1
+    assert '"progress":null' in progress.model_dump_json()
 
 
 def test_a_silent_foot_degrades_the_state_and_flags_predictions(

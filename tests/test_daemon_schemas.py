@@ -11,7 +11,17 @@ import msgpack
 import pytest
 from pydantic import ValidationError
 from scotti.daemon import schemas
-from scotti.daemon.schemas import Action, DeviceSeq, Pose, Pressure, Status, decode, encode
+from scotti.daemon.schemas import (
+    Action,
+    DeviceSeq,
+    Pose,
+    Pressure,
+    Progress,
+    Status,
+    decode,
+    encode,
+)
+from scotti.models.contract import ACTIONS
 
 DOCS = Path(__file__).parent.parent / "docs"
 STAMP: dict[str, Any] = {
@@ -60,6 +70,28 @@ def test_bad_payloads_are_rejected() -> None:
         Status.model_validate({"state": "sleepy", "reasons": [], "source": "connected"})
     with pytest.raises(ValidationError):
         decode(Pose, b'{"schema_version": 2}', "json")
+
+
+def test_action_names_are_the_contracts_and_v2_payloads_carry_standing() -> None:
+    assert schemas.ACTION_NAMES == ACTIONS  # the schema's literal follows the model contract
+    still = Progress(**STAMP, action="standing", progress=None, repetition=-1)
+    doc = json.loads(encode(still, "json"))
+    assert doc["schema_version"] == 2
+    assert doc["progress"] is None
+    assert decode(Progress, encode(still, "msgpack"), "msgpack") == still
+    assert Action(**STAMP, action="standing", confidence=0.9, probabilities={}).schema_version == 2
+    assert pose().schema_version == 1  # unchanged payloads keep their version
+    with pytest.raises(ValidationError):
+        Action(**STAMP, action="sitting", confidence=0.9, probabilities={})
+    with pytest.raises(ValidationError):  # a version-1 progress payload is not misread
+        decode(
+            Progress,
+            encode(still, "json").replace(b'"schema_version":2', b'"schema_version":1'),
+            "json",
+        )
+    schema = json.loads(schemas.json_schemas()["progress"])
+    names = schema["properties"]["action"]["anyOf"][0]["enum"]
+    assert names == list(ACTIONS)
 
 
 def test_committed_docs_equal_the_generated_ones() -> None:

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 from scotti.daemon.evaluation import FrameSet, score, task_metrics
+from scotti.models.contract import NUM_ACTIONS, has_progress
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 sys.path.insert(0, str(EXPERIMENTS))
@@ -67,13 +68,13 @@ def _frames(n: int, seed: int, quality: float) -> FrameSet:
     """Random labelled frames and predictions that are right with probability ``quality``."""
     rng = np.random.default_rng(seed)
     pose = rng.normal(0, 0.3, (n, 19, 3)).astype(np.float32)
-    action = rng.integers(-1, 8, n)
-    progress = np.where(action >= 0, rng.uniform(0, 1, n), np.nan)
+    action = rng.integers(-1, NUM_ACTIONS, n)  # -1: a transition
+    progress = np.where([has_progress(int(a)) for a in action], rng.uniform(0, 1, n), np.nan)
     right = rng.random(n) < quality
     return FrameSet(
         pose_pred=pose + rng.normal(0, 0.1 * (1 - quality), pose.shape).astype(np.float32),
         pose_true=pose,
-        action_pred=np.where(right, np.maximum(action, 0), rng.integers(0, 8, n)),
+        action_pred=np.where(right, np.maximum(action, 0), rng.integers(0, NUM_ACTIONS, n)),
         action_true=action,
         progress_pred=np.where(right, np.nan_to_num(progress), rng.uniform(0, 1, n)),
         progress_true=progress,
@@ -315,3 +316,8 @@ def test_the_shipped_card_carries_every_partition(tmp_path: Path) -> None:
     assert block["summary"]["action_accuracy"] == {"mean": mean, "sd": sd, "n": 3}
     assert sd > 0
     assert "every 8th prediction time" in block["how"]
+    standing = block["per_action"]["standing"]  # scored like any action, pooled
+    frames = [r["per_action"]["standing"]["frames"] for r in reports]
+    assert standing["frames"] == sum(frames) > 0
+    recall = [r["per_action"]["standing"]["action_accuracy"] for r in reports]
+    assert min(recall) <= standing["action_accuracy"] <= max(recall)

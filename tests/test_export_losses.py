@@ -147,6 +147,39 @@ def test_unlabelled_batch_has_zero_action_and_progress_never_nan() -> None:
     assert float(logits.grad.abs().max()) == 0.0
 
 
+def test_standing_trains_the_action_head_but_never_the_progress_head() -> None:
+    """Standing is a class of the action loss; its NaN progress is left out, gradient finite."""
+    standing = contract.STANDING
+    pose = standing_pose().expand(3, -1, -1)
+    logits = torch.zeros(3, contract.NUM_ACTIONS, requires_grad=True)
+    progress = torch.tensor([0.9, 0.1, 0.4], requires_grad=True)
+    tgt = ScottiTargets(
+        pose,
+        torch.tensor([standing, contract.NO_ACTION, 0]),
+        torch.tensor([math.nan, math.nan, 0.6]),
+    )
+    total, parts = scotti_loss(ScottiOutputs(pose, logits, progress), tgt)
+    # Uniform logits: the cross-entropy of each of the two named frames is ln(9).
+    assert float(parts["action"]) == pytest.approx(math.log(contract.NUM_ACTIONS), rel=1e-6)
+    assert float(parts["progress"]) == pytest.approx(0.04, rel=1e-5)  # (0.4 - 0.6)^2 only
+    total.backward()  # type: ignore[no-untyped-call]
+    assert progress.grad is not None
+    assert logits.grad is not None
+    assert bool(torch.isfinite(progress.grad).all())
+    assert bool(torch.isfinite(logits.grad).all())
+    assert progress.grad[:2].abs().max() == 0.0  # standing and the transition: no pull
+    assert logits.grad[0, standing] < 0  # the standing logit is pushed up
+    assert logits.grad[1].abs().max() == 0.0  # the transition is out of the action loss
+
+
+def test_a_number_on_a_standing_frame_is_not_trusted_as_progress() -> None:
+    pose = standing_pose().expand(2, -1, -1)
+    out = ScottiOutputs(pose, torch.zeros(2, contract.NUM_ACTIONS), torch.tensor([0.0, 0.5]))
+    tgt = ScottiTargets(pose, torch.tensor([contract.STANDING, 1]), torch.tensor([1.0, 0.5]))
+    _, parts = scotti_loss(out, tgt)
+    assert float(parts["progress"]) == 0.0
+
+
 def test_no_action_frames_are_ignored_and_nan_progress_masked() -> None:
     pose = standing_pose().expand(2, -1, -1)
     logits = torch.zeros(2, contract.NUM_ACTIONS)

@@ -145,6 +145,7 @@ def test_step_graph_matches_torch_with_dynamic_batch(tiny: Scotti) -> None:
             want = tiny.forward_embeddings(torch.cat([torch.from_numpy(past), emb[:, None]], 1))
         np.testing.assert_allclose(got[contract.STEP_OUTPUT_EMBEDDING], emb.numpy(), atol=ATOL)
         np.testing.assert_allclose(got[contract.OUTPUT_POSE], want.pose.numpy(), atol=ATOL)
+        assert got[contract.OUTPUT_ACTION_LOGITS].shape == (b, contract.NUM_ACTIONS) == (b, 9)
         np.testing.assert_allclose(
             got[contract.OUTPUT_ACTION_LOGITS], want.action_logits.numpy(), atol=ATOL
         )
@@ -179,7 +180,9 @@ def test_missing_checkpoint_is_one_line_exit_2(
     assert "checkpoint not found" in err
 
 
-@pytest.mark.parametrize("fault", ["garbage", "truncated", "no_config", "wrong_shape", "bad_cfg"])
+@pytest.mark.parametrize(
+    "fault", ["garbage", "truncated", "no_config", "wrong_shape", "bad_cfg", "contract_v1"]
+)
 def test_bad_checkpoints_are_one_line_exit_2(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], fault: str
 ) -> None:
@@ -193,6 +196,11 @@ def test_bad_checkpoints_are_one_line_exit_2(
         torch.save({"model": ckpt["model"]}, path)
     elif fault == "wrong_shape":
         torch.save({**ckpt, "config": {**TINY_CONFIG.to_dict(), "embed_dim": 64}}, path)
+    elif fault == "contract_v1":  # trained before standing: 8 action logits
+        state = dict(ckpt["model"])
+        for key in ("action_head.3.weight", "action_head.3.bias"):
+            state[key] = state[key][:8]
+        torch.save({**ckpt, "model": state}, path)
     else:
         torch.save({**ckpt, "config": {**TINY_CONFIG.to_dict(), "heads": 3}}, path)
     assert export([str(path), "-o", str(tmp_path / "m.onnx")]) == 2
@@ -200,6 +208,8 @@ def test_bad_checkpoints_are_one_line_exit_2(
     assert err.count("\n") == 1, err
     assert err.startswith("scotti export: ")
     assert not (tmp_path / "m.onnx").exists()
+    if fault == "contract_v1":
+        assert "the action head has 8 logits, contract version 2 needs 9" in err
 
 
 @pytest.mark.slow

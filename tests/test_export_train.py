@@ -15,6 +15,7 @@ import torch
 from scotti.cli.main import main
 from scotti.export.data import load_session
 from scotti.export.evaluate import chunked_outputs, evaluate
+from scotti.export.losses import scotti_loss
 from scotti.export.model import Scotti, ScottiConfig
 from scotti.export.train import (
     Trainer,
@@ -25,8 +26,9 @@ from scotti.export.train import (
     unfold_frames,
 )
 from scotti.export.windows import WindowDataset
+from scotti.models import contract
 
-from tests.support.export_sessions import write_session
+from tests.support.export_sessions import PERIOD, write_session
 
 pytestmark = pytest.mark.torch
 
@@ -79,6 +81,37 @@ def test_chunked_embedding_equals_naive_windows(sessions_dir: Path, stride: int)
 
 
 @pytest.mark.slow
+def test_standing_windows_are_trained_on_as_often_as_they_occur(tmp_path: Path) -> None:
+    """No window is dropped or oversampled for its action: an epoch at stride 1 visits
+    every usable window once, standing ones included; their progress stays out of the loss."""
+    path = write_session(tmp_path / "s.scotti", 9 * PERIOD + TINY["window"] + 4)
+    ds = WindowDataset([load_session(path)], window=TINY["window"])
+    usable = ds.sessions[0].action[ds.starts(0) + ds.window]
+    assert (usable == contract.STANDING).sum() >= PERIOD - 1
+    opts = TrainOptions(epochs=1, batch=8, chunk=4, stride=1, progress_bar=False)
+    planned = np.concatenate(
+        [ds.targets(p.chunk).action for batch in plan_epoch(ds, opts, 0) for p in batch]
+    )
+    np.testing.assert_array_equal(np.sort(planned), np.sort(usable))
+    counts = ds.target_counts()  # what scotti train logs and the card records
+    assert counts["standing"] == (usable == contract.STANDING).sum()
+    assert counts["transition"] == (usable == contract.NO_ACTION).sum()
+    assert sum(counts.values()) == usable.size == len(ds)
+    batch = next(
+        b
+        for b in plan_epoch(ds, opts, 0)
+        if any((ds.targets(p.chunk).action == contract.STANDING).any() for p in b)
+    )
+    frames, targets = batch_tensors(ds, batch)
+    still = targets.action == contract.STANDING
+    assert bool(torch.isnan(targets.progress[still]).all())
+    model = tiny_model()
+    loss, parts = scotti_loss(chunked_outputs(model, frames, ds.window, 1), targets)
+    loss.backward()  # type: ignore[no-untyped-call]
+    assert all(bool(torch.isfinite(v)) for v in parts.values())
+    assert all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in model.parameters())
+
+
 def test_a_tiny_model_overfits_a_tiny_data_set(sessions_dir: Path) -> None:
     session = load_session(sessions_dir / "a.scotti").slice(0, 56)  # 48 windows
     ds = WindowDataset([session], window=TINY["window"])

@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 import pytest
-from scotti.models.contract import BONES, JOINT_ANGLES, KP, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS
+from scotti.models.contract import (
+    BONES,
+    JOINT_ANGLES,
+    KP,
+    NO_ACTION,
+    NUM_ACTIONS,
+    NUM_KEYPOINTS,
+    STANDING,
+)
 from scotti.models.errors import ModelInputError
 from scotti.models.metrics import (
     action_accuracy,
@@ -85,8 +93,8 @@ def test_action_accuracy_ignores_unlabelled_frames() -> None:
 
 
 def test_hand_built_confusion_matrix() -> None:
-    true = np.array([0, 0, 0, 1, 1, 7, NO_ACTION, 2])
-    pred = np.array([0, 0, 1, 1, 7, 7, 3, 0])
+    true = np.array([0, 0, 0, 1, 1, 7, NO_ACTION, 2, STANDING, STANDING])
+    pred = np.array([0, 0, 1, 1, 7, 7, 3, 0, STANDING, 0])
     expected = np.zeros((NUM_ACTIONS, NUM_ACTIONS), dtype=np.int64)
     expected[0, 0] = 2
     expected[0, 1] = 1
@@ -94,12 +102,15 @@ def test_hand_built_confusion_matrix() -> None:
     expected[1, 7] = 1
     expected[7, 7] = 1
     expected[2, 0] = 1
+    expected[STANDING, STANDING] = 1  # standing is a class like the others
+    expected[STANDING, 0] = 1
     cm = confusion_matrix(pred, true)
+    assert cm.shape == (9, 9) == (NUM_ACTIONS, NUM_ACTIONS)
     np.testing.assert_array_equal(cm, expected)
-    assert cm.sum() == 7  # the NO_ACTION frame is left out
+    assert cm.sum() == 9  # the NO_ACTION frame is left out
     assert np.trace(cm) / cm.sum() == pytest.approx(action_accuracy(pred, true))
     with pytest.raises(ModelInputError, match="predicted actions"):
-        confusion_matrix(np.array([8]), np.array([0]))
+        confusion_matrix(np.array([NUM_ACTIONS]), np.array([0]))
 
 
 def test_progress_mse_ignores_nan_labels() -> None:

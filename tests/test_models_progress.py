@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from scotti.models.contract import ACTIONS, KP, NO_ACTION, NUM_KEYPOINTS
+from scotti.models.contract import ACTIONS, KP, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS
 from scotti.models.errors import ModelInputError
 from scotti.models.progress import (
     PeakParams,
@@ -84,9 +84,11 @@ def test_step_ups_from_the_floor_count_once_each_and_peak_on_the_step() -> None:
     assert labels.progress[top[len(top) // 2]] == pytest.approx(0.5, abs=0.05)
 
 
-def test_indicator_refuses_no_action_and_bad_shapes() -> None:
+def test_indicator_refuses_no_action_standing_and_bad_shapes() -> None:
     with pytest.raises(ModelInputError, match="no progress indicator"):
         progress_indicator(standing(3), NO_ACTION)
+    with pytest.raises(ModelInputError, match="action standing has no progress indicator"):
+        progress_indicator(standing(3), A["standing"])
     with pytest.raises(ModelInputError, match=r"\(N, 19, 3\)"):
         progress_indicator(np.zeros((3, 17, 3)), 0)
 
@@ -206,9 +208,25 @@ def test_runs_of_actions_and_stands() -> None:
     assert first.max() == 1
 
 
+def test_standing_has_no_progress_and_no_repetition() -> None:
+    """Standing frames, even with the body swaying like a shallow squat, get NaN and -1."""
+    t = np.arange(2 * PERIOD, dtype=np.float64)
+    squat = with_hip_z(0.9 + 0.2 * np.cos(2 * np.pi * t / PERIOD))
+    sway = with_hip_z(0.9 + 0.01 * np.cos(2 * np.pi * t / PERIOD))
+    k = np.concatenate([sway, squat, sway])
+    still, squatting = np.full(len(t), A["standing"]), np.full(len(t), A["squat"])
+    actions = np.concatenate([still, squatting, still])
+    labels = label_progress(k, actions)
+    stood = actions == A["standing"]
+    assert np.all(np.isnan(labels.progress[stood]))
+    assert np.all(labels.repetition[stood] == -1)
+    assert np.all(np.isfinite(labels.progress[~stood]))
+    assert labels.repetition[~stood].max() == 1  # the squat between still counts from 0
+
+
 def test_label_progress_refuses_bad_actions() -> None:
     with pytest.raises(ModelInputError, match="neither NO_ACTION"):
-        label_progress(standing(3), np.array([0, 8, 0]))
+        label_progress(standing(3), np.array([0, NUM_ACTIONS, 0]))
     with pytest.raises(ModelInputError, match="actions must be"):
         label_progress(standing(3), np.array([0.0, 1.0, 0.0]))
     with pytest.raises(ModelInputError, match="actions must be"):

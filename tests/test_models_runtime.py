@@ -15,6 +15,8 @@ from scotti.models import contract as c
 from scotti.models.errors import ModelContractError, ModelError, ModelInputError
 from scotti.models.runtime import ScottiRuntime, load_pair, softmax, window_graph_for
 
+from tests.support.fixtures_models import TINY_V1_STEP
+
 FRAME = (c.FRAME_ROWS, 2 * c.FRAME_COLS)
 
 
@@ -247,7 +249,7 @@ ACTIONS_SWAPPED = json.dumps([c.ACTIONS[1], c.ACTIONS[0], *c.ACTIONS[2:]])
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (_set(c.META_CONTRACT_VERSION, "2"), "model has contract version 2, this runtime needs 1"),
+        (_set(c.META_CONTRACT_VERSION, "3"), "model has contract version 3, this runtime needs 2"),
         (_set(c.META_KEYPOINTS, KEYPOINTS_17), "model has 17 keypoints, contract needs 19"),
         (_set(c.META_KEYPOINTS, KEYPOINTS_RENAMED), "keypoint 0 is 'head', contract needs 'nose'"),
         (_set(c.META_ACTIONS, ACTIONS_SWAPPED), "action 0 is 'lunge', contract needs 'squat'"),
@@ -279,6 +281,21 @@ def test_refuses_a_model_that_does_not_fit(
     text = str(caught.value)
     assert message in text
     assert text.startswith("bad.onnx: ")
+    assert "\n" not in text
+
+
+def test_refuses_a_real_contract_v1_model_in_one_line() -> None:
+    """The tiny model as exported before standing (8 action logits, contract version 1)."""
+    old = TINY_V1_STEP
+    meta = {p.key: p.value for p in onnx.load(str(old)).metadata_props}
+    assert meta[c.META_CONTRACT_VERSION] == "1"
+    assert len(json.loads(meta[c.META_ACTIONS])) == 8
+    with pytest.raises(ModelContractError) as caught:
+        ScottiRuntime(old)
+    text = str(caught.value)
+    assert text.startswith(
+        f"scotti-tiny.onnx: model has contract version 1, this runtime needs {c.CONTRACT_VERSION} "
+    )
     assert "\n" not in text
 
 

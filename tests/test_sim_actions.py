@@ -6,9 +6,9 @@ import itertools
 
 import numpy as np
 import pytest
-from scotti.models.contract import ACTIONS, BONE_INDEX, KP, NO_ACTION
+from scotti.models.contract import ACTIONS, BONE_INDEX, KP, NO_ACTION, STANDING
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place
-from scotti.sim.actions.base import finalize, neutral, standing_label
+from scotti.sim.actions.base import finalize, neutral
 from scotti.sim.actions.strength import SQUAT_DROP
 from scotti.sim.motion import Motion, Subject, labels
 from scotti.sim.scene import Scene, build_motion, motion_from_segments
@@ -164,10 +164,16 @@ def test_labels_progress_in_range_and_repetitions_counted(action: str) -> None:
     )
     m = build_motion(scene)
     lab = labels(m)
+    # The lead-in and the stand after the action are standing; jump's sink and rise
+    # are transitions (NO_ACTION).
+    assert set(np.unique(lab.action)) <= {ACTIONS.index(action), STANDING, NO_ACTION}
+    assert (lab.action[: int(m.rate_hz)] == STANDING).all()
+    if action == "standing":
+        assert np.isnan(lab.progress).all()
+        assert (lab.repetition == -1).all()
+        return
     active = lab.action == ACTIONS.index(action)
     assert active.any()
-    # Around the action: standing (NO_ACTION until the contract has it) or transitions.
-    assert set(np.unique(lab.action[~active]).tolist()) <= {NO_ACTION, standing_label()}
     assert np.isfinite(lab.progress[active]).all()
     assert (lab.progress[active] >= 0.0).all()
     assert (lab.progress[active] <= 1.0).all()
@@ -214,7 +220,7 @@ def test_transitions_blend_without_a_jump() -> None:
     step = np.linalg.norm(np.diff(m.world, axis=0), axis=-1).max(axis=1)
     changes = np.flatnonzero(np.diff(m.action) != 0)
     assert step[changes].max() < 0.02  # 2 cm in 1/64 s where the label changes
-    assert (m.action[: int(m.rate_hz)] == standing_label()).all()  # lead-in stand
+    assert (m.action[: int(m.rate_hz)] == STANDING).all()  # lead-in stand
     down = m.every(4)
     assert down.rate_hz == 16.0
     np.testing.assert_array_equal(down.world, m.world[::4])

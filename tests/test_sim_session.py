@@ -6,9 +6,8 @@ import itertools
 
 import numpy as np
 import pytest
-from scotti.models.contract import ACTIONS, NO_ACTION
+from scotti.models.contract import ACTIONS, NO_ACTION, STANDING
 from scotti.sim.actions import Context
-from scotti.sim.actions.base import standing_label
 from scotti.sim.motion import Subject
 from scotti.sim.scene import Scene, SceneError, build_motion, motion_from_segments
 from scotti.sim.session import Part, build_session, cut_sets, order_sets, plan_session
@@ -34,7 +33,7 @@ def test_a_session_holds_every_asked_action_for_its_minutes_with_stands_and_walk
     parts, action, world = _session(style_seed=3, seed=10)
     for name, minutes in ASKED.items():
         assert np.count_nonzero(action == ACTIONS.index(name)) / 16.0 >= 60.0 * minutes
-    assert set(np.unique(action)) <= {NO_ACTION, standing_label(), *map(ACTIONS.index, ASKED)}
+    assert set(np.unique(action)) <= {NO_ACTION, STANDING, *map(ACTIONS.index, ASKED)}
     kinds = [p.item.kind for p in parts]
     assert kinds[0] == "stand"
     assert kinds[-1] == "stand"
@@ -46,7 +45,7 @@ def test_a_session_holds_every_asked_action_for_its_minutes_with_stands_and_walk
     for part in parts:
         labels = action[part.start : part.start + part.frames]
         if part.item.kind == "stand":
-            assert (labels == standing_label()).all()
+            assert (labels == STANDING).all()
         elif part.item.kind == "transition":
             assert (labels == NO_ACTION).all()
             assert part.frames > 16  # a real walk, more than a second

@@ -7,12 +7,10 @@ neutral stand at ``place`` (see ``base.py``).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
 
-import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.actions.backward import backward_walking
-from scotti.sim.actions.base import ActionSpec, Context, Place, Segment, stand, standing_label
+from scotti.sim.actions.base import ActionSpec, Context, Place, Segment, stand
 from scotti.sim.actions.gait import in_place_walking, side_walking, walking
 from scotti.sim.actions.jump import jump
 from scotti.sim.actions.step_up import step_up
@@ -20,12 +18,14 @@ from scotti.sim.actions.strength import lunge, squat
 
 Recipe = Callable[[Context, ActionSpec, Place], Segment]
 
+# A scripted stand counts its "repetitions" in sway cycles (0.4 Hz, see ``stand``).
+STANDING_CYCLE_S = 2.5
+
 
 def standing(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
-    """A quiet stand as an action: ``duration_s``, or 2 s per ``reps``."""
-    seconds = spec.duration_s if spec.duration_s is not None else 2.0 * (spec.reps or 1)
-    segment = stand(ctx, place, seconds)
-    return replace(segment, action=np.full(len(segment), standing_label(), dtype=np.int64))
+    """Standing as a scripted action: the quiet stand for ``duration_s`` or ``reps`` cycles."""
+    reps = spec.reps if spec.reps is not None else 1
+    return stand(ctx, place, spec.duration_s or reps * STANDING_CYCLE_S)
 
 
 RECIPES: dict[str, Recipe] = {
@@ -37,9 +37,8 @@ RECIPES: dict[str, Recipe] = {
     "in_place_walking": in_place_walking,
     "backward_walking": backward_walking,
     "walking": walking,
+    "standing": standing,
 }
-if "standing" in ACTIONS:  # the ninth action, once the contract has it
-    RECIPES["standing"] = standing
 # The actions a person is asked to do (sets); standing is what they do between.
 EXERCISES: tuple[str, ...] = tuple(a for a in ACTIONS if a != "standing")
 
@@ -53,5 +52,4 @@ __all__ = [
     "Segment",
     "stand",
     "standing",
-    "standing_label",
 ]

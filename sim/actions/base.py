@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scotti.models.contract import ACTIONS, NO_ACTION
+from scotti.models.contract import STANDING
 from scotti.sim.actions.curves import bump, soft_min
 from scotti.sim.motion import Subject
 from scotti.sim.skeleton import (
@@ -39,7 +39,6 @@ __all__ = [
     "neutral",
     "stance_lateral",
     "stand",
-    "standing_label",
 ]
 # Elbows hang slightly bent.
 ELBOW_REST = 0.15
@@ -179,17 +178,8 @@ def finalize(body: Body, p: PoseParams) -> PoseParams:
     return p.replace(ankle=ankle, pelvis=pelvis)
 
 
-def standing_label() -> int:
-    """The label of a quiet stand: ``standing`` once the contract has it, else NO_ACTION.
-
-    Until ``standing`` joins ``ACTIONS`` a stand and a transition share
-    NO_ACTION; after, NO_ACTION means a transition only.
-    """
-    return ACTIONS.index("standing") if "standing" in ACTIONS else NO_ACTION
-
-
 def stand(ctx: Context, place: Place, duration_s: float) -> Segment:
-    """A quiet stand (NO_ACTION): a small sway of the body over the feet."""
+    """A quiet stand (labelled ``standing``): a small sway of the body over the feet."""
     t = ctx.times(duration_s)
     n = len(t)
     p = neutral(ctx.body, place, n)
@@ -202,5 +192,5 @@ def stand(ctx: Context, place: Place, duration_s: float) -> Segment:
     )
     p = p.replace(pelvis=p.pelvis + sway, shoulder_flex=p.shoulder_flex + 0.03 * envelope[:, None])
     return Segment(
-        finalize(ctx.body, p), np.full(n, NO_ACTION, dtype=np.int64), place, np.zeros((n, 2))
+        finalize(ctx.body, p), np.full(n, STANDING, dtype=np.int64), place, np.zeros((n, 2))
     )

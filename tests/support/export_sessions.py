@@ -32,7 +32,7 @@ def foot_counts(k: int, foot: int) -> np.ndarray:
     counts = np.zeros((ROWS, COLS), dtype=np.uint16)
     phase = (k % PERIOD) / PERIOD
     r = int(4 + phase * (ROWS - 8))
-    c = 2 + 9 * foot + (k // PERIOD) % 8  # the blob column tells the action
+    c = 2 + 9 * foot + (k // PERIOD) % contract.NUM_ACTIONS  # the blob column tells the action
     counts[r - 2 : r + 3, c - 2 : c + 3] = 1500 + 400 * foot
     counts[0, 0] = k + 1
     return counts
@@ -48,7 +48,7 @@ def label_for(k: int) -> tuple[np.ndarray, int, float]:
     kp[:, 2] = np.linspace(0.0, 1.7, contract.NUM_KEYPOINTS, dtype=np.float32)
     kp[:, 0] = 0.2 * np.sin(2 * np.pi * phase) + 0.01 * np.arange(contract.NUM_KEYPOINTS)
     kp[:, 1] = 0.05 * action
-    progress = float("nan") if action == contract.NO_ACTION else phase
+    progress = phase if contract.has_progress(action) else float("nan")  # standing: none
     return kp, action, progress
 
 

@@ -28,3 +28,32 @@ def tiny_window_model_path() -> Path:
     """Path of the committed tiny window graph (tests/data/tiny/scotti-tiny.window.onnx)."""
     assert TINY_WINDOW.is_file(), f"missing {TINY_WINDOW}: run python -m scotti.export.make_tiny"
     return TINY_WINDOW
+
+
+# The initializer of the action head's last bias in the exported graph (one logit per action).
+ACTION_BIAS = "model.action_head.3.bias"
+TINY_V1_STEP = TINY_DIR.parent / "contract-v1" / "scotti-tiny.onnx"  # exported before standing
+
+
+def always_standing(source: Path, out: Path, margin: float = 50.0) -> Path:
+    """The tiny graph with its ``standing`` logit raised by ``margin``: a real model
+    that says standing on any input (its progress head still outputs numbers)."""
+    import onnx
+    from onnx import numpy_helper
+    from scotti.models.contract import NUM_ACTIONS, STANDING
+
+    model = onnx.load(str(source))
+    bias = next(t for t in model.graph.initializer if t.name == ACTION_BIAS)
+    values = numpy_helper.to_array(bias).copy()
+    assert values.shape == (NUM_ACTIONS,), values.shape
+    values[STANDING] += margin
+    bias.CopyFrom(numpy_helper.from_array(values, ACTION_BIAS))
+    onnx.save(model, str(out))
+    return out
+
+
+@pytest.fixture(scope="session")
+def standing_model_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A step graph that always says standing (see ``always_standing``)."""
+    out = tmp_path_factory.mktemp("standing") / "scotti-standing.onnx"
+    return always_standing(TINY_STEP, out)

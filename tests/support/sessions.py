@@ -16,7 +16,14 @@ import numpy as np
 from scotti.firmware_protocol.framing import encode_packet
 from scotti.firmware_protocol.packets import Foot, FrameRows
 from scotti.firmware_protocol.session import LabelRecord, SessionHeader, SessionWriter
-from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT, NUM_ACTIONS, SAMPLE_BITS
+from scotti.models.contract import (
+    FRAME_COLS,
+    FRAME_ROWS,
+    MAX_COUNT,
+    NUM_ACTIONS,
+    SAMPLE_BITS,
+    has_progress,
+)
 
 PERIOD_NS = 62_500_000  # 16 Hz
 PERIOD_US = 62_500
@@ -112,8 +119,8 @@ def write_synthetic_session(
                         t_ns=t_frame,
                         keypoints=np.zeros((19, 3), dtype=np.float32),
                         action=i // 16 % NUM_ACTIONS,
-                        progress=(i % 16) / 16,
-                        rep=0,
+                        progress=(i % 16) / 16 if has_progress(i // 16 % NUM_ACTIONS) else np.nan,
+                        rep=0 if has_progress(i // 16 % NUM_ACTIONS) else -1,
                     )
                 )
     return SyntheticSession(
