@@ -40,7 +40,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scotti.models.contract import ACTIONS, KP, NO_ACTION
+from scotti.models.contract import ACTIONS, KP, STANDING
 from scotti.sim.loads import CONTACT_FULL_M, FootLoads, G, foot_loads
 from scotti.sim.motion import Motion
 from scotti.sim.skeleton import axes
@@ -276,7 +276,7 @@ def _squat_cop(motion: Motion, loads: FootLoads, runs: list[tuple[int, int]]) ->
 
 def _standing_offset(motion: Motion) -> float:
     """COM ahead of the ankles' midpoint along the heading, over the quiet stands."""
-    still = motion.action == NO_ACTION
+    still = motion.action == STANDING
     ankles = 0.5 * (motion.world[:, KP["left_ankle"]] + motion.world[:, KP["right_ankle"]])
     feet_down = (motion.world[:, [KP["left_heel"], KP["right_heel"]], 2] < 0.005).all(axis=1)
     speed = np.r_[0.0, np.linalg.norm(np.diff(ankles, axis=0), axis=1) * motion.rate_hz]
