@@ -56,6 +56,11 @@ class Daemon:
         self._stop = asyncio.Event()
         self._publisher: Publisher | None = None
 
+    @property
+    def publisher(self) -> Publisher | None:
+        """The MQTT side while running (its stats: published, dropped), else None."""
+        return self._publisher
+
     async def run(self) -> int:
         # First, before anything has started: a scene or recording that cannot be
         # used is a one-line error (SourceError, RecordingError).
