@@ -22,7 +22,7 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel
-from scotti.daemon import messages
+from scotti.daemon import loop_errors, messages
 from scotti.daemon.counters import Counters
 from scotti.daemon.notify import Notifier
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
@@ -67,6 +67,7 @@ class Daemon:
         source = self._make_source()
         recorder = self._make_recorder()
         loop = asyncio.get_running_loop()
+        loop_errors.install(loop)
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self._on_signal, sig)
         publisher = Publisher(
@@ -200,7 +201,7 @@ class Daemon:
         self._publisher.set_status(messages.status("offline", ["stopped"], self._state))
 
     def _systemd_status(self) -> str:
-        broker = self._publisher.state if self._publisher else "starting"
+        broker = self._publisher.detail if self._publisher else "starting"
         source = self._state.source if self._state else "starting"
         return f"source {source}, broker {broker}"
 

@@ -6,7 +6,13 @@ loop here connects (also when the broker is down at boot: it keeps
 retrying with backoff), republishes the retained ``status`` and ``info`` on
 every connect, then publishes batches as they come. Retained state is
 "latest wins": ``set_status`` / ``set_health`` replace what is pending and
-whatever is current goes out after each reconnect.
+whatever is current goes out after each reconnect. A status never overtakes
+the predictions submitted before it (a consumer that reads "receiver
+disconnected" gets no older pose after it); health may.
+
+A broker that goes away, restarts or refuses (bad password, unknown CA) is
+one WARNING line with the reason, then quiet retries with backoff until it
+is back (one INFO line); never an ERROR, never a traceback.
 
 Pattern: aiomqtt docs/reconnection.md (one ``Client``, ``async with`` in a loop).
 """
@@ -16,13 +22,13 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
-import ssl
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Final, Literal
 
 import aiomqtt
+import paho.mqtt.client as paho
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from pydantic import BaseModel
@@ -55,6 +61,7 @@ class PublisherStats:
     dropped_stale: int = 0  # older than the message expiry when the broker came back
     dropped_error: int = 0  # lost in a publish that failed
     connects: int = 0
+    last_error: str = ""  # why the broker connection last failed, one line
     last_seq: int | None = None
     latency_ms: LatencyRing = field(default_factory=LatencyRing)  # last byte -> publish
 
@@ -86,6 +93,8 @@ class Publisher:
         self._status_dirty = False
         self._health_dirty = False
         self._queue: collections.deque[FrameBatch] = collections.deque()
+        self._submitted = 0  # batches ever submitted
+        self._status_mark = 0  # the pending status goes out once this many have left the queue
         self._wake = asyncio.Event()
         v5 = settings.protocol == "5"  # MQTT 3.1.1 has no properties: none are sent
         self._frame_props = _properties(self._fmt, settings.message_expiry_s) if v5 else None
@@ -108,7 +117,7 @@ class Publisher:
             ),
             keepalive=settings.keepalive_s,
             timeout=5,
-            tls_context=ssl.create_default_context() if settings.tls else None,
+            tls_context=settings.tls_context(),
             logger=logging.getLogger("scotti.daemon.mqtt"),
         )
 
@@ -122,11 +131,21 @@ class Publisher:
             self._queue.popleft()
             self.stats.dropped_full += 1
         self._queue.append(batch)
+        self._submitted += 1
         self._wake.set()
 
     def set_status(self, status: Status) -> None:
+        """Publish ``status`` (retained) after the predictions already submitted."""
         self._status, self._status_dirty = status, True
+        self._status_mark = self._submitted
         self._wake.set()
+
+    @property
+    def detail(self) -> str:
+        """The broker state in a few words, with the reason while disconnected."""
+        if self.state == "disconnected" and self.stats.last_error:
+            return f"disconnected ({self.stats.last_error})"
+        return self.state
 
     def set_health(self, health: Health) -> None:
         self._health, self._health_dirty = health, True
@@ -148,7 +167,7 @@ class Publisher:
                 self._set_state("stopped", "")
                 return
             except aiomqtt.MqttError as exc:
-                self._set_state("disconnected", str(exc) or type(exc).__name__)
+                self._set_state("disconnected", explain(exc))
             if stop.is_set():
                 self._set_state("stopped", "")
                 return
@@ -168,7 +187,8 @@ class Publisher:
             await _wait_any(self._wake, stop)
 
     async def _flush_retained(self) -> None:
-        if self._status_dirty and self._status is not None:
+        behind = self._submitted - len(self._queue) < self._status_mark  # older frames queued
+        if self._status_dirty and self._status is not None and not behind:
             self._status_dirty = False
             await self._publish(self.settings.topic("status"), self._status, True)
         if self._health_dirty and self._health is not None:
@@ -206,15 +226,30 @@ class Publisher:
         )
 
     def _set_state(self, state: BrokerState, detail: str) -> None:
+        if state == "disconnected":
+            self.stats.last_error = detail
+            # One line per outage; the retries (refused while it restarts) only at debug.
+            level = logging.WARNING if self.state != "disconnected" else logging.DEBUG
+            log.log(level, "broker %s: %s; retrying with backoff", self.settings.broker, detail)
         if state == self.state:
             return
-        previous, self.state = self.state, state
+        self.state = state
         if state == "connected":
             log.info("broker %s: connected", self.settings.broker)
-        elif state == "disconnected":
-            level = logging.WARNING if previous != "connecting" else logging.INFO
-            log.log(level, "broker %s: %s; retrying with backoff", self.settings.broker, detail)
         self.on_state_change(state, detail)
+
+
+_LOST: Final = (paho.MQTT_ERR_NO_CONN, paho.MQTT_ERR_CONN_LOST)
+
+
+def explain(exc: aiomqtt.MqttError) -> str:
+    """One line saying why the broker connection failed or ended."""
+    if isinstance(exc, aiomqtt.MqttCodeError) and exc.rc in _LOST:
+        return "connection lost"
+    text = str(exc) or type(exc).__name__
+    if text == "Operation timed out":
+        return "no answer from the broker (timed out)"
+    return text.removesuffix(".")
 
 
 def _properties(fmt: Literal["json", "msgpack"], expiry_s: int | None) -> Properties:

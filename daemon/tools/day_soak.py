@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import struct
 import sys
 import time
 from collections.abc import AsyncGenerator
@@ -30,8 +31,15 @@ from scotti.daemon.app import Daemon
 from scotti.daemon.local_broker import BrokerError, Mosquitto
 from scotti.daemon.settings import ConfigError, Settings, default_model_path, load_settings
 from scotti.daemon.sources import Source, SourceEvent, SourceItem
-from scotti.firmware_protocol.framing import encode_packets
-from scotti.firmware_protocol.packets import Foot, FrameRows
+from scotti.firmware_protocol import cobs
+from scotti.firmware_protocol.packets import (
+    CLOCK_MODULUS,
+    CRC_LEN,
+    SEQ_MODULUS,
+    Foot,
+    FrameRows,
+    crc32,
+)
 from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, MAX_COUNT, SAMPLE_BITS
 from scotti.models.errors import ModelError
 from scotti.models.runtime import ScottiRuntime
@@ -42,6 +50,9 @@ PERIOD_US: Final = PERIOD_NS // 1000
 ROWS_PER_PACKET: Final = 8  # four radio packets per foot frame
 POOL: Final = 64  # distinct pressure frames per foot, cycled (content does not matter here)
 _YIELD_EVERY: Final = 32  # frames between turns given to the event loop
+_BATCH: Final = 256  # frames generated (and COBS-encoded) at once
+_SEQ_CLOCK: Final = struct.Struct("<HI")  # seq and board clock inside a FRAME_ROWS packet
+_SEQ_AT: Final = 3  # after [version:1] [type:1] [foot:1]
 
 
 def rss_mib() -> float:
@@ -52,49 +63,72 @@ def rss_mib() -> float:
 
 
 class DaySource:
-    """``frames`` frame pairs as one receiver sends them, generated as they are read."""
+    """``frames`` frame pairs as one receiver sends them, generated as they are read.
+
+    Each frame's eight packets are made from templates (one ``FrameRows`` per
+    pool frame and row block) with the seq, clock and CRC written in, then
+    COBS-encoded a batch at a time: the generator costs a small part of what
+    the daemon spends on the same bytes.
+    """
 
     live = False
 
-    def __init__(self, frames: int, every: int, report: ReportTable) -> None:
+    def __init__(
+        self, frames: int, every: int, report: ReportTable, deadline: float = float("inf")
+    ) -> None:
         self.frames = frames
+        self.deadline = deadline  # time.monotonic() at which to end early (a budget)
+        self.ended_at = frames
         self.every = every
         self.report = report
         self.name = f"generated day ({frames} frames)"
         rng = np.random.default_rng(0)
-        shape = (POOL, 2, FRAME_ROWS, FRAME_COLS)
-        self._pool = rng.integers(0, MAX_COUNT // 3, shape, dtype=np.uint16)
+        self._templates: list[list[bytes]] = []  # per pool frame: 8 packets, left then right
+        for _ in range(POOL):
+            packets = []
+            for foot in (Foot.LEFT, Foot.RIGHT):
+                counts = rng.integers(0, MAX_COUNT // 3, (FRAME_ROWS, FRAME_COLS), np.uint16)
+                packets += [
+                    FrameRows(
+                        foot, 0, 0, FRAME_ROWS, FRAME_COLS, SAMPLE_BITS, start,
+                        counts[start : start + ROWS_PER_PACKET],
+                    ).to_bytes()
+                    for start in range(0, FRAME_ROWS, ROWS_PER_PACKET)
+                ]  # fmt: skip
+            self._templates.append(packets)
 
-    def chunk(self, i: int) -> bytes:
-        """Frame pair ``i``: eight row-block packets, left then right, as one read."""
-        packets = []
-        for foot in (Foot.LEFT, Foot.RIGHT):
-            counts = self._pool[i % POOL, int(foot)]
-            clock = (1_000_000 + i * PERIOD_US + 7_000 * int(foot)) % (1 << 32)
-            packets += [
-                FrameRows(
-                    foot=foot,
-                    seq=i % 65536,
-                    board_clock_us=clock,
-                    rows=FRAME_ROWS,
-                    cols=FRAME_COLS,
-                    sample_bits=SAMPLE_BITS,
-                    row_start=start,
-                    samples=counts[start : start + ROWS_PER_PACKET],
-                )
-                for start in range(0, FRAME_ROWS, ROWS_PER_PACKET)
-            ]
-        return b"".join(encode_packets(packets))
+    def chunks(self, first: int, count: int) -> list[bytes]:
+        """Frame pairs ``first .. first+count-1``, each as one read of eight packets."""
+        packets: list[bytes] = []
+        for i in range(first, first + count):
+            seq = i % SEQ_MODULUS
+            for n, template in enumerate(self._templates[i % POOL]):
+                foot = n // (FRAME_ROWS // ROWS_PER_PACKET)
+                clock = (1_000_000 + i * PERIOD_US + 7_000 * foot) % CLOCK_MODULUS
+                packet = bytearray(template)
+                _SEQ_CLOCK.pack_into(packet, _SEQ_AT, seq, clock)
+                body = packet[:-CRC_LEN]
+                packet[-CRC_LEN:] = crc32(bytes(body)).to_bytes(CRC_LEN, "little")
+                packets.append(bytes(packet))
+        encoded = cobs.encode_batch(packets)
+        per = len(encoded) // count
+        return [b"\x00".join(encoded[k * per : (k + 1) * per]) + b"\x00" for k in range(count)]
 
     async def stream(self) -> AsyncGenerator[SourceItem, None]:
         yield SourceEvent("connected", "generated day")
-        for i in range(self.frames):
-            if i % _YIELD_EVERY == 0:
-                await asyncio.sleep(0)
-            if i % self.every == 0 and i:
-                self.report.row(i)
-            yield time.monotonic_ns(), self.chunk(i)
-        self.report.row(self.frames)
+        for first in range(0, self.frames, _BATCH):
+            if time.monotonic() > self.deadline:
+                self.ended_at = first
+                break
+            count = min(_BATCH, self.frames - first)
+            for k, chunk in enumerate(self.chunks(first, count)):
+                i = first + k
+                if i % _YIELD_EVERY == 0:
+                    await asyncio.sleep(0)
+                if i % self.every == 0 and i:
+                    self.report.row(i)
+                yield time.monotonic_ns(), chunk
+        self.report.row(self.ended_at)
         yield SourceEvent("disconnected", "end of the generated day")
 
 
@@ -110,6 +144,8 @@ class ReportTable:
         print(f"{'frames':>9} {'predictions':>11} {'published':>9} {'RSS MiB':>8} {'frames/s':>8}")
 
     def row(self, frames: int) -> None:
+        if self.rss and self.rss[-1][0] == frames:
+            return  # the last regular report was at the very end
         rss = rss_mib()
         self.rss.append((frames, rss))
         predictions = published = 0
@@ -137,7 +173,8 @@ def run(args: argparse.Namespace) -> int:
     model = args.model or default_model_path()
     runtime = ScottiRuntime(model, threads=1)
     report = ReportTable()
-    source = DaySource(args.frames, args.every, report)
+    budget = args.max_minutes * 60 if args.max_minutes > 0 else float("inf")
+    source = DaySource(args.frames, args.every, report, time.monotonic() + budget)
     with Mosquitto() as broker:
         settings = load_settings(
             {
@@ -164,6 +201,8 @@ def run(args: argparse.Namespace) -> int:
         f"growth {last[1] - first[1]:+.1f} MiB (peak {peak:.1f} MiB); "
         f"{daemon.counters.predictions} predictions in {elapsed / 60:.1f} min"
     )
+    if source.ended_at < args.frames:
+        print(f"stopped by --max-minutes after {source.ended_at} of {args.frames} frames")
     return code
 
 
@@ -172,6 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=DAY_FRAMES, help="frame pairs (default: a day)")
     p.add_argument("--every", type=int, default=100_000, help="frames between RSS reports")
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
+    p.add_argument("--max-minutes", type=float, default=0.0, help="time budget (0: none)")
     args = p.parse_args(argv)
     if args.frames < 1 or args.every < 1:
         print("day_soak: --frames and --every must be positive", file=sys.stderr)

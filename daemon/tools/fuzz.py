@@ -20,7 +20,11 @@ costs milliseconds per input; the test suite runs the same inputs and checks
 through Hypothesis at a small count. Anything else raised is a finding, kept
 with the first input that caused it, and the run goes on.
 
-    python -m scotti.daemon.tools.fuzz [--inputs 1000000] [--targets decoder,session]
+    python -m scotti.daemon.tools.fuzz [--inputs 1000000] [--max-minutes M] [--targets ...]
+
+With ``--max-minutes`` each target gets an equal share of what is left of the
+budget (a target done early leaves its time to the next); the table says how
+many inputs each one got.
 """
 
 from __future__ import annotations
@@ -75,12 +79,16 @@ def _where(exc: BaseException) -> str:
     return f"{type(exc).__name__}{place}: {str(exc)[:120]}"
 
 
-def fuzz(name: str, count: int, seed: int, workdir: Path, progress_every: int) -> Outcome:
+def fuzz(
+    name: str, count: int, seed: int, workdir: Path, progress_every: int, deadline: float
+) -> Outcome:
     make, check = target(name, workdir)
     rnd = random.Random(f"{seed}:{name}")
     outcome = Outcome(name)
     start = time.monotonic()
     for i in range(count):
+        if i % 256 == 0 and time.monotonic() > deadline:
+            break
         data = make(rnd)
         try:
             check(data)
@@ -114,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--targets", default=",".join(TARGETS), help="comma-separated")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--progress", type=int, default=50_000, help="inputs between progress lines")
+    p.add_argument("--max-minutes", type=float, default=0.0, help="time budget (0: none)")
     args = p.parse_args(argv)
     names = [n.strip() for n in args.targets.split(",") if n.strip()]
     unknown = [n for n in names if n not in TARGETS]
@@ -127,8 +136,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"fuzz: {per_target} inputs per target ({', '.join(names)}), seed {args.seed}")
     outcomes = []
     with tempfile.TemporaryDirectory(prefix="scotti-fuzz-") as tmp:
-        for name in names:
-            outcomes.append(fuzz(name, per_target, args.seed, Path(tmp), args.progress))
+        end = time.monotonic() + args.max_minutes * 60 if args.max_minutes > 0 else float("inf")
+        for n, name in enumerate(names):
+            share = (end - time.monotonic()) / (len(names) - n)  # inf without a budget
+            deadline = time.monotonic() + share
+            outcomes.append(fuzz(name, per_target, args.seed, Path(tmp), args.progress, deadline))
     print_table(outcomes)
     return 1 if any(o.findings for o in outcomes) else 0
 

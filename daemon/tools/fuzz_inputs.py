@@ -89,7 +89,8 @@ def check_decoder(case: tuple[bytes, list[int]]) -> None:
     pos = 0
     for size in [*cuts, len(data)]:
         for item in chunked.feed(data[pos : pos + size]):
-            if not isinstance(item, FrameRows | BoardStatus | DecodeError):
+            seen: object = item  # typed as the decoder promises; checked as if it might not
+            if not isinstance(seen, FrameRows | BoardStatus | DecodeError):
                 msg = f"decoder returned {type(item).__name__}"
                 raise AssertionError(msg)
             if not isinstance(item, DecodeError):
