@@ -10,6 +10,10 @@ holds an ``MqttError`` nobody retrieves. Both are after-effects of a
 disconnect the publisher has already reported in one WARNING line; asyncio's
 default handler would log each as an ERROR with a traceback. Here they go to
 debug; anything else still reaches the default handler, as an ERROR.
+
+paho logs the same disconnects at ERROR too ("failed to receive on socket:
+[Errno 104] Connection reset by peer"); ``QuietPahoErrors`` turns those into
+debug records on the daemon's MQTT logger.
 """
 
 from __future__ import annotations
@@ -46,5 +50,19 @@ def handle_loop_error(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) 
     loop.default_exception_handler(context)
 
 
-def install(loop: asyncio.AbstractEventLoop) -> None:
+class QuietPahoErrors(logging.Filter):
+    """paho's ERROR records (socket failures) at debug: the publisher reports each
+    disconnect once, with its reason, as a WARNING."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.ERROR:
+            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+            return logging.getLogger().isEnabledFor(logging.DEBUG)
+        return True
+
+
+def install(loop: asyncio.AbstractEventLoop, mqtt_logger: logging.Logger) -> None:
+    """The loop handler above, and the filter on the logger aiomqtt hands to paho."""
     loop.set_exception_handler(handle_loop_error)
+    if not any(isinstance(f, QuietPahoErrors) for f in mqtt_logger.filters):
+        mqtt_logger.addFilter(QuietPahoErrors())

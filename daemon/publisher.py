@@ -4,11 +4,11 @@ The pipeline hands over one ``FrameBatch`` per prediction through a bounded
 queue that drops the oldest (the reader never waits for the broker). The
 loop here connects (also when the broker is down at boot: it keeps
 retrying with backoff), republishes the retained ``status`` and ``info`` on
-every connect, then publishes batches as they come. Retained state is
-"latest wins": ``set_status`` / ``set_health`` replace what is pending and
-whatever is current goes out after each reconnect. A status never overtakes
-the predictions submitted before it (a consumer that reads "receiver
-disconnected" gets no older pose after it); health may.
+every connect, then publishes batches as they come. Each status change is
+published in order, and never before the predictions submitted ahead of it (a
+consumer that reads "receiver disconnected" gets no older pose after it);
+after a reconnect only the current status goes out. Health is "latest wins"
+and may overtake predictions.
 
 A broker that goes away, restarts or refuses (bad password, unknown CA) is
 one WARNING line with the reason, then quiet retries with backoff until it
@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 BACKOFF_START_S: Final = 0.25
 RETAINED_QOS: Final = 1  # status/info/health: must arrive, late is fine
+MAX_PENDING_STATUSES: Final = 16  # status changes kept while the broker is slow or away
 FRAME_QOS: Final = 0  # pose/action/progress: a newer one is 62 ms away
 
 
@@ -90,12 +91,15 @@ class Publisher:
         self._info = info
         self._status: Status | None = None
         self._health: Health | None = None
-        self._status_dirty = False
+        # Status changes not yet published: (batches submitted before it, status), in order.
+        self._statuses: collections.deque[tuple[int, Status]] = collections.deque(
+            maxlen=MAX_PENDING_STATUSES
+        )
         self._health_dirty = False
         self._queue: collections.deque[FrameBatch] = collections.deque()
         self._submitted = 0  # batches ever submitted
-        self._status_mark = 0  # the pending status goes out once this many have left the queue
         self._wake = asyncio.Event()
+        self._room = asyncio.Event()  # set whenever a batch leaves the queue
         v5 = settings.protocol == "5"  # MQTT 3.1.1 has no properties: none are sent
         self._frame_props = _properties(self._fmt, settings.message_expiry_s) if v5 else None
         self._retained_props = _properties(self._fmt, None) if v5 else None
@@ -134,10 +138,18 @@ class Publisher:
         self._submitted += 1
         self._wake.set()
 
+    async def wait_room(self, margin: int) -> None:
+        """Wait until the queue has room for ``margin`` more batches (a replay waits
+        here instead of having its predictions pushed out of a full queue)."""
+        limit = max(0, self.settings.queue_size - margin)
+        while len(self._queue) > limit:
+            self._room.clear()
+            await self._room.wait()
+
     def set_status(self, status: Status) -> None:
         """Publish ``status`` (retained) after the predictions already submitted."""
-        self._status, self._status_dirty = status, True
-        self._status_mark = self._submitted
+        self._status = status
+        self._statuses.append((self._submitted, status))
         self._wake.set()
 
     @property
@@ -161,7 +173,12 @@ class Publisher:
                     self.stats.connects += 1
                     backoff.reset()
                     self._set_state("connected", self.settings.broker)
-                    self._status_dirty = self._health_dirty = True
+                    self._health_dirty = True
+                    if self._status is not None:  # the current one, still after older frames
+                        mark = self._statuses[-1][0] if self._statuses else 0
+                        self._statuses = collections.deque(
+                            [(mark, self._status)], maxlen=MAX_PENDING_STATUSES
+                        )
                     await self._publish(self.settings.topic("info"), self._info, True)
                     await self._pump(stop)
                 self._set_state("stopped", "")
@@ -178,7 +195,9 @@ class Publisher:
             self._wake.clear()
             await self._flush_retained()
             while self._queue:
-                await self._publish_batch(self._queue.popleft())
+                batch = self._queue.popleft()
+                self._room.set()
+                await self._publish_batch(batch)
                 await self._flush_retained()  # status changes overtake a long backlog
             if stop.is_set():
                 self.on_drained()  # the last health and status, after the last frame
@@ -187,10 +206,10 @@ class Publisher:
             await _wait_any(self._wake, stop)
 
     async def _flush_retained(self) -> None:
-        behind = self._submitted - len(self._queue) < self._status_mark  # older frames queued
-        if self._status_dirty and self._status is not None and not behind:
-            self._status_dirty = False
-            await self._publish(self.settings.topic("status"), self._status, True)
+        taken = self._submitted - len(self._queue)  # batches published or dropped
+        while self._statuses and self._statuses[0][0] <= taken:
+            await self._publish(self.settings.topic("status"), self._statuses[0][1], True)
+            self._statuses.popleft()
         if self._health_dirty and self._health is not None:
             self._health_dirty = False
             await self._publish(
@@ -204,9 +223,15 @@ class Publisher:
             return
         origin = batch.last_byte_mono_ns or batch.made_mono_ns
         latency_ms = (now - origin) / 1e6
+        # All of a prediction's messages are handed to paho at once and go out in one
+        # write: one at a time, each would wait for its own turn of the loop, and on a
+        # loaded host those turns, not the broker, bound how many predictions go out.
+        publishes = [
+            self._publish(self.settings.topic(name), payload, False, self._frame_props)
+            for name, payload in batch.render(latency_ms)
+        ]
         try:
-            for name, payload in batch.render(latency_ms):
-                await self._publish(self.settings.topic(name), payload, False, self._frame_props)
+            await asyncio.gather(*publishes)
         except aiomqtt.MqttError:
             self.stats.dropped_error += 1
             raise

@@ -19,40 +19,24 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
-import struct
 import sys
 import time
 from collections.abc import AsyncGenerator
 from pathlib import Path
 from typing import Final
 
-import numpy as np
 from scotti.daemon.app import Daemon
 from scotti.daemon.local_broker import BrokerError, Mosquitto
 from scotti.daemon.settings import ConfigError, Settings, default_model_path, load_settings
 from scotti.daemon.sources import Source, SourceEvent, SourceItem
-from scotti.firmware_protocol import cobs
-from scotti.firmware_protocol.packets import (
-    CLOCK_MODULUS,
-    CRC_LEN,
-    SEQ_MODULUS,
-    Foot,
-    FrameRows,
-    crc32,
-)
-from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, MAX_COUNT, SAMPLE_BITS
+from scotti.daemon.tools.generated import GeneratedBoard
+from scotti.models.contract import FRAME_RATE_HZ
 from scotti.models.errors import ModelError
 from scotti.models.runtime import ScottiRuntime
 
 DAY_FRAMES: Final = round(24 * 3600 * FRAME_RATE_HZ)  # 1,382,400
-PERIOD_NS: Final = round(1e9 / FRAME_RATE_HZ)
-PERIOD_US: Final = PERIOD_NS // 1000
-ROWS_PER_PACKET: Final = 8  # four radio packets per foot frame
-POOL: Final = 64  # distinct pressure frames per foot, cycled (content does not matter here)
 _YIELD_EVERY: Final = 32  # frames between turns given to the event loop
 _BATCH: Final = 256  # frames generated (and COBS-encoded) at once
-_SEQ_CLOCK: Final = struct.Struct("<HI")  # seq and board clock inside a FRAME_ROWS packet
-_SEQ_AT: Final = 3  # after [version:1] [type:1] [foot:1]
 
 
 def rss_mib() -> float:
@@ -63,13 +47,7 @@ def rss_mib() -> float:
 
 
 class DaySource:
-    """``frames`` frame pairs as one receiver sends them, generated as they are read.
-
-    Each frame's eight packets are made from templates (one ``FrameRows`` per
-    pool frame and row block) with the seq, clock and CRC written in, then
-    COBS-encoded a batch at a time: the generator costs a small part of what
-    the daemon spends on the same bytes.
-    """
+    """``frames`` frame pairs from a ``GeneratedBoard``, made as they are read."""
 
     live = False
 
@@ -82,37 +60,10 @@ class DaySource:
         self.every = every
         self.report = report
         self.name = f"generated day ({frames} frames)"
-        rng = np.random.default_rng(0)
-        self._templates: list[list[bytes]] = []  # per pool frame: 8 packets, left then right
-        for _ in range(POOL):
-            packets = []
-            for foot in (Foot.LEFT, Foot.RIGHT):
-                counts = rng.integers(0, MAX_COUNT // 3, (FRAME_ROWS, FRAME_COLS), np.uint16)
-                packets += [
-                    FrameRows(
-                        foot, 0, 0, FRAME_ROWS, FRAME_COLS, SAMPLE_BITS, start,
-                        counts[start : start + ROWS_PER_PACKET],
-                    ).to_bytes()
-                    for start in range(0, FRAME_ROWS, ROWS_PER_PACKET)
-                ]  # fmt: skip
-            self._templates.append(packets)
+        self._board = GeneratedBoard()
 
     def chunks(self, first: int, count: int) -> list[bytes]:
-        """Frame pairs ``first .. first+count-1``, each as one read of eight packets."""
-        packets: list[bytes] = []
-        for i in range(first, first + count):
-            seq = i % SEQ_MODULUS
-            for n, template in enumerate(self._templates[i % POOL]):
-                foot = n // (FRAME_ROWS // ROWS_PER_PACKET)
-                clock = (1_000_000 + i * PERIOD_US + 7_000 * foot) % CLOCK_MODULUS
-                packet = bytearray(template)
-                _SEQ_CLOCK.pack_into(packet, _SEQ_AT, seq, clock)
-                body = packet[:-CRC_LEN]
-                packet[-CRC_LEN:] = crc32(bytes(body)).to_bytes(CRC_LEN, "little")
-                packets.append(bytes(packet))
-        encoded = cobs.encode_batch(packets)
-        per = len(encoded) // count
-        return [b"\x00".join(encoded[k * per : (k + 1) * per]) + b"\x00" for k in range(count)]
+        return self._board.chunks(first, count)
 
     async def stream(self) -> AsyncGenerator[SourceItem, None]:
         yield SourceEvent("connected", "generated day")
