@@ -23,9 +23,9 @@ import asyncio
 import collections
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import Final, Literal
+from typing import Any, Final, Literal
 
 import aiomqtt
 import paho.mqtt.client as paho
@@ -231,7 +231,7 @@ class Publisher:
             for name, payload in batch.render(latency_ms)
         ]
         try:
-            await asyncio.gather(*publishes)
+            await self._unless_lost(asyncio.gather(*publishes))
         except aiomqtt.MqttError:
             self.stats.dropped_error += 1
             raise
@@ -242,13 +242,40 @@ class Publisher:
     async def _publish(
         self, topic: str, payload: BaseModel, retained: bool, props: Properties | None = None
     ) -> None:
-        await self._client.publish(
+        publish = self._client.publish(
             topic,
             encode(payload, self._fmt),
             qos=RETAINED_QOS if retained else FRAME_QOS,
             retain=retained,
             properties=props if props is not None else self._retained_props,
         )
+        if retained:
+            await self._unless_lost(publish)
+        else:
+            await publish
+
+    async def _unless_lost(self, publish: Awaitable[Any]) -> None:
+        """Await publishes, or fail as soon as the connection is lost.
+
+        aiomqtt waits for a PUBACK (QoS 1) or for the write (QoS 0) until its timeout
+        (5 s) even when the broker is already gone; its disconnect future (private,
+        aiomqtt 2.x) says so at once.
+        """
+        lost = getattr(self._client, "_disconnected", None)
+        if not isinstance(lost, asyncio.Future):
+            await publish
+            return
+        task = asyncio.ensure_future(publish)
+        await asyncio.wait({task, lost}, return_when=asyncio.FIRST_COMPLETED)
+        if task.done():
+            task.result()
+            return
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        if not lost.cancelled():
+            lost.exception()  # retrieved: it is reported below, not by asyncio at exit
+        msg = "connection lost"
+        raise aiomqtt.MqttError(msg)
 
     def _set_state(self, state: BrokerState, detail: str) -> None:
         if state == "disconnected":

@@ -84,6 +84,7 @@ class FaultResult:
     recover_s: float | None  # fault ended -> first prediction after it
     lost: int  # predictions missing (seq gaps), warm-up after an unplug excepted
     after_disconnect: int  # poses that arrived after "receiver disconnected", before replug
+    during: int  # poses that arrived while the fault lasted
     warnings: int  # daemon log lines at WARNING while the fault lasted
     errors: int  # daemon log lines at ERROR or CRITICAL, and tracebacks
 
@@ -153,7 +154,9 @@ class FaultSoak:
     # --- one fault ---------------------------------------------------------------------------
     async def _fault(self, kind: str, index: int, inject: Callable[[], Any]) -> None:
         self._log_offset = self.log_path.stat().st_size
+        began = time.monotonic()
         noticed, ended, after_disconnect = await inject()
+        during = len([m for m in self.watch.messages if m.name == "pose" and began <= m.at < ended])
         recovered = False
         with contextlib.suppress(TimeoutError):
             await self.watch.until(
@@ -169,7 +172,7 @@ class FaultSoak:
         self.results.append(
             FaultResult(
                 kind, index, noticed, recovered, None if first is None else first - ended,
-                lost, after_disconnect, warnings, errors,
+                lost, after_disconnect, during, warnings, errors,
             )
         )  # fmt: skip
         print(row(self.results[-1]), flush=True)
