@@ -170,6 +170,10 @@ class Publisher:
         while True:
             try:
                 async with self._client:
+                    # "connected" once the broker has taken a message, not at CONNACK: a
+                    # connection that stalls at once stays part of the same outage (one
+                    # WARNING), and the backoff starts afresh only after a working one.
+                    await self._publish(self.settings.topic("info"), self._info, True)
                     self.stats.connects += 1
                     backoff.reset()
                     self._set_state("connected", self.settings.broker)
@@ -179,7 +183,6 @@ class Publisher:
                         self._statuses = collections.deque(
                             [(mark, self._status)], maxlen=MAX_PENDING_STATUSES
                         )
-                    await self._publish(self.settings.topic("info"), self._info, True)
                     await self._pump(stop)
                 self._set_state("stopped", "")
                 return
