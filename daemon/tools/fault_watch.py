@@ -91,6 +91,10 @@ class Watcher:
         poses = self._since("pose", t)
         return poses[0].at if poses else None
 
+    def drained_since(self, t: float) -> bool:
+        """Has a health report since ``t`` said no prediction waits to be published?"""
+        return any(m.payload.get("queue_depth") == 0 for m in self._since("health", t))
+
     def reason_since(self, text: str) -> bool:
         """Has a status since the mark given a reason containing ``text``?"""
         return any(

@@ -12,7 +12,9 @@ injects, one after another:
 
 For each fault it waits for the daemon to notice (the status reason), ends the
 fault, and waits for recovery: status ``online`` again and a prediction that
-arrived after the fault ended. It prints one row per fault and a summary:
+arrived after the fault ended, then for the publisher to have caught up (a
+health report with nothing queued) before the next fault. It prints one row
+per fault and a summary:
 recovered, time to recover (fault ended -> first prediction), predictions lost
 (seqs missing among the predictions received; after an unplug the T-1 frames
 the window needs to warm up again are not predictions and are not counted),
@@ -132,7 +134,7 @@ class FaultSoak:
         model = self.plan.model or default_model_path()
         env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
         env.pop("NOTIFY_SOCKET", None)
-        env |= {"SCOTTI_MQTT_HEALTH_INTERVAL_S": "1", "SCOTTI_MQTT_RECONNECT_MAX_S": "0.5"}
+        env |= {"SCOTTI_MQTT_HEALTH_INTERVAL_S": "0.3", "SCOTTI_MQTT_RECONNECT_MAX_S": "0.5"}
         args = ["-m", "scotti.daemon.main", "--port", str(self.board.link), "--model", str(model)]
         args += ["--broker", self.broker.url, "--device-id", DEVICE]
         with self.log_path.open("wb") as log:
@@ -166,6 +168,14 @@ class FaultSoak:
                 f"{kind} {index}: recovery",
             )
             recovered = True
+            # Caught up before the next fault: a health report, made after recovery, with
+            # no prediction waiting to be published (else the next fault would cut the
+            # backlog of this one and its losses would be counted twice).
+            recovered_at = time.monotonic()
+            with contextlib.suppress(TimeoutError):
+                await self.watch.until(
+                    lambda: self.watch.drained_since(recovered_at), 10, "publisher caught up"
+                )
         first = self.watch.first_pose_since(ended)
         warnings, errors = self._log_levels()
         gaps = self.watch.missing_seqs()
