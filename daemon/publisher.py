@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 BACKOFF_START_S: Final = 0.25
 RETAINED_QOS: Final = 1  # status/info/health: must arrive, late is fine
+NUDGE_AFTER_S: Final = 0.5  # a publish not written by then: write paho's queue directly
 MAX_PENDING_STATUSES: Final = 16  # status changes kept while the broker is slow or away
 FRAME_QOS: Final = 0  # pose/action/progress: a newer one is 62 ms away
 
@@ -269,7 +270,12 @@ class Publisher:
             await publish
             return
         task = asyncio.ensure_future(publish)
-        await asyncio.wait({task, lost}, return_when=asyncio.FIRST_COMPLETED)
+        done, _ = await asyncio.wait(
+            {task, lost}, timeout=NUDGE_AFTER_S, return_when=asyncio.FIRST_COMPLETED
+        )
+        if not done:
+            self._nudge()
+            await asyncio.wait({task, lost}, return_when=asyncio.FIRST_COMPLETED)
         if task.done():
             task.result()
             return
@@ -279,6 +285,22 @@ class Publisher:
             lost.exception()  # retrieved: it is reported below, not by asyncio at exit
         msg = "connection lost"
         raise aiomqtt.MqttError(msg)
+
+    def _nudge(self) -> None:
+        """Write paho's queued packets now.
+
+        aiomqtt asks the loop to watch the socket for writability from paho's
+        callback, through ``call_soon_threadsafe``; around a reconnect that request
+        can be lost (the registration races the old socket's), and the packets then
+        sit in paho's queue until aiomqtt's 5 s timeout. Seen in the fault soak as
+        reconnects that took 6 s instead of 0.3.
+        """
+        paho_client = getattr(self._client, "_client", None)
+        if paho_client is not None:
+            try:
+                paho_client.loop_write()
+            except Exception:  # the connection is gone after all: the publish will say so
+                log.debug("loop_write after a stalled publish", exc_info=True)
 
     def _set_state(self, state: BrokerState, detail: str) -> None:
         if state == "disconnected":
