@@ -17,12 +17,13 @@ import logging
 import platform
 import signal
 import time
+from collections.abc import AsyncGenerator
 from importlib import metadata
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 from pydantic import BaseModel
-from scotti.daemon import messages
+from scotti.daemon import loop_errors, messages
 from scotti.daemon.counters import Counters
 from scotti.daemon.notify import Notifier
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
@@ -30,7 +31,7 @@ from scotti.daemon.publisher import BrokerState, FrameBatch, Publisher
 from scotti.daemon.recording import Recorder
 from scotti.daemon.schemas import Status
 from scotti.daemon.settings import Settings
-from scotti.daemon.sources import ReplaySource, SerialSource, Source
+from scotti.daemon.sources import ReplaySource, SerialSource, Source, SourceItem
 from scotti.daemon.sources_sim import SimulatedSource
 from scotti.daemon.waiting import wait_event
 from scotti.models.runtime import ScottiRuntime
@@ -56,12 +57,18 @@ class Daemon:
         self._stop = asyncio.Event()
         self._publisher: Publisher | None = None
 
+    @property
+    def publisher(self) -> Publisher | None:
+        """The MQTT side while running (its stats: published, dropped), else None."""
+        return self._publisher
+
     async def run(self) -> int:
         # First, before anything has started: a scene or recording that cannot be
         # used is a one-line error (SourceError, RecordingError).
         source = self._make_source()
         recorder = self._make_recorder()
         loop = asyncio.get_running_loop()
+        loop_errors.install(loop, logging.getLogger("scotti.daemon.mqtt"))
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self._on_signal, sig)
         publisher = Publisher(
@@ -74,6 +81,8 @@ class Daemon:
         self._publisher = publisher
         publisher.on_state_change = self._on_broker_state
         publisher.set_status(messages.status("degraded", ["starting"], None))
+        if not source.live:  # a replay waits for the broker rather than lose predictions
+            source = _PacedByPublisher(source, publisher)
         pipeline = Pipeline(source, self.runtime, self.counters, recorder)
         publish_stop = asyncio.Event()
         pub_task = asyncio.create_task(publisher.run(publish_stop), name="publisher")
@@ -129,7 +138,7 @@ class Daemon:
     def _make_recorder(self) -> Recorder | None:
         if self.settings.record is None:
             return None
-        return Recorder(self.settings.record)
+        return Recorder(self.settings.record, device=self.settings.mqtt.device_id)
 
     # --- callbacks from the pipeline and the publisher ------------------------------
     def _on_signal(self, sig: signal.Signals) -> None:
@@ -195,7 +204,7 @@ class Daemon:
         self._publisher.set_status(messages.status("offline", ["stopped"], self._state))
 
     def _systemd_status(self) -> str:
-        broker = self._publisher.state if self._publisher else "starting"
+        broker = self._publisher.detail if self._publisher else "starting"
         source = self._state.source if self._state else "starting"
         return f"source {source}, broker {broker}"
 
@@ -214,6 +223,28 @@ class Daemon:
             self._publisher,
             uptime_s=time.monotonic() - self.started_mono,
         )
+
+
+class _PacedByPublisher:
+    """A source that can wait (replay), held back while the publish queue is nearly full.
+
+    Each chunk may complete a frame whose prediction lands in the queue only after
+    the inference worker's backlog, so room is kept for that backlog too."""
+
+    def __init__(self, source: Source, publisher: Publisher) -> None:
+        self.source = source
+        self.publisher = publisher
+        self.name = source.name
+        self.live = source.live
+
+    async def stream(self) -> AsyncGenerator[SourceItem, None]:
+        async with contextlib.aclosing(self.source.stream()) as items:
+            async for item in items:
+                await self.publisher.wait_room(_INFERENCE_BACKLOG)
+                yield item
+
+
+_INFERENCE_BACKLOG: Final = 18  # the pipeline's worker queue (16) and a frame or two more
 
 
 def _left(deadline: float) -> float:

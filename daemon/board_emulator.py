@@ -22,6 +22,10 @@ Behaviour worth knowing:
 - A reader that does not read fills the pty buffer. A record that cannot be
   written within ``write_timeout_s`` is dropped (the rest of it) and counted,
   as a USB receiver drops what the host does not take; the board never blocks.
+- ``line`` (settable at any time, from any thread) is what the line does to
+  each record before it is written: return the bytes (changed or not), or
+  None to lose the record (counted in ``records_lost``). The fault soak uses
+  it to silence one foot.
 - ``loop=True`` starts over at the end: the sequence numbers and board clocks
   of the session repeat, so the host sees them jump back (as after a board
   reset) once per loop. The host's frame assembler takes a jump back of fewer
@@ -41,7 +45,7 @@ import termios
 import threading
 import time
 import tty
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final, Literal
@@ -66,6 +70,7 @@ class EmulatorStats:
     records_written: int = 0
     bytes_written: int = 0
     records_dropped: int = 0  # records (partly) dropped: the reader did not take them in time
+    records_lost: int = 0  # records ``line`` took away
     bytes_dropped: int = 0
     loops_completed: int = 0
     unplugs: int = 0
@@ -99,6 +104,7 @@ class BoardEmulator:
         self.write_timeout_s = write_timeout_s
         self.settle_s = settle_s
         self.stats = EmulatorStats()
+        self.line: Callable[[bytes], bytes | None] | None = None  # see the module docstring
         self.finished = threading.Event()  # set when a non-looping playback has ended
         self._requests: queue.SimpleQueue[_Request] = queue.SimpleQueue()
         self._wake = threading.Event()
@@ -292,6 +298,13 @@ class BoardEmulator:
                 self._sleep(min((due - now) / 1e9, _POLL_S))
                 return
         self._index += 1
+        line = self.line
+        if line is not None:
+            changed = line(data)
+            if changed is None:
+                self.stats.records_lost += 1
+                return
+            data = changed
         self._pending = memoryview(data)
         self._deadline = time.monotonic() + self.write_timeout_s
 

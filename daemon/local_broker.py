@@ -1,7 +1,9 @@
 """A throwaway mosquitto on 127.0.0.1:<free port>, for the demo, the bench and tests.
 
 Started from a generated config in a temporary folder; can be stopped and
-started again on the same port (the broker-outage tests need that).
+started again on the same port (the broker-outage tests need that). With
+``tls`` (CA, certificate and key files) it also listens with TLS on
+``tls_port``; the plain listener stays, for test subscribers.
 """
 
 from __future__ import annotations
@@ -42,7 +44,12 @@ def free_port() -> int:
 class Mosquitto:
     """``with Mosquitto() as broker: ... broker.port ... broker.stop(); broker.start()``."""
 
-    def __init__(self, port: int | None = None, password: tuple[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        port: int | None = None,
+        password: tuple[str, str] | None = None,
+        tls: tuple[Path, Path, Path] | None = None,
+    ) -> None:
         exe = find_mosquitto()
         if exe is None:
             msg = "mosquitto not found on PATH or in /usr/sbin"
@@ -51,6 +58,8 @@ class Mosquitto:
         self.host = "127.0.0.1"
         self.credentials = password  # (user, password) clients must give, or None
         self.port = port or free_port()
+        self.tls = tls  # (CA file, server certificate, server key)
+        self.tls_port = free_port() if tls else None
         self._dir = Path(tempfile.mkdtemp(prefix="scotti-mosquitto-"))
         self._dir.chmod(0o755)  # mosquitto started as root reads it as user "mosquitto"
         self.log_path = self._dir / "mosquitto.log"
@@ -60,6 +69,11 @@ class Mosquitto:
     @property
     def url(self) -> str:
         return f"mqtt://{self.host}:{self.port}"
+
+    @property
+    def tls_url(self) -> str:
+        """``mqtts://localhost:<tls_port>`` (the name the test certificates carry)."""
+        return f"mqtts://localhost:{self.tls_port}"
 
     def _write_conf(self, password: tuple[str, str] | None) -> Path:
         lines = [
@@ -72,6 +86,14 @@ class Mosquitto:
             "connection_messages true",
             "max_queued_messages 10000",
         ]
+        if self.tls is not None:
+            ca, cert, key = self.tls
+            lines += [
+                f"listener {self.tls_port} {self.host}",
+                f"cafile {ca}",
+                f"certfile {cert}",
+                f"keyfile {key}",
+            ]
         if password is None:
             lines.append("allow_anonymous true")
         else:

@@ -35,11 +35,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", type=Path, metavar="PATH", help="ONNX step graph (default: shipped)")
     p.add_argument("--threads", metavar="N", help="onnxruntime threads (default 1)")
     p.add_argument("--broker", metavar="URL", help="mqtt://host[:port] (default localhost:1883)")
+    p.add_argument("--tls-ca-file", type=Path, metavar="PEM", help="CA the broker must chain to")
+    p.add_argument("--tls-cert-file", type=Path, metavar="PEM", help="client certificate")
+    p.add_argument("--tls-key-file", type=Path, metavar="PEM", help="client certificate's key")
     p.add_argument("--device-id", metavar="ID", help="topic level for this device (host name)")
     p.add_argument("--topic-prefix", metavar="PREFIX", help="topic prefix (default scotti)")
     p.add_argument("--format", metavar="json|msgpack", help="payload encoding (default json)")
     p.add_argument("--pressure", action="store_true", default=None, help="publish pressure")
-    p.add_argument("--record", type=Path, metavar="FILE", help="append raw bytes to a session")
+    p.add_argument(
+        "--record",
+        type=Path,
+        metavar="FILE|DIR",
+        help="record the raw bytes to a session file (in a directory: a new named file)",
+    )
     p.add_argument("--log-level", metavar="LEVEL", help="debug, info, warning, error")
     p.add_argument("--config", type=Path, metavar="FILE", help="TOML config file")
     return p
@@ -54,6 +62,9 @@ _CLI_FIELDS: dict[str, tuple[str | None, str]] = {
     "model": ("model", "path"),
     "threads": ("model", "threads"),
     "broker": ("mqtt", "broker"),
+    "tls_ca_file": ("mqtt", "tls_ca_file"),
+    "tls_cert_file": ("mqtt", "tls_cert_file"),
+    "tls_key_file": ("mqtt", "tls_key_file"),
     "device_id": ("mqtt", "device_id"),
     "topic_prefix": ("mqtt", "topic_prefix"),
     "format": ("mqtt", "format"),
@@ -96,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         settings: Settings = load_settings(cli_overrides(args), args.config)
         model_path = settings.model.resolved_path()
+        settings.mqtt.tls_context()  # CA, certificate and key read now: a bad one stops here
     except ConfigError as exc:
         return _fail("config error", str(exc))
     configure_logging(settings.log_level)

@@ -162,13 +162,16 @@ class Pipeline:
             self._connected = True
             self._window_empty()  # pairing was reset at any earlier cut: T new frames to go
             return
+        # What arrived before the cut still goes through, and its predictions are
+        # delivered before the cut is reported: no pose from before "receiver
+        # disconnected" follows it. After the cut, everything is learned afresh
+        # (offsets, partial packets) and the window warms up again.
+        await self._end_of_stream()
+        await self.worker.wait_below(1)
         if self._connected:
             counters.disconnects += 1
         self._connected = False
         self._disconnect_reason = event.reason
-        # What arrived before the cut still goes through; after it, everything is
-        # learned afresh (offsets, partial packets) and the window warms up again.
-        await self._end_of_stream()
         self.decoder.reset()
         self.pairing.reset()
 

@@ -4,9 +4,15 @@ The pipeline hands over one ``FrameBatch`` per prediction through a bounded
 queue that drops the oldest (the reader never waits for the broker). The
 loop here connects (also when the broker is down at boot: it keeps
 retrying with backoff), republishes the retained ``status`` and ``info`` on
-every connect, then publishes batches as they come. Retained state is
-"latest wins": ``set_status`` / ``set_health`` replace what is pending and
-whatever is current goes out after each reconnect.
+every connect, then publishes batches as they come. Each status change is
+published in order, and never before the predictions submitted ahead of it (a
+consumer that reads "receiver disconnected" gets no older pose after it);
+after a reconnect only the current status goes out. Health is "latest wins"
+and may overtake predictions.
+
+A broker that goes away, restarts or refuses (bad password, unknown CA) is
+one WARNING line with the reason, then quiet retries with backoff until it
+is back (one INFO line); never an ERROR, never a traceback.
 
 Pattern: aiomqtt docs/reconnection.md (one ``Client``, ``async with`` in a loop).
 """
@@ -16,13 +22,13 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
-import ssl
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import Final, Literal
+from typing import Any, Final, Literal
 
 import aiomqtt
+import paho.mqtt.client as paho
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from pydantic import BaseModel
@@ -35,6 +41,8 @@ log = logging.getLogger(__name__)
 
 BACKOFF_START_S: Final = 0.25
 RETAINED_QOS: Final = 1  # status/info/health: must arrive, late is fine
+NUDGE_AFTER_S: Final = 0.5  # a publish not written by then: write paho's queue directly
+MAX_PENDING_STATUSES: Final = 16  # status changes kept while the broker is slow or away
 FRAME_QOS: Final = 0  # pose/action/progress: a newer one is 62 ms away
 
 
@@ -55,6 +63,7 @@ class PublisherStats:
     dropped_stale: int = 0  # older than the message expiry when the broker came back
     dropped_error: int = 0  # lost in a publish that failed
     connects: int = 0
+    last_error: str = ""  # why the broker connection last failed, one line
     last_seq: int | None = None
     latency_ms: LatencyRing = field(default_factory=LatencyRing)  # last byte -> publish
 
@@ -83,10 +92,15 @@ class Publisher:
         self._info = info
         self._status: Status | None = None
         self._health: Health | None = None
-        self._status_dirty = False
+        # Status changes not yet published: (batches submitted before it, status), in order.
+        self._statuses: collections.deque[tuple[int, Status]] = collections.deque(
+            maxlen=MAX_PENDING_STATUSES
+        )
         self._health_dirty = False
         self._queue: collections.deque[FrameBatch] = collections.deque()
+        self._submitted = 0  # batches ever submitted
         self._wake = asyncio.Event()
+        self._room = asyncio.Event()  # set whenever a batch leaves the queue
         v5 = settings.protocol == "5"  # MQTT 3.1.1 has no properties: none are sent
         self._frame_props = _properties(self._fmt, settings.message_expiry_s) if v5 else None
         self._retained_props = _properties(self._fmt, None) if v5 else None
@@ -108,7 +122,7 @@ class Publisher:
             ),
             keepalive=settings.keepalive_s,
             timeout=5,
-            tls_context=ssl.create_default_context() if settings.tls else None,
+            tls_context=settings.tls_context(),
             logger=logging.getLogger("scotti.daemon.mqtt"),
         )
 
@@ -122,11 +136,29 @@ class Publisher:
             self._queue.popleft()
             self.stats.dropped_full += 1
         self._queue.append(batch)
+        self._submitted += 1
         self._wake.set()
 
+    async def wait_room(self, margin: int) -> None:
+        """Wait until the queue has room for ``margin`` more batches (a replay waits
+        here instead of having its predictions pushed out of a full queue)."""
+        limit = max(0, self.settings.queue_size - margin)
+        while len(self._queue) > limit:
+            self._room.clear()
+            await self._room.wait()
+
     def set_status(self, status: Status) -> None:
-        self._status, self._status_dirty = status, True
+        """Publish ``status`` (retained) after the predictions already submitted."""
+        self._status = status
+        self._statuses.append((self._submitted, status))
         self._wake.set()
+
+    @property
+    def detail(self) -> str:
+        """The broker state in a few words, with the reason while disconnected."""
+        if self.state == "disconnected" and self.stats.last_error:
+            return f"disconnected ({self.stats.last_error})"
+        return self.state
 
     def set_health(self, health: Health) -> None:
         self._health, self._health_dirty = health, True
@@ -139,16 +171,24 @@ class Publisher:
         while True:
             try:
                 async with self._client:
+                    # "connected" once the broker has taken a message, not at CONNACK: a
+                    # connection that stalls at once stays part of the same outage (one
+                    # WARNING), and the backoff starts afresh only after a working one.
+                    await self._publish(self.settings.topic("info"), self._info, True)
                     self.stats.connects += 1
                     backoff.reset()
                     self._set_state("connected", self.settings.broker)
-                    self._status_dirty = self._health_dirty = True
-                    await self._publish(self.settings.topic("info"), self._info, True)
+                    self._health_dirty = True
+                    if self._status is not None:  # the current one, still after older frames
+                        mark = self._statuses[-1][0] if self._statuses else 0
+                        self._statuses = collections.deque(
+                            [(mark, self._status)], maxlen=MAX_PENDING_STATUSES
+                        )
                     await self._pump(stop)
                 self._set_state("stopped", "")
                 return
             except aiomqtt.MqttError as exc:
-                self._set_state("disconnected", str(exc) or type(exc).__name__)
+                self._set_state("disconnected", explain(exc))
             if stop.is_set():
                 self._set_state("stopped", "")
                 return
@@ -159,7 +199,9 @@ class Publisher:
             self._wake.clear()
             await self._flush_retained()
             while self._queue:
-                await self._publish_batch(self._queue.popleft())
+                batch = self._queue.popleft()
+                self._room.set()
+                await self._publish_batch(batch)
                 await self._flush_retained()  # status changes overtake a long backlog
             if stop.is_set():
                 self.on_drained()  # the last health and status, after the last frame
@@ -168,9 +210,10 @@ class Publisher:
             await _wait_any(self._wake, stop)
 
     async def _flush_retained(self) -> None:
-        if self._status_dirty and self._status is not None:
-            self._status_dirty = False
-            await self._publish(self.settings.topic("status"), self._status, True)
+        taken = self._submitted - len(self._queue)  # batches published or dropped
+        while self._statuses and self._statuses[0][0] <= taken:
+            await self._publish(self.settings.topic("status"), self._statuses[0][1], True)
+            self._statuses.popleft()
         if self._health_dirty and self._health is not None:
             self._health_dirty = False
             await self._publish(
@@ -184,9 +227,15 @@ class Publisher:
             return
         origin = batch.last_byte_mono_ns or batch.made_mono_ns
         latency_ms = (now - origin) / 1e6
+        # All of a prediction's messages are handed to paho at once and go out in one
+        # write: one at a time, each would wait for its own turn of the loop, and on a
+        # loaded host those turns, not the broker, bound how many predictions go out.
+        publishes = [
+            self._publish(self.settings.topic(name), payload, False, self._frame_props)
+            for name, payload in batch.render(latency_ms)
+        ]
         try:
-            for name, payload in batch.render(latency_ms):
-                await self._publish(self.settings.topic(name), payload, False, self._frame_props)
+            await self._unless_lost(asyncio.gather(*publishes))
         except aiomqtt.MqttError:
             self.stats.dropped_error += 1
             raise
@@ -197,24 +246,87 @@ class Publisher:
     async def _publish(
         self, topic: str, payload: BaseModel, retained: bool, props: Properties | None = None
     ) -> None:
-        await self._client.publish(
+        publish = self._client.publish(
             topic,
             encode(payload, self._fmt),
             qos=RETAINED_QOS if retained else FRAME_QOS,
             retain=retained,
             properties=props if props is not None else self._retained_props,
         )
+        if retained:
+            await self._unless_lost(publish)
+        else:
+            await publish
+
+    async def _unless_lost(self, publish: Awaitable[Any]) -> None:
+        """Await publishes, or fail as soon as the connection is lost.
+
+        aiomqtt waits for a PUBACK (QoS 1) or for the write (QoS 0) until its timeout
+        (5 s) even when the broker is already gone; its disconnect future (private,
+        aiomqtt 2.x) says so at once.
+        """
+        lost = getattr(self._client, "_disconnected", None)
+        if not isinstance(lost, asyncio.Future):
+            await publish
+            return
+        task = asyncio.ensure_future(publish)
+        done, _ = await asyncio.wait(
+            {task, lost}, timeout=NUDGE_AFTER_S, return_when=asyncio.FIRST_COMPLETED
+        )
+        if not done:
+            self._nudge()
+            await asyncio.wait({task, lost}, return_when=asyncio.FIRST_COMPLETED)
+        if task.done():
+            task.result()
+            return
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        if not lost.cancelled():
+            lost.exception()  # retrieved: it is reported below, not by asyncio at exit
+        msg = "connection lost"
+        raise aiomqtt.MqttError(msg)
+
+    def _nudge(self) -> None:
+        """Write paho's queued packets now.
+
+        aiomqtt asks the loop to watch the socket for writability from paho's
+        callback, through ``call_soon_threadsafe``; around a reconnect that request
+        can be lost (the registration races the old socket's), and the packets then
+        sit in paho's queue until aiomqtt's 5 s timeout. Seen in the fault soak as
+        reconnects that took 6 s instead of 0.3.
+        """
+        paho_client = getattr(self._client, "_client", None)
+        if paho_client is not None:
+            try:
+                paho_client.loop_write()
+            except Exception:  # the connection is gone after all: the publish will say so
+                log.debug("loop_write after a stalled publish", exc_info=True)
 
     def _set_state(self, state: BrokerState, detail: str) -> None:
+        if state == "disconnected":
+            self.stats.last_error = detail
+            # One line per outage; the retries (refused while it restarts) only at debug.
+            level = logging.WARNING if self.state != "disconnected" else logging.DEBUG
+            log.log(level, "broker %s: %s; retrying with backoff", self.settings.broker, detail)
         if state == self.state:
             return
-        previous, self.state = self.state, state
+        self.state = state
         if state == "connected":
             log.info("broker %s: connected", self.settings.broker)
-        elif state == "disconnected":
-            level = logging.WARNING if previous != "connecting" else logging.INFO
-            log.log(level, "broker %s: %s; retrying with backoff", self.settings.broker, detail)
         self.on_state_change(state, detail)
+
+
+_LOST: Final = (paho.MQTT_ERR_NO_CONN, paho.MQTT_ERR_CONN_LOST)
+
+
+def explain(exc: aiomqtt.MqttError) -> str:
+    """One line saying why the broker connection failed or ended."""
+    if isinstance(exc, aiomqtt.MqttCodeError) and exc.rc in _LOST:
+        return "connection lost"
+    text = str(exc) or type(exc).__name__
+    if text == "Operation timed out":
+        return "no answer from the broker (timed out)"
+    return text.removesuffix(".")
 
 
 def _properties(fmt: Literal["json", "msgpack"], expiry_s: int | None) -> Properties:

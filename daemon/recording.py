@@ -10,6 +10,8 @@ recording stops, the error is logged once and counted, the daemon goes on.
 An existing file is never overwritten: the recorder takes a new name beside it,
 stamped with the UTC start time (``walk.scotti`` -> ``walk.20261121T135630.scotti``,
 then ``walk.20261121T135630.1.scotti``), logs it and says so in ``path``.
+``--record`` naming a directory records into a new file inside it, named after
+the device and the UTC start time (``lab1-20261121T135630.scotti``).
 """
 
 from __future__ import annotations
@@ -59,6 +61,15 @@ def _open_new(
     raise AssertionError("unreachable: candidate_paths never ends")
 
 
+def file_for(requested: Path, device: str, now: datetime) -> Path:
+    """``requested`` itself, or a file named after ``device`` and ``now`` inside it when it
+    is a directory (never a sibling file next to the directory)."""
+    if requested.is_dir():
+        stamp = now.astimezone(UTC).strftime("%Y%m%dT%H%M%S")
+        return requested / f"{device}-{stamp}.scotti"
+    return requested
+
+
 class Recorder:
     """Taps ``(t_ns, bytes)`` chunks into a new session file (source "recorded")."""
 
@@ -70,10 +81,14 @@ class Recorder:
         self.bytes = 0
         self.failed: str | None = None  # why recording stopped early, if it did
         self.path, writer = _open_new(
-            self.requested, SessionHeader(source="recorded", device=device), fsync_interval_s
+            file_for(self.requested, device, datetime.now(UTC)),
+            SessionHeader(source="recorded", device=device),
+            fsync_interval_s,
         )
         self._writer: SessionWriter | None = writer
-        if self.path != self.requested:
+        if self.path.parent == self.requested:
+            log.info("recording to %s (in the directory %s)", self.path, self.requested)
+        elif self.path != self.requested:
             log.info("recording to %s (%s exists: never overwritten)", self.path, self.requested)
         else:
             log.info("recording to %s", self.path)

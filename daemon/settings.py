@@ -6,6 +6,11 @@ Environment names are ``SCOTTI_<SECTION>_<FIELD>`` (``SCOTTI_MQTT_BROKER``,
 ``SCOTTI_MQTT_PASSWORD``, ``SCOTTI_MODEL_THREADS``) or ``SCOTTI_<FIELD>`` for
 top-level fields (``SCOTTI_LOG_LEVEL``).
 
+The broker connection may use TLS (``mqtts://``) with the system's CAs or
+``mqtt.tls_ca_file``, and a client certificate (``tls_cert_file`` +
+``tls_key_file``); the files are read at start, so a missing or broken one is a
+one-line error then, not a reconnect loop later.
+
 The broker password is a secret: it comes from ``SCOTTI_MQTT_PASSWORD`` or
 ``mqtt.password_file``, never from the TOML file, and is held as a
 ``SecretStr`` so that neither logs nor the retained ``info`` message show it.
@@ -15,6 +20,7 @@ from __future__ import annotations
 
 import re
 import socket
+import ssl
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -41,6 +47,9 @@ from scotti.daemon.speed import Speed, parse_speed
 EX_CONFIG: Final = 78  # sysexits.h: configuration error
 DEFAULT_MODEL_NAME: Final = "scotti-default.onnx"  # preferred among the shipped step graphs
 _TOPIC_FORBIDDEN: Final = re.compile(r"[+#/\x00-\x1f\s]")
+DEVICE_ID_MAX: Final = 64  # characters; a topic level, a client id, a file name
+_DEVICE_ID: Final = re.compile(r"[A-Za-z0-9_.-]+")  # safe in topics, client ids and file names
+TOPIC_PREFIX_MAX: Final = 128  # characters, all levels together
 
 
 class ConfigError(DaemonError):
@@ -50,7 +59,20 @@ class ConfigError(DaemonError):
 def sanitise_device_id(name: str) -> str:
     """A host name made safe for one MQTT topic level (``pi@lab 2`` -> ``pi-lab-2``)."""
     cleaned = re.sub(r"[^A-Za-z0-9_.-]+", "-", name.split(".")[0]).strip("-").lower()
-    return cleaned or "scotti"
+    return cleaned[:DEVICE_ID_MAX].strip("-") or "scotti"
+
+
+def _is_file(path: Path) -> bool:
+    """``path.is_file()``, False (not an exception) for a name the OS cannot even look up."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):  # ENAMETOOLONG, ELOOP, an embedded NUL
+        return False
+
+
+def _shown(value: str, limit: int = 40) -> str:
+    """``value`` for an error message: repr, cut to ``limit`` characters."""
+    return repr(value) if len(value) <= limit else repr(value[:limit]) + f"... ({len(value)} chars)"
 
 
 def _check_topic_level(value: str, what: str) -> str:
@@ -58,7 +80,7 @@ def _check_topic_level(value: str, what: str) -> str:
         msg = f"{what} must not be empty"
         raise ValueError(msg)
     if _TOPIC_FORBIDDEN.search(value):
-        msg = f"{what} {value!r} must not contain '+', '#', '/', spaces or control characters"
+        msg = f"{what} {_shown(value)} must not contain '+', '#', '/', spaces or control characters"
         raise ValueError(msg)
     return value
 
@@ -87,7 +109,7 @@ class SourceSettings(BaseModel):
         if len(given) > 1:
             msg = f"give only one source, got {' and '.join(given)}"
             raise ValueError(msg)
-        if self.replay is not None and not self.replay.is_file():
+        if self.replay is not None and not _is_file(self.replay):
             msg = f"replay file not found: {self.replay}"
             raise ValueError(msg)
         return self
@@ -106,7 +128,7 @@ class ModelSettings(BaseModel):
     def resolved_path(self) -> Path:
         """The model file to load; the shipped default when ``path`` is unset."""
         if self.path is not None:
-            if not self.path.is_file():
+            if not _is_file(self.path):
                 msg = f"model.path: file not found: {self.path}"
                 raise ConfigError(msg)
             return self.path
@@ -132,19 +154,29 @@ class MqttSettings(BaseModel):
     reconnect_max_s: Annotated[float, Field(gt=0, le=300)] = 5.0  # backoff ceiling
     pressure: bool = False  # also publish downsampled pressure frames (the demo's view)
     pressure_downsample: Annotated[int, Field(ge=1, le=8)] = 2
+    tls_ca_file: Path | None = None  # CA bundle (PEM) the broker's certificate must chain to
+    tls_cert_file: Path | None = None  # client certificate (PEM), for brokers that want one
+    tls_key_file: Path | None = None  # its private key (PEM); default: inside tls_cert_file
 
     @field_validator("device_id")
     @classmethod
     def _device_id(cls, v: str) -> str:
-        return _check_topic_level(v, "device id")
+        _check_topic_level(v, "device id")
+        if len(v) > DEVICE_ID_MAX or not _DEVICE_ID.fullmatch(v):
+            msg = f"device id {_shown(v)}: at most {DEVICE_ID_MAX} characters of A-Z a-z 0-9 _ . -"
+            raise ValueError(msg)
+        return v
 
     @field_validator("topic_prefix")
     @classmethod
     def _prefix(cls, v: str) -> str:
         # A prefix may have several levels ("site/a"), none of them empty or a wildcard.
+        if len(v) > TOPIC_PREFIX_MAX:
+            msg = f"topic prefix {_shown(v)}: at most {TOPIC_PREFIX_MAX} characters"
+            raise ValueError(msg)
         for level in v.split("/"):
             if not level or _TOPIC_FORBIDDEN.search(level):
-                msg = f"topic prefix {v!r}: levels must be non-empty, without '+', '#' or spaces"
+                msg = f"topic prefix {_shown(v)}: levels must be non-empty, without + # or spaces"
                 raise ValueError(msg)
         return v
 
@@ -165,6 +197,41 @@ class MqttSettings(BaseModel):
             object.__setattr__(self, "password", SecretStr(secret[0] if secret else ""))
         return self
 
+    @model_validator(mode="after")
+    def _tls_files(self) -> MqttSettings:
+        given = [n for n in ("tls_ca_file", "tls_cert_file", "tls_key_file") if getattr(self, n)]
+        if given and not self.tls:
+            msg = f"{', '.join(given)} given but the broker URL is not mqtts://"
+            raise ValueError(msg)
+        if self.tls_key_file is not None and self.tls_cert_file is None:
+            msg = "tls_key_file given without tls_cert_file"
+            raise ValueError(msg)
+        for name in given:
+            path: Path = getattr(self, name)
+            if not _is_file(path):
+                msg = f"{name}: file not found: {_shown(str(path), 200)}"
+                raise ValueError(msg)
+        return self
+
+    def tls_context(self) -> ssl.SSLContext | None:
+        """The TLS context for ``mqtts://`` (None for ``mqtt://``); ``ConfigError`` if the
+        CA, certificate or key file cannot be used."""
+        if not self.tls:
+            return None
+        try:
+            context = ssl.create_default_context(
+                cafile=str(self.tls_ca_file) if self.tls_ca_file else None
+            )
+            if self.tls_cert_file is not None:
+                key = str(self.tls_key_file) if self.tls_key_file else None
+                context.load_cert_chain(str(self.tls_cert_file), key)
+        except (ssl.SSLError, OSError, ValueError) as exc:
+            files = [str(p) for p in (self.tls_ca_file, self.tls_cert_file, self.tls_key_file) if p]
+            reason = getattr(exc, "reason", None) or getattr(exc, "strerror", None) or exc
+            msg = f"mqtt TLS files {', '.join(files) or '(system CAs)'}: {reason}"
+            raise ConfigError(msg) from None
+        return context
+
     @property
     def host(self) -> str:
         return _split_broker(self.broker)[0]
@@ -182,9 +249,22 @@ class MqttSettings(BaseModel):
 
 
 def _split_broker(url: str) -> tuple[str, int, bool]:
-    parts = urlsplit(url if "://" in url else f"mqtt://{url}")
+    """(host, port, tls) of ``mqtt://host[:port]`` or ``mqtts://host[:port]``, else ValueError.
+
+    Nothing is guessed: a URL without a scheme, port 0 or an empty host is refused
+    (``garbage`` would otherwise be a host name retried forever).
+    """
+    shown = _shown(url, 80)
+    if "://" not in url:
+        msg = f"broker {shown}: give a URL, mqtt://host[:port] or mqtts://host[:port]"
+        raise ValueError(msg)
+    try:
+        parts = urlsplit(url)
+    except ValueError as exc:
+        msg = f"broker {shown}: {exc}"
+        raise ValueError(msg) from None
     if parts.scheme not in ("mqtt", "mqtts"):
-        msg = f"broker {url!r}: scheme must be mqtt:// or mqtts://"
+        msg = f"broker {shown}: scheme must be mqtt:// or mqtts://"
         raise ValueError(msg)
     if parts.username or parts.password:
         msg = "broker URL must not carry credentials; use mqtt.username and SCOTTI_MQTT_PASSWORD"
@@ -192,13 +272,18 @@ def _split_broker(url: str) -> tuple[str, int, bool]:
     try:
         port = parts.port
     except ValueError:
-        msg = f"broker {url!r}: port must be 1..65535"
-        raise ValueError(msg) from None
+        port = -1
+    if port is not None and not 1 <= port <= 65535:
+        msg = f"broker {shown}: port must be 1..65535"
+        raise ValueError(msg)
     if not parts.hostname:
-        msg = f"broker {url!r}: no host"
+        msg = f"broker {shown}: no host"
+        raise ValueError(msg)
+    if parts.path not in ("", "/") or parts.query or parts.fragment:
+        msg = f"broker {shown}: only mqtt://host[:port], no path or query"
         raise ValueError(msg)
     tls = parts.scheme == "mqtts"
-    return parts.hostname, port or (8883 if tls else 1883), tls
+    return parts.hostname, port if port is not None else (8883 if tls else 1883), tls
 
 
 class Settings(BaseSettings):

@@ -106,7 +106,10 @@ class SerialSource:
             except PortUnavailableError as exc:
                 reason = str(exc)
                 if reason != reported:
-                    log.warning("receiver: %s", reason)
+                    # One WARNING per outage: the cut itself, or the first failed open at
+                    # start; a new reason while still away (lost -> not found) is INFO.
+                    level = logging.WARNING if reported is None else logging.INFO
+                    log.log(level, "receiver: %s", reason)
                     yield SourceEvent("disconnected", reason)
                     reported = reason
                 await asyncio.sleep(self.backoff.next_delay())
@@ -118,12 +121,15 @@ class SerialSource:
                 while ended is None:
                     chunk, ended = await self._read(reader)
                     if chunk is not None:
+                        reported = None  # bytes flowed: the next failure is a new outage
                         if self.backoff.attempt:
                             self.backoff.reset()  # bytes flowed: the next outage starts afresh
                         yield chunk
             finally:
                 await _close(writer)
-            log.warning("receiver: %s", ended)
+            # A port that opens but stays silent (insoles off) is one WARNING, not one
+            # per reopen: after the first, the same outage goes on at INFO.
+            log.log(logging.WARNING if reported is None else logging.INFO, "receiver: %s", ended)
             yield SourceEvent("disconnected", ended)
             reported = ended
             await asyncio.sleep(self.backoff.next_delay())

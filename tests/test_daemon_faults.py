@@ -60,13 +60,26 @@ def test_unplug_and_replug_the_board(
         )
         try:
             got.wait_for(lambda m: last_state(m) == "online", 30, "online")
+            before = len(states(got.snapshot()))  # "not connected yet" may be among them
+            unplugged_at = time.monotonic()
             looping.unplug()
             got.wait_for(
-                lambda m: any("receiver disconnected" in " ".join(r) for _, r in states(m)),
+                lambda m: any(
+                    "receiver disconnected" in " ".join(r) for _, r in states(m)[before:]
+                ),
                 10,
                 "degraded: receiver disconnected",
             )
             assert last_state(got.snapshot()) == "degraded"
+            time.sleep(0.5)  # any pose from before the cut would have come by now
+            cut = next(
+                m.at
+                for m in got.snapshot()
+                if m.topic.endswith("/status")
+                and b"receiver disconnected" in m.payload
+                and m.at > unplugged_at
+            )
+            assert poses_after(got.snapshot(), cut) == 0  # none follows the disconnect
             looping.replug()
             replugged = time.monotonic()
             got.wait_for(lambda m: last_state(m) == "online", 30, "online again")
@@ -212,6 +225,26 @@ def assert_one_line(out: subprocess.CompletedProcess[str], starts: str) -> None:
             "scotti-daemon: config error: source.speed",
         ),
         ([], {}, "scotti-daemon: config error: source: no source"),
+        (
+            ["--port", "/dev/x", "--broker", "mqtt://h:0"],
+            {},
+            "scotti-daemon: config error: mqtt.broker: broker 'mqtt://h:0': port must be 1..65535",
+        ),
+        (
+            ["--port", "/dev/x", "--broker", "garbage"],
+            {},
+            "scotti-daemon: config error: mqtt.broker: broker 'garbage': give a URL",
+        ),
+        (
+            ["--port", "/dev/x", "--broker", "mqtt://:1883"],
+            {},
+            "scotti-daemon: config error: mqtt.broker: broker 'mqtt://:1883': no host",
+        ),
+        (
+            ["--port", "/dev/x", "--device-id", "d" * 10_000],
+            {},
+            "scotti-daemon: config error: mqtt.device_id: device id 'dddd",
+        ),
         (
             ["--port", "/dev/x", "--config", "/nonexistent.toml"],
             {},

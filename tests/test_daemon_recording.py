@@ -172,3 +172,14 @@ def test_the_daemon_records_beside_an_existing_file_and_names_it_in_info(
     recorded = read_session(actual)
     assert b"".join(p.data for p in recorded.packets) == session.data
     assert f"INFO scotti.daemon.recording: recording to {actual}" in daemon.log
+
+
+def test_record_into_a_directory_makes_a_named_file_inside_it(tmp_path: Path) -> None:
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    with Recorder(folder, device="lab1") as recorder:
+        recorder.tap(1, b"\x00")
+    assert recorder.path.parent == folder  # inside, not a sibling next to it
+    assert re.fullmatch(r"lab1-\d{8}T\d{6}\.scotti", recorder.path.name), recorder.path.name
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["recordings"]
+    assert read_session(recorder.path).header.device == "lab1"

@@ -77,6 +77,28 @@ def test_source_on_cli_replaces_the_file_source(tmp_path: Path) -> None:
         ({"mqtt": {"format": "xml"}}, "mqtt.format: Input should be 'json' or 'msgpack'"),
         ({"model": {"threads": 0}}, "model.threads: Input should be greater than or equal to 1"),
         ({"mqtt": {"broker": "http://h"}}, "mqtt.broker: broker 'http://h': scheme must be"),
+        ({"mqtt": {"broker": "mqtt://h:0"}}, "mqtt.broker: broker 'mqtt://h:0': port must be"),
+        ({"mqtt": {"broker": "garbage"}}, "mqtt.broker: broker 'garbage': give a URL"),
+        ({"mqtt": {"broker": "h:1883"}}, "mqtt.broker: broker 'h:1883': give a URL"),
+        ({"mqtt": {"broker": "mqtt://:1883"}}, "mqtt.broker: broker 'mqtt://:1883': no host"),
+        ({"mqtt": {"broker": "mqtt://"}}, "mqtt.broker: broker 'mqtt://': no host"),
+        ({"mqtt": {"broker": "mqtt://h/x"}}, "mqtt.broker: broker 'mqtt://h/x': only mqtt://"),
+        ({"mqtt": {"device_id": "d" * 65}}, "mqtt.device_id: device id 'dddd"),
+        ({"mqtt": {"device_id": "caf\u00e9"}}, "mqtt.device_id: device id 'caf\u00e9': at most 64"),
+        ({"mqtt": {"topic_prefix": "p" * 129}}, "mqtt.topic_prefix: topic prefix 'pppp"),
+        ({"source": {"port": None, "replay": "r" * 5000}}, "source: replay file not found"),
+        (
+            {"mqtt": {"broker": "mqtt://h", "tls_ca_file": "/etc/hostname"}},
+            "mqtt: tls_ca_file given but the broker URL is not mqtts://",
+        ),
+        (
+            {"mqtt": {"broker": "mqtts://h", "tls_key_file": "/etc/hostname"}},
+            "mqtt: tls_key_file given without tls_cert_file",
+        ),
+        (
+            {"mqtt": {"broker": "mqtts://h", "tls_ca_file": "/no/such/ca.pem"}},
+            "mqtt: tls_ca_file: file not found: '/no/such/ca.pem'",
+        ),
     ],
 )
 def test_bad_setting_names_itself_in_one_line(
@@ -161,3 +183,23 @@ def test_example_config_loads_and_shows_every_setting() -> None:
             if name in sections or name == "password":  # a secret: never in the file
                 continue
             assert f"\n{name} = " in text or f"\n# {name} = " in text, f"{section}.{name}"
+
+
+def test_a_long_value_is_cut_in_the_message() -> None:
+    with pytest.raises(ConfigError) as info:
+        load_settings({**PORT, "mqtt": {"device_id": "d" * 10_000}})
+    assert len(str(info.value)) < 200  # not a 10 kB line (nor a 10 kB topic)
+    assert "(10000 chars)" in str(info.value)
+
+
+def test_device_id_limits_and_sanitised_host_names() -> None:
+    assert load_settings({**PORT, "mqtt": {"device_id": "d" * 64}}).mqtt.device_id == "d" * 64
+    assert load_settings({**PORT, "mqtt": {"device_id": "lab-1_a.b"}}).mqtt.device_id
+    assert len(sanitise_device_id("h" * 300)) == 64
+
+
+def test_broker_url_parts() -> None:
+    mqtt = load_settings({**PORT, "mqtt": {"broker": "mqtts://broker.lan"}}).mqtt
+    assert (mqtt.host, mqtt.port, mqtt.tls) == ("broker.lan", 8883, True)
+    mqtt = load_settings({**PORT, "mqtt": {"broker": "mqtt://[::1]:1884"}}).mqtt
+    assert (mqtt.host, mqtt.port, mqtt.tls) == ("::1", 1884, False)

@@ -1,0 +1,271 @@
+"""The fuzzer's inputs and what each target must hold to.
+
+Each ``make_*`` draws one input from a ``random.Random``: random bytes, or a
+valid input mutated (cut, bit-flipped, bytes inserted, deleted, repeated), or
+for the config loader a TOML file with the daemon's real keys and hostile
+values. Each ``check_*`` runs one input through its target and raises on
+anything the target must not do. The command (``fuzz``) draws a million of
+them; the test suite draws them through Hypothesis (``st.randoms()``).
+"""
+
+from __future__ import annotations
+
+import json
+import random
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from scotti.daemon.pairing import Pairing
+from scotti.daemon.settings import ConfigError, load_settings
+from scotti.firmware_protocol.assembly import FrameAssembler
+from scotti.firmware_protocol.errors import DecodeError, PacketValueError, SessionError
+from scotti.firmware_protocol.framing import StreamDecoder, encode_packet
+from scotti.firmware_protocol.packets import BoardStatus, Foot, FrameRows, Packet
+from scotti.firmware_protocol.session import MAGIC, SessionHeader, SessionWriter, read_session
+from scotti.models.contract import FRAME_COLS, FRAME_ROWS, SAMPLE_BITS
+
+_ROWS_PER_BLOCK: Final = 8
+
+
+def _valid_stream() -> bytes:
+    """Two frame pairs (seq wrapping 65535 -> 0) and a board status, as sent."""
+    rng = np.random.default_rng(1)
+    out = b""
+    for seq in (65535, 0):
+        for foot in (Foot.LEFT, Foot.RIGHT):
+            counts = rng.integers(0, 4096, (FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
+            for start in range(0, FRAME_ROWS, _ROWS_PER_BLOCK):
+                rows = counts[start : start + _ROWS_PER_BLOCK]
+                block = FrameRows(
+                    foot, seq, 4_294_000_000 + seq, FRAME_ROWS, FRAME_COLS, SAMPLE_BITS, start, rows
+                )
+                out += encode_packet(block)
+    return out + encode_packet(BoardStatus(uptime_s=3))
+
+
+VALID_STREAM: Final = _valid_stream()
+
+
+def mutate(rnd: random.Random, seed: bytes) -> bytes:
+    """``seed`` with 1-8 edits: flips, set bytes, inserts, deletes, repeats, a cut."""
+    data = bytearray(seed)
+    for _ in range(rnd.randint(1, 8)):
+        kind = rnd.randrange(6)
+        at = rnd.randrange(len(data)) if data else 0
+        if kind == 0 and data:
+            data[at] ^= 1 << rnd.randrange(8)
+        elif kind == 1 and data:
+            data[at] = rnd.choice((0x00, 0xFF, 0x01, rnd.randrange(256)))
+        elif kind == 2:
+            data[at:at] = rnd.randbytes(rnd.randint(1, 64))
+        elif kind == 3:
+            del data[at : at + rnd.randint(1, 64)]
+        elif kind == 4:
+            data[at:at] = data[at : at + rnd.randint(1, 600)]
+        elif kind == 5:
+            del data[at:]
+    return bytes(data)
+
+
+def _bytes(rnd: random.Random, seed: bytes, max_random: int) -> bytes:
+    return rnd.randbytes(rnd.randint(0, max_random)) if rnd.random() < 0.3 else mutate(rnd, seed)
+
+
+# --- decoder -----------------------------------------------------------------------------
+
+
+def make_decoder_input(rnd: random.Random) -> tuple[bytes, list[int]]:
+    cuts = [rnd.randint(1, 700) for _ in range(rnd.randint(0, 12))]
+    return _bytes(rnd, VALID_STREAM, 4096), cuts
+
+
+def check_decoder(case: tuple[bytes, list[int]]) -> None:
+    """Only packets and DecodeErrors; bounded buffer; chunking changes nothing."""
+    data, cuts = case
+    expected = [p for p in StreamDecoder().feed(data) if not isinstance(p, DecodeError)]
+    chunked = StreamDecoder()
+    got: list[Packet] = []
+    pos = 0
+    for size in [*cuts, len(data)]:
+        for item in chunked.feed(data[pos : pos + size]):
+            seen: object = item  # typed as the decoder promises; checked as if it might not
+            if not isinstance(seen, FrameRows | BoardStatus | DecodeError):
+                msg = f"decoder returned {type(item).__name__}"
+                raise AssertionError(msg)
+            if not isinstance(item, DecodeError):
+                got.append(item)
+        assert chunked.pending <= chunked.max_encoded_len, "decoder buffer over its bound"
+        pos += size
+    assert got == expected, "chunking changed the packets"
+    assert chunked.counters.bytes_in == len(data)
+
+
+# --- assembler (and pairing) -------------------------------------------------------------
+
+
+def _block(rnd: random.Random) -> FrameRows | None:
+    rows, cols = (
+        (FRAME_ROWS, FRAME_COLS) if rnd.random() < 0.8 else (rnd.randint(1, 40), rnd.randint(1, 30))
+    )
+    start = rnd.randrange(rows)
+    count = rnd.randint(1, rows - start)
+    seq = rnd.choice((rnd.randint(0, 8), rnd.randint(65530, 65535), rnd.randrange(65536)))
+    clock = rnd.choice((rnd.randrange(2**32), 2**32 - 1, seq * 62_500))
+    samples = np.full((count, cols), rnd.randrange(4096), dtype=np.uint16)
+    foot = Foot.LEFT if rnd.random() < 0.5 else Foot.RIGHT
+    try:
+        return FrameRows(foot, seq, clock, rows, cols, SAMPLE_BITS, start, samples)
+    except PacketValueError:
+        return None  # not a packet the wire can carry
+
+
+def make_blocks(rnd: random.Random) -> list[tuple[FrameRows, int]]:
+    blocks = [(_block(rnd), rnd.randrange(10**12)) for _ in range(rnd.randint(0, 40))]
+    return [(b, t) for b, t in blocks if b is not None]
+
+
+def check_assembler(blocks: list[tuple[FrameRows, int]]) -> None:
+    """Frames whole-shaped, none twice between restarts, nothing held unbounded;
+    the daemon's pairing takes whatever comes out."""
+    assembler = FrameAssembler()
+    pairing = Pairing()
+    emitted: set[tuple[int, int]] = set()
+    for block, t_ns in blocks:
+        restarts = assembler.counters.restarts
+        frames = assembler.push(block, t_ns)
+        restarted = assembler.counters.restarts != restarts
+        if restarted:  # a new board's seqs: those flushed now belong to the old one
+            emitted.clear()
+        for frame in frames:
+            key = (int(frame.foot), frame.seq)
+            assert key not in emitted, f"frame {key} emitted twice"
+            if not restarted:
+                emitted.add(key)
+            assert frame.counts.shape == (frame.rows, frame.cols)
+            assert frame.complete == (not frame.rows_missing.any())
+            for pair in pairing.push(frame):
+                assert pair.counts.shape == (FRAME_ROWS, 2 * FRAME_COLS)
+        assert assembler.in_progress <= 2 * assembler.max_in_progress, "frames held unbounded"
+    for frame in assembler.flush():
+        pairing.push(frame)
+    for pair in pairing.flush():
+        assert pair.counts.shape == (FRAME_ROWS, 2 * FRAME_COLS)
+    assert assembler.in_progress == 0
+
+
+# --- session files -----------------------------------------------------------------------
+
+
+def session_seed(workdir: Path) -> bytes:
+    """A small valid session file: header and three packet records."""
+    path = workdir / "seed.scotti"
+    if not path.exists():
+        with SessionWriter(path, SessionHeader(source="recorded")) as writer:
+            for i, chunk in enumerate([VALID_STREAM[:700], VALID_STREAM[700:], b"\x00\x55"]):
+                writer.write_packet(1_000 + i, chunk)
+    return path.read_bytes()
+
+
+def make_session_bytes(rnd: random.Random, seed: bytes) -> bytes:
+    if rnd.random() < 0.15:
+        return MAGIC + rnd.randbytes(rnd.randint(0, 512))
+    return _bytes(rnd, seed, 2048)
+
+
+def check_session(data: bytes, workdir: Path) -> None:
+    """A Session or a SessionError, nothing else."""
+    path = workdir / "fuzzed.scotti"
+    path.write_bytes(data)
+    try:
+        session = read_session(path)
+    except SessionError:
+        return
+    for record in session.packets:
+        assert isinstance(record.data, bytes)
+
+
+# --- config ------------------------------------------------------------------------------
+
+_KEYS: Final[dict[str | None, tuple[str, ...]]] = {
+    None: ("log_level", "stop_timeout_s", "record", "unknown"),
+    "source": ("port", "replay", "simulate", "speed", "unknown"),
+    "model": ("path", "threads", "unknown"),
+    "mqtt": (
+        "broker", "username", "password", "password_file", "client_id", "device_id",
+        "topic_prefix", "format", "protocol", "keepalive_s", "message_expiry_s", "queue_size",
+        "health_interval_s", "reconnect_max_s", "pressure", "pressure_downsample",
+        "tls_ca_file", "tls_cert_file", "tls_key_file", "unknown",
+    ),
+}  # fmt: skip
+_HOSTILE: Final = (
+    "/dev/ttyACM0", "mqtt://h:0", "mqtts://:1", "garbage", "http://h", "mqtt://h:99999",
+    "max", "0", "-1", "debug", "json", "x" * 10_000, "a/b", "+", "#", "", " ", "\u00e9", "..",
+)  # fmt: skip
+
+
+def _value(rnd: random.Random) -> Any:
+    kind = rnd.randrange(7)
+    if kind == 0:
+        return rnd.choice(_HOSTILE)
+    if kind == 1:
+        return "".join(
+            chr(rnd.choice((rnd.randrange(32, 127), rnd.randrange(0x10FFFF))))
+            for _ in range(rnd.randint(0, 40))
+        )
+    if kind == 2:
+        return rnd.choice((0, 1, -1, 2**63 - 1, -(2**63), rnd.randint(-100, 100_000)))
+    if kind == 3:
+        return rnd.choice(
+            (0.0, -0.0, 1e308, -1e-308, float("inf"), float("nan"), rnd.uniform(-10, 400))
+        )
+    if kind == 4:
+        return rnd.random() < 0.5
+    if kind == 5:
+        return [rnd.randint(0, 9) for _ in range(rnd.randint(0, 3))]
+    return {"k": rnd.randint(0, 9)}
+
+
+def _toml(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return (
+            "nan"
+            if value != value
+            else {float("inf"): "inf", float("-inf"): "-inf"}.get(value, repr(value))
+        )
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + "}"
+    return json.dumps(str(value))  # TOML basic strings take JSON's escapes (astral: refused)
+
+
+def make_toml(rnd: random.Random) -> str:
+    if rnd.random() < 0.2:
+        return mutate(rnd, b'[source]\nport = "/dev/x"\n[mqtt]\nbroker = "mqtt://h:1"\n').decode(
+            "utf-8", "replace"
+        )
+    lines: list[str] = []
+    for section, keys in _KEYS.items():
+        chosen = rnd.sample(keys, rnd.randint(0, min(4, len(keys))))
+        if section is not None and (chosen or rnd.random() < 0.1):
+            lines.append(f"[{section}]")
+        lines += [f"{key} = {_toml(_value(rnd))}" for key in chosen]
+    return "\n".join(lines) + "\n"
+
+
+def check_config(text: str, workdir: Path) -> None:
+    """Settings, or one ConfigError of one line."""
+    path = workdir / "fuzzed.toml"
+    path.write_text(text, encoding="utf-8", errors="replace")
+    try:
+        load_settings({}, path)
+    except ConfigError as exc:
+        message = str(exc)
+    else:
+        return
+    assert "\n" not in message, "config error of more than one line"

@@ -1,0 +1,69 @@
+"""The fuzzer's inputs and checks at a small count (the million-input run is a command)."""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scotti.daemon.tools import fuzz, fuzz_inputs
+
+SETTINGS = settings(
+    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+
+
+@SETTINGS
+@given(st.randoms(use_true_random=False))
+def test_decoder_takes_anything(rnd: random.Random) -> None:
+    fuzz_inputs.check_decoder(fuzz_inputs.make_decoder_input(rnd))
+
+
+@SETTINGS
+@given(st.randoms(use_true_random=False))
+def test_assembler_and_pairing_take_any_blocks(rnd: random.Random) -> None:
+    fuzz_inputs.check_assembler(fuzz_inputs.make_blocks(rnd))
+
+
+@SETTINGS
+@given(st.randoms(use_true_random=False))
+def test_session_reader_takes_any_file(tmp_path: Path, rnd: random.Random) -> None:
+    seed = fuzz_inputs.session_seed(tmp_path)
+    fuzz_inputs.check_session(fuzz_inputs.make_session_bytes(rnd, seed), tmp_path)
+
+
+@SETTINGS
+@given(st.randoms(use_true_random=False))
+def test_config_loader_takes_any_toml(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, rnd: random.Random
+) -> None:
+    monkeypatch.delenv("SCOTTI_MQTT_BROKER", raising=False)
+    fuzz_inputs.check_config(fuzz_inputs.make_toml(rnd), tmp_path)
+
+
+def test_a_finding_is_kept_and_the_run_goes_on(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    def check(x: float) -> None:
+        if x < 0.5:
+            raise ValueError("boom")
+
+    monkeypatch.setattr(fuzz, "target", lambda _name, _dir: (lambda rnd: rnd.random(), check))
+    outcome = fuzz.fuzz("fake", 50, 0, tmp_path, 0, float("inf"))
+    assert outcome.inputs == 50  # it did not stop at the first
+    assert list(outcome.findings) == ["ValueError at test_daemon_tools_fuzz.py:51: boom"]
+
+
+def test_the_first_run_s_finding_stays_fixed(tmp_path: Path) -> None:
+    """A 5,000-character replay path raised OSError (file name too long) from is_file()."""
+    fuzz_inputs.check_config('[source]\nreplay = "' + "x" * 5000 + '"\n', tmp_path)
+
+
+def test_the_command_prints_its_table(capsys: pytest.CaptureFixture[str]) -> None:
+    assert fuzz.main(["--inputs", "80", "--progress", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "| all | 80 | 0 |" in out
+    for target in fuzz.TARGETS:
+        assert f"| {target} | 20 | 0 |" in out
