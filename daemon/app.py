@@ -25,6 +25,7 @@ from pydantic import BaseModel
 from scotti.daemon import messages
 from scotti.daemon.counters import Counters
 from scotti.daemon.notify import Notifier
+from scotti.daemon.outputs import Outputs
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
 from scotti.daemon.publisher import BrokerState, FrameBatch, Publisher
 from scotti.daemon.recording import Recorder
@@ -55,12 +56,16 @@ class Daemon:
         self._sd_status = ""
         self._stop = asyncio.Event()
         self._publisher: Publisher | None = None
+        self._outputs = Outputs()  # MCAP, Foxglove, LSL, web: each prediction and status
 
     async def run(self) -> int:
         # First, before anything has started: a scene or recording that cannot be
         # used is a one-line error (SourceError, RecordingError).
         source = self._make_source()
         recorder = self._make_recorder()
+        self._outputs = await Outputs.open(
+            self.settings.outputs, title=self.settings.mqtt.device_id
+        )
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self._on_signal, sig)
@@ -110,6 +115,7 @@ class Daemon:
         for task in helpers:
             task.cancel()
         await asyncio.gather(*helpers, return_exceptions=True)
+        await self._outputs.close()
         self.notifier.close()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
@@ -140,6 +146,7 @@ class Daemon:
 
     def _on_prediction(self, prediction: Prediction) -> None:
         assert self._publisher is not None
+        self._outputs.prediction(prediction)
         pressure = self.settings.mqtt.pressure_downsample if self.settings.mqtt.pressure else 0
 
         def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
@@ -186,13 +193,16 @@ class Daemon:
         st: Literal["online", "degraded"] = "degraded" if reasons else "online"
         status: Status = messages.status(st, reasons, state)
         self._publisher.set_status(status)
+        self._outputs.status(status)
         log.info("status %s%s", st, f": {', '.join(reasons)}" if reasons else "")
         self._notify_status()
 
     def _publish_final_state(self) -> None:
         assert self._publisher is not None
         self._publisher.set_health(self._health())
-        self._publisher.set_status(messages.status("offline", ["stopped"], self._state))
+        final = messages.status("offline", ["stopped"], self._state)
+        self._publisher.set_status(final)
+        self._outputs.status(final)
 
     def _systemd_status(self) -> str:
         broker = self._publisher.state if self._publisher else "starting"

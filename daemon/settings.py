@@ -36,6 +36,7 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.outputs.settings import OutputSettings
 from scotti.daemon.speed import Speed, parse_speed
 
 EX_CONFIG: Final = 78  # sysexits.h: configuration error
@@ -218,6 +219,7 @@ class Settings(BaseSettings):
     model: ModelSettings = ModelSettings()
     mqtt: MqttSettings = MqttSettings()
     record: Path | None = None  # append the raw byte stream to this session file
+    outputs: OutputSettings = OutputSettings()  # MCAP, Foxglove, LSL, web (daemon/outputs/)
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     stop_timeout_s: Annotated[float, Field(gt=0, le=120)] = 5.0
 

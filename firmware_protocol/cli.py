@@ -37,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info = sub.add_parser("info", help="summarise a session file")
     info.add_argument("file", metavar="FILE", help="a session file (.scot)")
     info.add_argument("--json", action="store_true", help="print one JSON object instead")
+    # Listed for --help only: `scotti session export` runs the model, so the command line
+    # (cli/main.py) hands it to scotti.daemon.outputs.export_cli before it reaches here.
+    sub.add_parser("export", help="FILE --mcap OUT.mcap: predictions as a Foxglove recording")
 
 
 def run(args: argparse.Namespace) -> int:
