@@ -53,8 +53,8 @@ async def _session(preds: list[Prediction]) -> tuple[dict[str, Any], list[tuple[
             while not {"/skeleton", "/action", "/pressure/left"} <= set(channels):
                 for ch in (await _json(ws, "advertise"))["channels"]:
                     channels[ch["topic"]] = ch
-            subscribe = [{"id": i, "channelId": channels[t]["id"]}
-                         for i, t in enumerate(("/skeleton", "/action", "/pressure/left"))]  # fmt: skip
+            topics = ("/skeleton", "/action", "/pressure/left")
+            subscribe = [{"id": i, "channelId": channels[t]["id"]} for i, t in enumerate(topics)]
             await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscribe}))
             got: list[tuple[int, int, bytes]] = []
             for p in preds[1:]:

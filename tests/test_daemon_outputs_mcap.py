@@ -53,8 +53,8 @@ def exported(
     folder = tmp_path_factory.mktemp("mcap")
     session = write_synthetic_session(folder / "s.scotti", frames=FRAMES)
     out = folder / "s.mcap"
-    code = scotti(["session", "export", str(session.path), "--mcap", str(out)]
-                  + ["--model", str(tiny_model_path)])  # fmt: skip
+    model = str(tiny_model_path)
+    code = scotti(["session", "export", str(session.path), "--mcap", str(out), "--model", model])
     assert code == 0
     return session.path, out, read_mcap(out)
 
@@ -126,4 +126,5 @@ def test_export_of_a_broken_file_is_one_line(
     bad.write_bytes(b"not a session")
     assert scotti(["session", "export", str(bad), "--mcap", str(tmp_path / "o.mcap")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("scotti session export: ") and err.count("\n") == 1
+    assert err.startswith("scotti session export: ")
+    assert err.count("\n") == 1

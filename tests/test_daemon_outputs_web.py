@@ -75,7 +75,8 @@ def view() -> Iterator[LiveView]:
 def test_page_and_feed_over_plain_http(view: LiveView, preds: list[Prediction]) -> None:
     with urllib.request.urlopen(view.url, timeout=5) as page:
         html = page.read().decode()
-    assert "EventSource" in html and "http://" not in html.split("<script>")[1]  # no CDN
+    assert "EventSource" in html
+    assert "http://" not in html.split("<script>")[1]  # nothing from a CDN
     with urllib.request.urlopen(view.url + "events", timeout=5) as feed:
         hello = json.loads(feed.readline().removeprefix(b"data: "))
         assert hello["actions"] == list(ACTIONS)
@@ -122,7 +123,8 @@ def test_live_view_in_headless_chromium(
         # The colour scale runs from viridis' dark purple (0 counts) to its yellow (full).
         bar = driver.execute_script(
             "const g = document.getElementById('pressure').getContext('2d');"
-            "return [18, 18 + 32*8 - 1].map(y => Array.from(g.getImageData(2*22*8+34, y, 1, 1).data));"
+            "return [18, 18 + 32*8 - 1]"
+            "  .map(y => Array.from(g.getImageData(2*22*8+34, y, 1, 1).data));"
         )
         assert all(abs(a - b) <= 4 for a, b in zip(bar[0], (253, 231, 37), strict=False))
         assert all(abs(a - b) <= 4 for a, b in zip(bar[1], (68, 1, 84), strict=False))
