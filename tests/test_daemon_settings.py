@@ -144,6 +144,7 @@ def test_missing_replay_file_and_missing_model(tmp_path: Path) -> None:
 
 
 def test_example_config_loads_and_shows_every_setting() -> None:
+    from scotti.daemon.outputs.settings import OutputSettings
     from scotti.daemon.settings import ModelSettings, MqttSettings, Settings, SourceSettings
 
     example = Path(__file__).parent.parent / "systemd" / "scotti-daemon.toml"
@@ -155,6 +156,7 @@ def test_example_config_loads_and_shows_every_setting() -> None:
         "source": SourceSettings,
         "model": ModelSettings,
         "mqtt": MqttSettings,
+        "outputs": OutputSettings,
     }
     for section, model in sections.items():
         for name in model.model_fields:
