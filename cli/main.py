@@ -25,7 +25,7 @@ VERBS: dict[str, tuple[str, str]] = {
 }
 # "verb action" pairs implemented outside the verb's room: ``session export`` runs the
 # model, which firmware_protocol (the owner of ``session``) must not import.
-ACTIONS: dict[tuple[str, str], tuple[str, str]] = {
+VERB_ACTIONS: dict[tuple[str, str], tuple[str, str]] = {
     ("session", "export"): (
         "scotti.daemon.outputs.export_cli",
         "replay a session through the model into an MCAP file (Foxglove, ROS 2)",
@@ -68,8 +68,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     verb = argv[0]
     action = (verb, argv[1]) if len(argv) > 1 else None
     try:
-        if action in ACTIONS:
-            module_name, description = ACTIONS[action]
+        if action in VERB_ACTIONS:
+            module_name, description = VERB_ACTIONS[action]
             module: VerbModule | None = cast(VerbModule, importlib.import_module(module_name))
             verb, argv = " ".join(action), argv[1:]
         else:
@@ -80,6 +80,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         verb_parser = argparse.ArgumentParser(prog=f"scotti {verb}", description=description)
         module.add_arguments(verb_parser)
         args = verb_parser.parse_args(argv[1:])
+        if verb == "session":
+            # Session files label actions by index; the names are the model contract's,
+            # which firmware_protocol (the owner of `session`) must not import.
+            from scotti.models.contract import ACTIONS
+
+            args.action_names = ACTIONS
         return module.run(args)
     except UserError as exc:
         print(f"scotti {verb}: {exc}", file=sys.stderr)
