@@ -163,3 +163,20 @@ def test_example_config_loads_and_shows_every_setting() -> None:
             if name in sections or name == "password":  # a secret: never in the file
                 continue
             assert f"\n{name} = " in text or f"\n# {name} = " in text, f"{section}.{name}"
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ('[mqtt]\nbrokr = "mqtt://x"\n', "mqtt.brokr: unknown setting; did you mean mqtt.broker?"),
+        ('log_levl = "info"\n', "log_levl: unknown setting; did you mean log_level?"),
+        ("[outputs]\nrecord_mcp = 'x.mcap'\n", "did you mean outputs.record_mcap?"),
+        ("[mqtt]\nzzz = 1\n", "mqtt.zzz: unknown setting"),
+    ],
+)
+def test_a_misspelt_key_gets_a_did_you_mean(tmp_path: Path, text: str, message: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_settings(PORT, write(tmp_path, text))
+    assert message in str(info.value)
+    if "zzz" in text:
+        assert "did you mean" not in str(info.value)  # nothing close: no guess
