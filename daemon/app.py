@@ -63,9 +63,14 @@ class Daemon:
         # used is a one-line error (SourceError, RecordingError).
         source = self._make_source()
         recorder = self._make_recorder()
-        self._outputs = await Outputs.open(
-            self.settings.outputs, title=self.settings.mqtt.device_id
-        )
+        try:  # MCAP, Foxglove, LSL, web: a port in use is a one-line error too
+            self._outputs = await Outputs.open(
+                self.settings.outputs, title=self.settings.mqtt.device_id
+            )
+        except BaseException:
+            if recorder is not None:
+                recorder.close()
+            raise
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self._on_signal, sig)
