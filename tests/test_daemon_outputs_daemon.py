@@ -83,3 +83,24 @@ def test_a_busy_web_port_is_one_line(
     assert code == 78
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith(f"scotti-daemon: error: --web: cannot listen on 127.0.0.1:{port}")
+
+
+def test_the_daemon_core_does_not_load_the_output_libraries() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, scotti.daemon.app, scotti.daemon.main;"
+        "print(sorted(m for m in ('foxglove', 'mcap', 'pylsl') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_a_missing_library_names_the_extra() -> None:
+    from scotti.daemon.outputs import OutputError, require
+
+    with pytest.raises(OutputError, match=r"^--lsl needs the Python package 'no_such_lib_x'"):
+        require("no_such_lib_x", "--lsl")
+    with pytest.raises(OutputError, match=r"pip install 'scotti\[outputs\]'$"):
+        require("no_such_lib_x", "--lsl")

@@ -107,7 +107,9 @@ def test_bad_file(tmp_path: Path) -> None:
         load_settings(PORT, tmp_path / "missing.toml")
     with pytest.raises(ConfigError, match=r"config file .*: Expected"):
         load_settings(PORT, write(tmp_path, "[mqtt\n"))
-    with pytest.raises(ConfigError, match=r"^mqtt.brokr: unknown setting; did you mean mqtt.broker"):
+    with pytest.raises(
+        ConfigError, match=r"^mqtt.brokr: unknown setting; did you mean mqtt.broker"
+    ):
         load_settings(PORT, write(tmp_path, '[mqtt]\nbrokr = "x"\n'))
 
 
