@@ -5,6 +5,8 @@ their one-line errors."""
 from __future__ import annotations
 
 import json
+import logging
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +70,17 @@ def test_output_flags_become_settings(tmp_path: Path) -> None:
     assert load_settings({"source": {"port": "/dev/null"}}).outputs.any is False
 
 
+@pytest.fixture
+def root_logging() -> Iterator[None]:
+    """main() points the root logger at this test's captured stderr; give it back after,
+    or later tests log into a closed stream."""
+    handlers, level = logging.root.handlers[:], logging.root.level
+    yield
+    logging.root.handlers[:] = handlers
+    logging.root.setLevel(level)
+
+
+@pytest.mark.usefixtures("root_logging")
 def test_a_busy_web_port_is_one_line(
     tmp_path: Path, tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

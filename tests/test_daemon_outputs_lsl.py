@@ -4,6 +4,8 @@ pose, action probabilities, progress and pressure, stamped with the frame's time
 from __future__ import annotations
 
 import asyncio
+import os
+import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -17,6 +19,11 @@ from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_ROWS, KEYPOINTS, N
 from tests.support.outputs import predictions
 from tests.support.sessions import synthetic_counts, write_synthetic_session
 
+# Find the outlets on this host without relying on multicast (CI containers may have
+# none): liblsl reads this file, named by LSLAPICFG, the first time it is used.
+_CONFIG = Path(tempfile.mkdtemp(prefix="scotti-lsl-")) / "lsl_api.cfg"
+_CONFIG.write_text("[lab]\nKnownPeers = {127.0.0.1}\n")
+os.environ.setdefault("LSLAPICFG", str(_CONFIG))
 pylsl = pytest.importorskip("pylsl")
 
 TIMEOUT_S = 10.0
