@@ -93,11 +93,6 @@ LEGEND = (
 )
 
 
-def _cell(value: float, width: int, fmt: str) -> str:
-    """A table cell; '-' where the figure does not exist (nan: nothing to score)."""
-    return f"{value:{width}{fmt}}" if math.isfinite(value) else f"{'-':>{width}s}"
-
-
 def _stem(report: dict[str, Any]) -> str:
     name = Path(report["model"]["path"]).name
     return name.removesuffix(".onnx")
@@ -203,6 +198,13 @@ def write_plots(report: dict[str, Any], directory: Path) -> list[str]:
     fig.savefig(confusion)
     plt.close(fig)
     return [str(curve), str(confusion)]
+
+
+def _cell(value: float | None, width: int, spec: str) -> str:
+    """A figure, or '-' right-aligned when there is nothing to score (NaN)."""
+    if value is None or not math.isfinite(value):
+        return "-".rjust(width)
+    return f"{value:{width}{spec}}"
 
 
 def _finite(value: Any) -> Any:
