@@ -128,3 +128,20 @@ def test_export_of_a_broken_file_is_one_line(
     err = capsys.readouterr().err
     assert err.startswith("scotti session export: ")
     assert err.count("\n") == 1
+
+
+def test_a_labelled_session_carries_its_ground_truth(exported: tuple[Path, Path, Any]) -> None:
+    _, _, (messages, schemas, _) = exported
+    assert schemas["/labels/skeleton"] == "foxglove.SceneUpdate"
+    labels = [m for _, m in messages["/labels"]]
+    assert [lb["seq"] for lb in labels] == list(range(FRAMES))
+    # write_synthetic_session labels frame i with action i // 16 and progress (i % 16) / 16.
+    assert [lb["action"] for lb in labels] == [
+        ACTIONS[i // 16 % len(ACTIONS)] for i in range(FRAMES)
+    ]
+    assert [lb["progress"] for lb in labels] == [(i % 16) / 16 for i in range(FRAMES)]
+    truth_times = [t for t, _ in messages["/labels/skeleton"]]
+    assert np.diff(truth_times).tolist() == [PERIOD_NS] * (FRAMES - 1)
+    (entity,) = messages["/labels/skeleton"][0][1].entities
+    assert entity.id == "ground_truth"
+    assert len(entity.spheres) == NUM_KEYPOINTS

@@ -78,7 +78,9 @@ async def export_mcap(
     runtime = ScottiRuntime(model or default_model_path(), threads=threads)
     started = time.perf_counter()
     packets = session.packets
-    t0 = packets[0].t_ns if packets else 0
+    # The session's first moment: a label may be stamped before the bytes of its frame.
+    starts = [r.t_ns for r in packets[:1]] + [lb.t_ns for lb in session.labels]
+    t0 = min(starts, default=0)
     wall0 = round(session.header.created_unix * 1e9)
     output = FoxgloveOutput(mcap=out, port=None, overwrite=True)
     output.write_metadata(
@@ -114,12 +116,14 @@ async def export_mcap(
         status = messages.status(st, list(state.reasons), state)
         output.status(status.model_copy(update={"host_wall_ns": last_wall}))
 
+    for label in session.labels:  # the ground truth, on the same clock as the frames
+        output.label(label, wall0 + (label.t_ns - t0))
     try:
         pipeline = Pipeline(RecordedSource(session, source_name), runtime, Counters())
         await pipeline.run(on_prediction, on_state, asyncio.Event())
     finally:
         await output.close()
-    span = (packets[-1].t_ns - t0) / 1e9 if packets else 0.0
+    span = (packets[-1].t_ns - packets[0].t_ns) / 1e9 if packets else 0.0
     return ExportResult(count, span, time.perf_counter() - started)
 
 

@@ -10,7 +10,10 @@ carry exactly the same topics, schemas and log times. Channels:
   keypoints as spheres, in frame ``pose``;
 - ``/pose``, ``/action``, ``/progress``: JSON, the MQTT payloads (plottable:
   ``/action.probabilities.squat``, ``/progress.progress``);
-- ``/status``: JSON, the MQTT ``status`` (online / degraded / offline and why).
+- ``/status``: JSON, the MQTT ``status`` (online / degraded / offline and why);
+- ``/labels/skeleton``, ``/labels`` (``scotti session export`` of a labelled
+  session): the ground truth, a grey skeleton beside the prediction and its
+  action, progress and repetition.
 
 Every message is logged at the host wall time of its prediction (the
 recording's own time in ``scotti session export``); the JSON messages carry
@@ -49,12 +52,14 @@ from scotti.daemon.outputs import OutputError
 from scotti.daemon.pipeline import Prediction
 from scotti.daemon.recording import candidate_paths
 from scotti.daemon.schemas import Status
-from scotti.models.contract import BONE_INDEX, FRAME_COLS, KEYPOINTS
+from scotti.firmware_protocol.session import LabelRecord
+from scotti.models.contract import ACTIONS, BONE_INDEX, FRAME_COLS, KEYPOINTS
 
 POSE_FRAME_ID: Final = "pose"  # metres, origin under the mid-hip, z up, x forward
 _LEFT: Final = Color(r=0.2, g=0.5, b=1.0, a=1.0)  # left side blue, right red: ROS/RViz habit
 _RIGHT: Final = Color(r=1.0, g=0.3, b=0.2, a=1.0)
 _MIDDLE: Final = Color(r=0.8, g=0.8, b=0.8, a=1.0)
+_TRUTH: Final = Color(r=0.6, g=0.6, b=0.6, a=0.8)  # labels: grey, beside the prediction
 _IDENTITY: Final = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 
 
@@ -83,35 +88,45 @@ def pressure_image(counts: np.ndarray, ns: int, foot: str) -> RawImage:
 
 def skeleton(p: Prediction, ns: int) -> SceneUpdate:
     """The pose as one scene entity: a line list of the bones and a sphere per keypoint."""
-    kp = np.asarray(p.pose, dtype=np.float64)
+    metadata = {
+        "seq": str(p.seq),
+        "device_time_us": str(p.device_clock_us),
+        "device_seq": f"{p.left_seq},{p.right_seq}",
+    }
+    return skeleton_of(p.pose, ns, metadata)
+
+
+def skeleton_of(
+    keypoints: np.ndarray, ns: int, metadata: dict[str, str], *, ground_truth: bool = False
+) -> SceneUpdate:
+    """``keypoints`` (19, 3) as an entity; the ground truth is drawn grey and thin."""
+    kp = np.asarray(keypoints, dtype=np.float64)
     xyz = [(float(x), float(y), float(z)) for x, y, z in kp]
     points = [Point3(x=x, y=y, z=z) for x, y, z in xyz]
     bone_points = [points[i] for pair in BONE_INDEX for i in pair]
-    bone_colours = [_side_colour(KEYPOINTS[int(i)]) for pair in BONE_INDEX for i in pair]
+    colour = (lambda _name: _TRUTH) if ground_truth else _side_colour
+    bone_colours = [colour(KEYPOINTS[int(i)]) for pair in BONE_INDEX for i in pair]
+    size = 0.03 if ground_truth else 0.05
     spheres = [
         SpherePrimitive(
             pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY),
-            size=Vector3(x=0.05, y=0.05, z=0.05),
-            color=_side_colour(name),
+            size=Vector3(x=size, y=size, z=size),
+            color=colour(name),
         )
         for name, (x, y, z) in zip(KEYPOINTS, xyz, strict=True)
     ]
     entity = SceneEntity(
         timestamp=stamp(ns),
         frame_id=POSE_FRAME_ID,
-        id="skeleton",
+        id="ground_truth" if ground_truth else "skeleton",
         frame_locked=True,
-        metadata=[
-            KeyValuePair(key="seq", value=str(p.seq)),
-            KeyValuePair(key="device_time_us", value=str(p.device_clock_us)),
-            KeyValuePair(key="device_seq", value=f"{p.left_seq},{p.right_seq}"),
-        ],
+        metadata=[KeyValuePair(key=k, value=v) for k, v in metadata.items()],
         spheres=spheres,
         lines=[
             LinePrimitive(
                 type=LinePrimitiveLineType.LineList,
                 pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=_IDENTITY),
-                thickness=0.02,
+                thickness=0.01 if ground_truth else 0.02,
                 scale_invariant=False,
                 points=bone_points,
                 colors=bone_colours,
@@ -163,6 +178,8 @@ class FoxgloveOutput:
         self._right = RawImageChannel("/pressure/right", context=self.context)
         self._skeleton = SceneUpdateChannel("/skeleton", context=self.context)
         self._json: dict[str, foxglove.Channel] = {}
+        self._truth: SceneUpdateChannel | None = None
+        self._labels: foxglove.Channel | None = None
 
     @property
     def port(self) -> int | None:
@@ -184,6 +201,21 @@ class FoxgloveOutput:
 
     def status(self, status: Status) -> None:
         self._log_json("status", status, status.host_wall_ns)
+
+    def label(self, label: LabelRecord, ns: int) -> None:
+        """A session's ground truth (export only): ``/labels/skeleton`` and ``/labels``."""
+        if self._truth is None:
+            self._truth = SceneUpdateChannel("/labels/skeleton", context=self.context)
+            self._labels = foxglove.Channel("/labels", context=self.context)  # schemaless JSON
+        assert self._labels is not None
+        meta = {"seq": str(label.seq)}
+        self._truth.log(skeleton_of(label.keypoints, ns, meta, ground_truth=True), log_time=ns)
+        action = ACTIONS[label.action] if 0 <= label.action < len(ACTIONS) else None
+        progress = float(label.progress) if np.isfinite(label.progress) else None
+        self._labels.log(
+            {"seq": label.seq, "action": action, "progress": progress, "repetition": label.rep},
+            log_time=ns,
+        )
 
     def write_metadata(self, name: str, values: dict[str, str]) -> None:
         if self._writer is not None:
