@@ -24,6 +24,14 @@ VERBS: dict[str, tuple[str, str]] = {
     "export": ("scotti.export.export_cli", "export a checkpoint to ONNX (needs [train])"),
     "eval": ("scotti.daemon.eval_cli", "evaluate a model on session files"),
 }
+# "verb action" pairs implemented outside the verb's room: ``session export`` runs the
+# model, which firmware_protocol (the owner of ``session``) must not import.
+VERB_ACTIONS: dict[tuple[str, str], tuple[str, str]] = {
+    ("session", "export"): (
+        "scotti.daemon.outputs.export_cli",
+        "replay a session through the model into an MCAP file (Foxglove, ROS 2)",
+    ),
+}
 
 
 class VerbModule(Protocol):
@@ -59,14 +67,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.parse_args(argv)  # prints usage or the error, exits
         return 2
     verb = argv[0]
+    action = (verb, argv[1]) if len(argv) > 1 else None
     try:
-        module = _load(verb)
+        if action in VERB_ACTIONS:
+            module_name, description = VERB_ACTIONS[action]
+            module: VerbModule | None = cast(VerbModule, importlib.import_module(module_name))
+            verb, argv = " ".join(action), argv[1:]
+        else:
+            module, description = _load(verb), VERBS[verb][1]
         if module is None:
             print(f"scotti: '{verb}' is not available in this build", file=sys.stderr)
             return 2
-        verb_parser = argparse.ArgumentParser(prog=f"scotti {verb}", description=VERBS[verb][1])
+        verb_parser = argparse.ArgumentParser(prog=f"scotti {verb}", description=description)
         module.add_arguments(verb_parser)
         args = verb_parser.parse_args(argv[1:])
+        if verb == "session":
+            # Session files label actions by index; the names are the model contract's,
+            # which firmware_protocol (the owner of `session`) must not import.
+            from scotti.models.contract import ACTIONS
+
+            args.action_names = ACTIONS
         return module.run(args)
     except UserError as exc:
         print(f"scotti {verb}: {exc}", file=sys.stderr)

@@ -26,6 +26,7 @@ from pydantic import BaseModel
 from scotti.daemon import loop_errors, messages
 from scotti.daemon.counters import Counters
 from scotti.daemon.notify import Notifier
+from scotti.daemon.outputs import Outputs
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
 from scotti.daemon.publisher import BrokerState, FrameBatch, Publisher
 from scotti.daemon.recording import Recorder
@@ -56,6 +57,7 @@ class Daemon:
         self._sd_status = ""
         self._stop = asyncio.Event()
         self._publisher: Publisher | None = None
+        self._outputs = Outputs()  # MCAP, Foxglove, LSL, web: each prediction and status
 
     @property
     def publisher(self) -> Publisher | None:
@@ -67,6 +69,14 @@ class Daemon:
         # used is a one-line error (SourceError, RecordingError).
         source = self._make_source()
         recorder = self._make_recorder()
+        try:  # MCAP, Foxglove, LSL, web: a port in use is a one-line error too
+            self._outputs = await Outputs.open(
+                self.settings.outputs, title=self.settings.mqtt.device_id
+            )
+        except BaseException:
+            if recorder is not None:
+                recorder.close()
+            raise
         loop = asyncio.get_running_loop()
         loop_errors.install(loop, logging.getLogger("scotti.daemon.mqtt"))
         for sig in (signal.SIGTERM, signal.SIGINT):
@@ -119,6 +129,7 @@ class Daemon:
         for task in helpers:
             task.cancel()
         await asyncio.gather(*helpers, return_exceptions=True)
+        await self._outputs.close()
         self.notifier.close()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
@@ -149,6 +160,7 @@ class Daemon:
 
     def _on_prediction(self, prediction: Prediction) -> None:
         assert self._publisher is not None
+        self._outputs.prediction(prediction)
         pressure = self.settings.mqtt.pressure_downsample if self.settings.mqtt.pressure else 0
 
         def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
@@ -195,13 +207,16 @@ class Daemon:
         st: Literal["online", "degraded"] = "degraded" if reasons else "online"
         status: Status = messages.status(st, reasons, state)
         self._publisher.set_status(status)
+        self._outputs.status(status)
         log.info("status %s%s", st, f": {', '.join(reasons)}" if reasons else "")
         self._notify_status()
 
     def _publish_final_state(self) -> None:
         assert self._publisher is not None
         self._publisher.set_health(self._health())
-        self._publisher.set_status(messages.status("offline", ["stopped"], self._state))
+        final = messages.status("offline", ["stopped"], self._state)
+        self._publisher.set_status(final)
+        self._outputs.status(final)
 
     def _systemd_status(self) -> str:
         broker = self._publisher.detail if self._publisher else "starting"

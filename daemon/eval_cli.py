@@ -1,4 +1,4 @@
-"""``scotti eval SESSIONS... --model M [--json] [--plots DIR]``: score a model like the paper.
+"""``scotti eval SESSIONS... [--model M] [--json] [--plots DIR]``: score a model like the paper.
 
 Replays labelled session files through the daemon's own streaming path (see
 ``scotti.daemon.evaluation``) as fast as the model runs, and prints MPJPE,
@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from scotti.daemon.evaluation import EvaluationError, evaluate_models
+from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.session import find_session_files
 from scotti.models.contract import ACTIONS
@@ -31,9 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--model",
         type=Path,
-        required=True,
         action="append",
-        help="streaming step graph (.onnx); repeat it to score several models on one replay",
+        help="streaming step graph (.onnx); repeat it to score several models on one replay "
+        "(default: the shipped model, as the daemon)",
     )
     parser.add_argument(
         "--json", action="store_true", help="print the report as JSON (a list for several models)"
@@ -61,13 +62,14 @@ def run(args: argparse.Namespace) -> int:
             msg = f"--every must be at least 1, got {args.every}"
             raise EvaluationError(msg)
         files = find_session_files(args.sessions)
-        runtimes = [ScottiRuntime(m, threads=args.threads) for m in args.model]
-        reports = evaluate_models(files, runtimes, every=args.every)
+        models = args.model or [default_model_path()]
+        runtimes = [ScottiRuntime(m, threads=args.threads) for m in models]
+        reports = evaluate_models(files, runtimes, every=args.every, on_session=_progress)
         if args.plots is not None:
             for report in reports:
                 where = args.plots if len(reports) == 1 else args.plots / _stem(report)
                 report["plots"] = write_plots(report, where)
-    except (EvaluationError, ModelError, SessionError, OSError) as exc:
+    except (EvaluationError, ModelError, SessionError, ConfigError, OSError) as exc:
         print(f"scotti eval: {exc}", file=sys.stderr)
         return 2
     if args.json:
@@ -76,6 +78,19 @@ def run(args: argparse.Namespace) -> int:
     else:
         print("\n\n".join("\n".join(format_report(r)) for r in reports))
     return 0
+
+
+def _progress(done: int, total: int, path: Path, seconds: float) -> None:
+    """One line per session on stderr (stdout stays the report, also with --json)."""
+    if total > 1:
+        print(f"scotti eval: {done}/{total} {path.name} ({seconds:.1f} s)", file=sys.stderr)
+
+
+LEGEND = (
+    "  MPJPE: mean per-joint position error (mm); MPJAE: mean per-joint angle error (deg)\n"
+    "  acc: action accuracy; MSE: progress mean squared error; APP: area under the progress\n"
+    "  precision-margin curve (chance 2/3); -: nothing to score (no action, no progress)"
+)
 
 
 def _stem(report: dict[str, Any]) -> str:
@@ -114,13 +129,19 @@ def format_report(report: dict[str, Any]) -> list[str]:
     lines.append(
         f"  {'action':18s} {'frames':>7s} {'MPJPE':>8s} {'acc %':>7s} {'MSE':>8s} {'APP':>7s}"
     )
+    absent = []
     for name, row in report["per_action"].items():
+        if not row["frames"]:
+            absent.append(name)  # no frames: every figure would be nan
+            continue
         lines.append(
             f"  {name:18s} {row['frames']:7d} {_cell(row['mpjpe_mm'], 8, '.2f')} "
             f"{_cell(100 * row['action_accuracy'], 7, '.2f')} "
             f"{_cell(row['progress_mse'], 8, '.4f')} {_cell(row['app'], 7, '.4f')}"
         )
-    lines.append("  (-: nothing to score; standing and transitions have no progress)")
+    if absent:
+        lines.append(f"  not in these sessions: {', '.join(absent)}")
+    lines.append(LEGEND)
     lines.append("  confusion (rows true, columns predicted): " + " ".join(ACTIONS))
     for name, counts in zip(ACTIONS, report["confusion"]["matrix"], strict=True):
         lines.append(f"  {name:18s} " + " ".join(f"{c:6d}" for c in counts))

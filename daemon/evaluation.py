@@ -19,7 +19,7 @@ No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -393,15 +393,24 @@ def evaluate_models(
     pairing: PairingConfig | None = None,
     *,
     every: int = 1,
+    on_session: Callable[[int, int, Path, float], None] | None = None,
 ) -> list[dict[str, Any]]:
-    """``evaluate_sessions`` for several models over one replay of each session."""
+    """``evaluate_sessions`` for several models over one replay of each session.
+
+    ``on_session(done, total, path, seconds)`` after each session: a long run's progress.
+    """
     if every < 1:
         msg = f"--every must be at least 1, got {every}"
         raise EvaluationError(msg)
     windows = window_graphs(runtimes) if every > 1 else None
-    per_session = [
-        replay_session_models(p, runtimes, pairing, every=every, windows=windows) for p in paths
-    ]
+    per_session = []
+    for i, p in enumerate(paths):
+        started = time.perf_counter()
+        per_session.append(
+            replay_session_models(p, runtimes, pairing, every=every, windows=windows)
+        )
+        if on_session is not None:
+            on_session(i + 1, len(paths), Path(p), time.perf_counter() - started)
     return [
         _report(
             runtime,

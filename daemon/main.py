@@ -48,6 +48,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE|DIR",
         help="record the raw bytes to a session file (in a directory: a new named file)",
     )
+    out = p.add_argument_group("other outputs (need the [outputs] extra; see docs/outputs.md)")
+    out.add_argument("--record-mcap", type=Path, metavar="OUT.mcap", help="Foxglove channels")
+    out.add_argument(
+        "--foxglove", type=int, nargs="?", const=8765, metavar="PORT",
+        help="serve the channels to Foxglove over WebSocket (default port 8765)",
+    )  # fmt: skip
+    out.add_argument("--lsl", action="store_true", default=None, help="Lab Streaming Layer")
+    out.add_argument("--web", type=int, metavar="PORT", help="browser live view on PORT")
     p.add_argument("--log-level", metavar="LEVEL", help="debug, info, warning, error")
     p.add_argument("--config", type=Path, metavar="FILE", help="TOML config file")
     return p
@@ -70,6 +78,10 @@ _CLI_FIELDS: dict[str, tuple[str | None, str]] = {
     "format": ("mqtt", "format"),
     "pressure": ("mqtt", "pressure"),
     "record": (None, "record"),
+    "record_mcap": ("outputs", "record_mcap"),
+    "foxglove": ("outputs", "foxglove"),
+    "lsl": ("outputs", "lsl"),
+    "web": ("outputs", "web"),
     "log_level": (None, "log_level"),
 }
 

@@ -18,6 +18,7 @@ The broker password is a secret: it comes from ``SCOTTI_MQTT_PASSWORD`` or
 
 from __future__ import annotations
 
+import difflib
 import re
 import socket
 import ssl
@@ -42,6 +43,7 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.outputs.settings import OutputSettings
 from scotti.daemon.speed import Speed, parse_speed
 
 EX_CONFIG: Final = 78  # sysexits.h: configuration error
@@ -303,6 +305,7 @@ class Settings(BaseSettings):
     model: ModelSettings = ModelSettings()
     mqtt: MqttSettings = MqttSettings()
     record: Path | None = None  # append the raw byte stream to this session file
+    outputs: OutputSettings = OutputSettings()  # MCAP, Foxglove, LSL, web (daemon/outputs/)
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     stop_timeout_s: Annotated[float, Field(gt=0, le=120)] = 5.0
 
@@ -379,8 +382,23 @@ def _one_line(exc: ValidationError) -> str:
     for err in exc.errors(include_url=False):
         loc = ".".join(str(p) for p in err["loc"])
         message = str(err["msg"]).removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            message = "unknown setting" + _did_you_mean(err["loc"])
         parts.append(f"{loc}: {message}" if loc else message)
     return "; ".join(parts)
+
+
+def _did_you_mean(loc: tuple[int | str, ...]) -> str:
+    """``; did you mean mqtt.broker?`` for a misspelt key, as git and cargo say it."""
+    model: type[BaseModel] = Settings
+    for part in loc[:-1]:
+        field = model.model_fields.get(str(part))
+        annotation = field.annotation if field is not None else None
+        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+            return ""
+        model = annotation
+    close = difflib.get_close_matches(str(loc[-1]), list(model.model_fields), n=1, cutoff=0.6)
+    return f"; did you mean {'.'.join([*map(str, loc[:-1]), close[0]])}?" if close else ""
 
 
 def default_model_path() -> Path:

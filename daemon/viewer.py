@@ -92,6 +92,19 @@ def heat_rows(grid: np.ndarray) -> list[str]:
     return ["".join(f"\x1b[48;5;{PALETTE[i]}m  " for i in row) + RESET for row in index]
 
 
+def scale_row(cells: int = 16) -> str:
+    """The colour key under the maps: the ramp from 0 to full scale, labelled in counts.
+
+    The maps use a square-root scale (light loads stay visible), so the middle of the
+    ramp is a quarter of full scale.
+    """
+    levels = np.linspace(0.0, 1.0, cells)
+    index = np.minimum((levels * len(PALETTE)).astype(int), len(PALETTE) - 1)
+    ramp = "".join(f"\x1b[48;5;{PALETTE[i]}m  " for i in index) + RESET
+    quarter = round(MAX_COUNT / 4)
+    return f"  0 {ramp} {MAX_COUNT} counts (square-root scale: mid-ramp = {quarter})"
+
+
 def bar(fraction: float, width: int = BAR_WIDTH) -> str:
     filled = round(max(0.0, min(1.0, fraction)) * width)
     return "█" * filled + "░" * (width - filled)
@@ -127,6 +140,7 @@ def _feet(pressure: dict[str, Any] | None) -> list[str]:
     pad = " " * (2 * left.shape[1] - 4)
     out = ["  left" + pad + "    right"]
     out += [f"  {a}    {b}" for a, b in zip(heat_rows(left), heat_rows(right), strict=True)]
+    out.append(scale_row())
     return out
 
 

@@ -12,6 +12,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Sequence
 from typing import Any
 
 from scotti.firmware_protocol.errors import SessionError
@@ -37,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info = sub.add_parser("info", help="summarise a session file")
     info.add_argument("file", metavar="FILE", help="a session file (.scot)")
     info.add_argument("--json", action="store_true", help="print one JSON object instead")
+    # Listed for --help only: `scotti session export` runs the model, so the command line
+    # (cli/main.py) hands it to scotti.daemon.outputs.export_cli before it reaches here.
+    sub.add_parser("export", help="FILE --mcap OUT.mcap: predictions as a Foxglove recording")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,7 +49,12 @@ def run(args: argparse.Namespace) -> int:
     except SessionError as exc:
         print(f"scotti session: {exc}", file=sys.stderr)
         return 2
-    text = json.dumps(summary.as_dict(), indent=2, default=str) if args.json else render(summary)
+    names = getattr(args, "action_names", ())  # the model contract's, handed in by cli/main.py
+    text = (
+        json.dumps(summary.as_dict(), indent=2, default=str)
+        if args.json
+        else render(summary, names)
+    )
     try:
         print(text, flush=True)
     except BrokenPipeError:  # `scotti session info F | head`: the reader left, not an error
@@ -95,10 +104,22 @@ def _imported(info: dict[str, Any]) -> str:
     return "; ".join(parts) or "-"
 
 
-def render(s: SessionSummary) -> str:
-    """The human-readable report."""
+def _action(index: int, names: Sequence[str]) -> str:
+    if index < 0:
+        return "none"
+    return names[index] if index < len(names) else f"action {index}"
+
+
+def render(s: SessionSummary, action_names: Sequence[str] = ()) -> str:
+    """The human-readable report; labels by name when ``action_names`` are given.
+
+    The file holds action indices; their names are the model contract's, which this
+    room must not import (ARCHITECTURE.md), so the command line hands them in.
+    """
     h = s.header
     created = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(h.created_unix))
+    if h.created_unix == 0:  # the simulator writes 0: reruns are bit-identical
+        created = "- (simulated files carry no wall clock)"
     lines = [
         f"session   {s.path}",
         f"format    {h.format_version}, {h.source}, device {h.device!r}, created {created}",
@@ -135,7 +156,7 @@ def render(s: SessionSummary) -> str:
     labels = s.labels
     if labels.count:
         actions = ", ".join(
-            f"{'none' if a < 0 else f'action {a}'}: {n}" for a, n in sorted(labels.actions.items())
+            f"{_action(a, action_names)}: {n}" for a, n in sorted(labels.actions.items())
         )
         lines.append(
             f"labels    {labels.count} (seq {labels.first_seq}..{labels.last_seq}); {actions}"

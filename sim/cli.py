@@ -63,7 +63,9 @@ def _render_parser() -> argparse.ArgumentParser:
     p.add_argument("session", type=Path, help="session file with labels")
     p.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
     p.add_argument("--start", type=float, default=0.0, help="seconds from the first frame")
-    p.add_argument("--duration", type=float, default=6.0, help="seconds to draw")
+    p.add_argument(
+        "--duration", type=float, default=None, help="seconds to draw (default: to the end)"
+    )
     p.add_argument("--gif", type=Path, default=None, help="also write an animated GIF")
     return p
 
@@ -155,7 +157,7 @@ def _corpus(a: argparse.Namespace) -> int:
 def _render(a: argparse.Namespace) -> int:
     from scotti.sim.render import load_span, render_gif, render_png
 
-    if a.duration <= 0 or a.start < 0:
+    if (a.duration is not None and a.duration <= 0) or a.start < 0:
         from scotti.sim import SimError
 
         msg = "--start must be >= 0 and --duration > 0"

@@ -232,16 +232,22 @@ def _draw_timeline(ax: Any, span: Span, marks: list[float]) -> None:
     ax.set_xlim(t[0], t[-1] if len(t) > 1 else t[0] + 1)
     twin = ax.twinx()
     twin.plot(t, span.progress, color="k", lw=1.5, label="progress")
-    twin.set_ylim(-0.05, 1.6)
+    twin.set_ylim(-0.05, 1.05)  # progress is 0..1
     twin.set_ylabel("progress")
     changes = np.flatnonzero(np.diff(span.action, prepend=NO_ACTION - 1))
     for i in changes:
-        twin.text(t[i], 1.45, _action_name(int(span.action[i])), fontsize=7, rotation=0)
         twin.axvline(t[i], color="0.8", lw=0.8)
+        if span.action[i] == NO_ACTION:
+            continue  # the stands between actions: unlabelled, so the names do not collide
+        # Above the plot (x in data, y in axes units), where no curve or legend is.
+        twin.text(t[i], 1.02, _action_name(int(span.action[i])), fontsize=7,
+                  transform=twin.get_xaxis_transform(), va="bottom", clip_on=False)  # fmt: skip
     for m in marks:
         ax.axvline(m, color="tab:green", lw=1.2, ls="--")
-    ax.legend(loc="upper left", fontsize=6)
-    twin.legend(loc="upper right", fontsize=6)
+    # One legend for both axes, below the time axis: it never covers a curve or a label.
+    handles = ax.get_legend_handles_labels()[0] + twin.get_legend_handles_labels()[0]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.32), ncol=3,
+              fontsize=6, frameon=False)  # fmt: skip
 
 
 def _snapshot(fig: Any, grid: Any, span: Span, i: int, wide: bool = False) -> None:
@@ -278,7 +284,7 @@ def render_png(span: Span, out: str | os.PathLike[str]) -> Path:
         picks = _picks_at_sources(span, picks)
     rows = 3 if span.source_frames else 2
     fig = plt.figure(figsize=(3.0 * len(picks), 7.0 + 2.2 * (rows - 2)), dpi=100)
-    fig.subplots_adjust(left=0.06, right=0.94, top=0.93, bottom=0.07)
+    fig.subplots_adjust(left=0.06, right=0.94, top=0.93, bottom=0.1)
     ratios = [3.0, 1.2, 1.0] if rows == 3 else [3.0, 1.0]
     grid = fig.add_gridspec(rows, len(picks), height_ratios=ratios, hspace=0.25)
     for col, i in enumerate(picks):

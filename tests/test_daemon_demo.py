@@ -55,8 +55,11 @@ def test_render_shows_feet_action_progress_and_latency() -> None:
     assert "█" * 15 + "░" * 15 in screen  # progress 0.5 of a 30-wide bar
     assert "rep 3" in screen
     assert "3.2 ms" in screen or "3.3 ms" in screen
-    assert screen.count("\x1b[48;5;196m") == 16 * 11  # left foot all hot
-    assert screen.count("\x1b[48;5;16m") == 16 * 11  # right foot all cold
+    # Left foot all hot, right all cold, and each end once more in the colour key.
+    assert screen.count("\x1b[48;5;196m") == 16 * 11 + 1
+    assert screen.count("\x1b[48;5;16m") == 16 * 11 + 1
+    assert "0 \x1b[48;5;16m" in screen
+    assert "4095 counts" in screen
 
 
 def test_render_shows_standing_without_a_progress_bar() -> None:

@@ -246,3 +246,16 @@ def test_every_without_a_window_graph_is_one_line(
     err = capsys.readouterr().err
     assert "alone.window.onnx" in err
     assert err.count("\n") == 1
+
+
+def test_cli_defaults_to_the_shipped_model_and_leaves_out_absent_actions(
+    session: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from scotti.daemon.settings import default_model_path
+
+    assert main(["eval", str(session)]) == 0
+    out = capsys.readouterr().out
+    assert f"model {default_model_path()}" in out
+    assert "nan" not in out
+    assert "not in these sessions: " in out
+    assert "MPJPE: mean per-joint position error" in out

@@ -129,7 +129,9 @@ def test_bad_file(tmp_path: Path) -> None:
         load_settings(PORT, tmp_path / "missing.toml")
     with pytest.raises(ConfigError, match=r"config file .*: Expected"):
         load_settings(PORT, write(tmp_path, "[mqtt\n"))
-    with pytest.raises(ConfigError, match=r"^mqtt.brokr: Extra inputs are not permitted"):
+    with pytest.raises(
+        ConfigError, match=r"^mqtt.brokr: unknown setting; did you mean mqtt.broker"
+    ):
         load_settings(PORT, write(tmp_path, '[mqtt]\nbrokr = "x"\n'))
 
 
@@ -166,6 +168,7 @@ def test_missing_replay_file_and_missing_model(tmp_path: Path) -> None:
 
 
 def test_example_config_loads_and_shows_every_setting() -> None:
+    from scotti.daemon.outputs.settings import OutputSettings
     from scotti.daemon.settings import ModelSettings, MqttSettings, Settings, SourceSettings
 
     example = Path(__file__).parent.parent / "systemd" / "scotti-daemon.toml"
@@ -177,6 +180,7 @@ def test_example_config_loads_and_shows_every_setting() -> None:
         "source": SourceSettings,
         "model": ModelSettings,
         "mqtt": MqttSettings,
+        "outputs": OutputSettings,
     }
     for section, model in sections.items():
         for name in model.model_fields:
@@ -203,3 +207,20 @@ def test_broker_url_parts() -> None:
     assert (mqtt.host, mqtt.port, mqtt.tls) == ("broker.lan", 8883, True)
     mqtt = load_settings({**PORT, "mqtt": {"broker": "mqtt://[::1]:1884"}}).mqtt
     assert (mqtt.host, mqtt.port, mqtt.tls) == ("::1", 1884, False)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ('[mqtt]\nbrokr = "mqtt://x"\n', "mqtt.brokr: unknown setting; did you mean mqtt.broker?"),
+        ('log_levl = "info"\n', "log_levl: unknown setting; did you mean log_level?"),
+        ("[outputs]\nrecord_mcp = 'x.mcap'\n", "did you mean outputs.record_mcap?"),
+        ("[mqtt]\nzzz = 1\n", "mqtt.zzz: unknown setting"),
+    ],
+)
+def test_a_misspelt_key_gets_a_did_you_mean(tmp_path: Path, text: str, message: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_settings(PORT, write(tmp_path, text))
+    assert message in str(info.value)
+    if "zzz" in text:
+        assert "did you mean" not in str(info.value)  # nothing close: no guess

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from scotti.cli.main import main
+from scotti.firmware_protocol.session import SessionHeader, SessionWriter
 from scotti.firmware_protocol.session_summary import summarize
 
 from tests.support.protocol import write_demo_session
@@ -115,3 +116,25 @@ def test_as_a_command(demo: Path, tmp_path: Path) -> None:
     assert missing.returncode == 2
     assert "Traceback" not in missing.stderr
     assert len(missing.stderr.splitlines()) == 1
+
+
+def test_info_names_the_actions_and_says_when_there_is_no_clock(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from scotti.models.contract import ACTIONS
+
+    from tests.support.sessions import write_synthetic_session
+
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=32)  # actions 0 and 1
+    assert main(["session", "info", str(session.path)]) == 0
+    out = capsys.readouterr().out
+    (labels,) = [line for line in out.splitlines() if line.startswith("labels")]
+    assert f"{ACTIONS[0]}: 16, {ACTIONS[1]}: 16" in labels
+    assert "action 0" not in labels
+    header = SessionHeader(source="simulated", created_unix=0.0)
+    with SessionWriter(tmp_path / "sim.scotti", header):
+        pass
+    assert main(["session", "info", str(tmp_path / "sim.scotti")]) == 0
+    out = capsys.readouterr().out
+    assert "1970" not in out
+    assert "created - (simulated files carry no wall clock)" in out

@@ -1,0 +1,241 @@
+"""The Foxglove channels, written into an MCAP file and/or served live.
+
+One ``foxglove.Context`` per output holds the channels; the MCAP writer and
+the WebSocket server are sinks on it, so a file and a live Foxglove session
+carry exactly the same topics, schemas and log times. Channels:
+
+- ``/pressure/left``, ``/pressure/right``: ``foxglove.RawImage``, mono16 raw
+  counts, 32 x 22 (toes up);
+- ``/skeleton``: ``foxglove.SceneUpdate``, the pose with bones as lines and
+  keypoints as spheres, in frame ``pose``;
+- ``/pose``, ``/action``, ``/progress``: JSON, the MQTT payloads (plottable:
+  ``/action.probabilities.squat``, ``/progress.progress``);
+- ``/status``: JSON, the MQTT ``status`` (online / degraded / offline and why);
+- ``/labels/skeleton``, ``/labels`` (``scotti session export`` of a labelled
+  session): the ground truth, a grey skeleton beside the prediction and its
+  action, progress and repetition.
+
+Every message is logged at the host wall time of its prediction (the
+recording's own time in ``scotti session export``); the JSON messages carry
+the device time and sequence beside it, like MQTT does, and the skeleton
+entity carries them as metadata.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Final
+
+import foxglove
+import numpy as np
+from foxglove.channels import RawImageChannel, SceneUpdateChannel
+from foxglove.messages import (
+    Color,
+    KeyValuePair,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    Point3,
+    Pose,
+    Quaternion,
+    RawImage,
+    SceneEntity,
+    SceneUpdate,
+    SpherePrimitive,
+    Timestamp,
+    Vector3,
+)
+from foxglove.websocket import WebSocketServer
+from pydantic import BaseModel
+from scotti.daemon import messages
+from scotti.daemon.outputs import OutputError
+from scotti.daemon.pipeline import Prediction
+from scotti.daemon.recording import candidate_paths
+from scotti.daemon.schemas import Status
+from scotti.firmware_protocol.session import LabelRecord
+from scotti.models.contract import ACTIONS, BONE_INDEX, FRAME_COLS, KEYPOINTS
+
+POSE_FRAME_ID: Final = "pose"  # metres, origin under the mid-hip, z up, x forward
+_LEFT: Final = Color(r=0.2, g=0.5, b=1.0, a=1.0)  # left side blue, right red: ROS/RViz habit
+_RIGHT: Final = Color(r=1.0, g=0.3, b=0.2, a=1.0)
+_MIDDLE: Final = Color(r=0.8, g=0.8, b=0.8, a=1.0)
+_TRUTH: Final = Color(r=0.6, g=0.6, b=0.6, a=0.8)  # labels: grey, beside the prediction
+_IDENTITY: Final = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
+def _side_colour(name: str) -> Color:
+    return _LEFT if name.startswith("left") else _RIGHT if name.startswith("right") else _MIDDLE
+
+
+def stamp(ns: int) -> Timestamp:
+    return Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
+
+
+def pressure_image(counts: np.ndarray, ns: int, foot: str) -> RawImage:
+    """One foot's raw counts as a 16-bit grey image (little-endian, row-major)."""
+    data = np.ascontiguousarray(counts, dtype="<u2")
+    rows, cols = data.shape
+    return RawImage(
+        timestamp=stamp(ns),
+        frame_id=f"insole_{foot}",
+        width=cols,
+        height=rows,
+        encoding="mono16",
+        step=2 * cols,
+        data=data.tobytes(),
+    )
+
+
+def skeleton(p: Prediction, ns: int) -> SceneUpdate:
+    """The pose as one scene entity: a line list of the bones and a sphere per keypoint."""
+    metadata = {
+        "seq": str(p.seq),
+        "device_time_us": str(p.device_clock_us),
+        "device_seq": f"{p.left_seq},{p.right_seq}",
+    }
+    return skeleton_of(p.pose, ns, metadata)
+
+
+def skeleton_of(
+    keypoints: np.ndarray, ns: int, metadata: dict[str, str], *, ground_truth: bool = False
+) -> SceneUpdate:
+    """``keypoints`` (19, 3) as an entity; the ground truth is drawn grey and thin."""
+    kp = np.asarray(keypoints, dtype=np.float64)
+    xyz = [(float(x), float(y), float(z)) for x, y, z in kp]
+    points = [Point3(x=x, y=y, z=z) for x, y, z in xyz]
+    bone_points = [points[i] for pair in BONE_INDEX for i in pair]
+    colour = (lambda _name: _TRUTH) if ground_truth else _side_colour
+    bone_colours = [colour(KEYPOINTS[int(i)]) for pair in BONE_INDEX for i in pair]
+    size = 0.03 if ground_truth else 0.05
+    spheres = [
+        SpherePrimitive(
+            pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY),
+            size=Vector3(x=size, y=size, z=size),
+            color=colour(name),
+        )
+        for name, (x, y, z) in zip(KEYPOINTS, xyz, strict=True)
+    ]
+    entity = SceneEntity(
+        timestamp=stamp(ns),
+        frame_id=POSE_FRAME_ID,
+        id="ground_truth" if ground_truth else "skeleton",
+        frame_locked=True,
+        metadata=[KeyValuePair(key=k, value=v) for k, v in metadata.items()],
+        spheres=spheres,
+        lines=[
+            LinePrimitive(
+                type=LinePrimitiveLineType.LineList,
+                pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=_IDENTITY),
+                thickness=0.01 if ground_truth else 0.02,
+                scale_invariant=False,
+                points=bone_points,
+                colors=bone_colours,
+            )
+        ],
+    )
+    return SceneUpdate(entities=[entity])
+
+
+class FoxgloveOutput:
+    """``mcap``: a file to write; ``port``: serve live (0: any free port).
+
+    An existing MCAP file is never overwritten unless ``overwrite`` (what an export
+    asks for): the daemon takes a new name beside it, as ``--record`` does.
+    """
+
+    name = "foxglove"
+
+    def __init__(
+        self,
+        *,
+        mcap: Path | None,
+        port: int | None,
+        host: str = "127.0.0.1",
+        overwrite: bool = False,
+    ) -> None:
+        self.context = foxglove.Context()
+        if mcap is not None and not overwrite:
+            mcap = next(p for p in candidate_paths(mcap, datetime.now(UTC)) if not p.exists())
+        self.mcap_path = mcap
+        self.host = host
+        self._writer: foxglove.mcap.MCAPWriter | None = None
+        self._server: WebSocketServer | None = None
+        try:
+            if mcap is not None:
+                self._writer = foxglove.open_mcap(
+                    mcap, context=self.context, allow_overwrite=overwrite
+                )
+            if port is not None:
+                self._server = foxglove.start_server(
+                    name="scotti-daemon", host=host, port=port, context=self.context
+                )
+        except Exception as exc:  # the library's own errors: file exists, port in use
+            self._stop_sinks()
+            target = f"MCAP file {mcap}" if self._writer is None and mcap else f"port {port}"
+            msg = f"cannot open {target}: {exc}"
+            raise OutputError(msg) from None
+        self._left = RawImageChannel("/pressure/left", context=self.context)
+        self._right = RawImageChannel("/pressure/right", context=self.context)
+        self._skeleton = SceneUpdateChannel("/skeleton", context=self.context)
+        self._json: dict[str, foxglove.Channel] = {}
+        self._truth: SceneUpdateChannel | None = None
+        self._labels: foxglove.Channel | None = None
+
+    @property
+    def port(self) -> int | None:
+        return self._server.port if self._server is not None else None
+
+    def __str__(self) -> str:
+        parts = [f"MCAP {self.mcap_path}"] if self.mcap_path else []
+        if self._server is not None:
+            parts.append(f"Foxglove WebSocket ws://{self.host}:{self._server.port}")
+        return "foxglove: " + ", ".join(parts)
+
+    def prediction(self, p: Prediction, latency_ms: float) -> None:
+        ns = p.host_wall_ns
+        self._left.log(pressure_image(p.counts[:, :FRAME_COLS], ns, "left"), log_time=ns)
+        self._right.log(pressure_image(p.counts[:, FRAME_COLS:], ns, "right"), log_time=ns)
+        self._skeleton.log(skeleton(p, ns), log_time=ns)
+        for name, payload in messages.frame_payloads(p, latency_ms):
+            self._log_json(name, payload, ns)
+
+    def status(self, status: Status) -> None:
+        self._log_json("status", status, status.host_wall_ns)
+
+    def label(self, label: LabelRecord, ns: int) -> None:
+        """A session's ground truth (export only): ``/labels/skeleton`` and ``/labels``."""
+        if self._truth is None:
+            self._truth = SceneUpdateChannel("/labels/skeleton", context=self.context)
+            self._labels = foxglove.Channel("/labels", context=self.context)  # schemaless JSON
+        assert self._labels is not None
+        meta = {"seq": str(label.seq)}
+        self._truth.log(skeleton_of(label.keypoints, ns, meta, ground_truth=True), log_time=ns)
+        action = ACTIONS[label.action] if 0 <= label.action < len(ACTIONS) else None
+        progress = float(label.progress) if np.isfinite(label.progress) else None
+        self._labels.log(
+            {"seq": label.seq, "action": action, "progress": progress, "repetition": label.rep},
+            log_time=ns,
+        )
+
+    def write_metadata(self, name: str, values: dict[str, str]) -> None:
+        if self._writer is not None:
+            self._writer.write_metadata(name, values)
+
+    async def close(self) -> None:
+        self._stop_sinks()
+
+    def _log_json(self, name: str, payload: BaseModel, ns: int) -> None:
+        channel = self._json.get(name)
+        if channel is None:
+            schema: dict[str, Any] = type(payload).model_json_schema()
+            channel = foxglove.Channel(f"/{name}", schema=schema, context=self.context)
+            self._json[name] = channel
+        channel.log(payload.model_dump(mode="json"), log_time=ns)
+
+    def _stop_sinks(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        if self._server is not None:
+            self._server.stop()
+            self._server = None

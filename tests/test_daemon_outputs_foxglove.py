@@ -1,0 +1,108 @@
+"""``--foxglove``: a WebSocket client speaks the Foxglove protocol to the daemon's
+server, subscribes to channels and decodes what comes."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import struct
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scotti.daemon.pipeline import Prediction
+from scotti.models.contract import ACTIONS, NUM_KEYPOINTS
+
+from tests.support.outputs import predictions, protobuf_class
+from tests.support.sessions import write_synthetic_session
+
+pytest.importorskip("foxglove")
+websockets = pytest.importorskip("websockets.asyncio.client")
+
+# What the Foxglove app offers: the SDK's protocol, then the older ws-protocol name.
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+MESSAGE_DATA = 0x01  # binary opcode: [op:1] [subscription id:4] [log time:8] [payload]
+
+
+@pytest.fixture(scope="module")
+def preds(tmp_path_factory: pytest.TempPathFactory, tiny_model_path: Path) -> list[Prediction]:
+    session = write_synthetic_session(tmp_path_factory.mktemp("fg") / "s.scotti", frames=48)
+    out = predictions(session.path, tiny_model_path)
+    assert out
+    return out
+
+
+async def _json(ws: Any, op: str) -> dict[str, Any]:
+    while True:
+        msg = await asyncio.wait_for(ws.recv(), 5)
+        if isinstance(msg, str) and (data := json.loads(msg))["op"] == op:
+            return data  # type: ignore[no-any-return]
+
+
+async def _session(preds: list[Prediction]) -> tuple[dict[str, Any], list[tuple[int, int, bytes]]]:
+    from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
+
+    output = FoxgloveOutput(mcap=None, port=0)
+    try:
+        output.prediction(preds[0], 1.0)  # the JSON channels exist from the first message
+        async with websockets.connect(
+            f"ws://127.0.0.1:{output.port}", subprotocols=SUBPROTOCOLS
+        ) as ws:
+            channels: dict[str, Any] = {}
+            while not {"/skeleton", "/action", "/pressure/left"} <= set(channels):
+                for ch in (await _json(ws, "advertise"))["channels"]:
+                    channels[ch["topic"]] = ch
+            topics = ("/skeleton", "/action", "/pressure/left")
+            subscribe = [{"id": i, "channelId": channels[t]["id"]} for i, t in enumerate(topics)]
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscribe}))
+            got: list[tuple[int, int, bytes]] = []
+            # No acknowledgement in the protocol: log the first prediction until each
+            # subscription has delivered it, then the rest, which must all arrive.
+            warm = preds[1]
+            seen: set[int] = set()
+            while len(seen) < len(topics):
+                output.prediction(warm, 1.0)
+                with contextlib.suppress(TimeoutError):
+                    while len(seen) < len(topics):
+                        msg = await asyncio.wait_for(ws.recv(), 0.2)
+                        if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
+                            seen.add(struct.unpack_from("<I", msg, 1)[0])
+            for p in preds[2:]:
+                output.prediction(p, 1.0)
+            while len(got) < len(topics) * (len(preds) - 2):
+                msg = await asyncio.wait_for(ws.recv(), 10)
+                if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
+                    sub, log_time = struct.unpack_from("<IQ", msg, 1)
+                    if log_time != warm.host_wall_ns:
+                        got.append((sub, log_time, msg[13:]))
+            return channels, got
+    finally:
+        await output.close()
+
+
+def test_client_subscribes_and_decodes(preds: list[Prediction]) -> None:
+    channels, got = asyncio.run(_session(preds))
+    skeleton = channels["/skeleton"]
+    assert skeleton["encoding"] == "protobuf"
+    assert skeleton["schemaName"] == "foxglove.SceneUpdate"
+    import base64
+
+    scene_class = protobuf_class(skeleton["schemaName"], base64.b64decode(skeleton["schema"]))
+    by_sub: dict[int, list[tuple[int, bytes]]] = {0: [], 1: [], 2: []}
+    for sub, log_time, payload in got:
+        by_sub[sub].append((log_time, payload))
+    expected = preds[2:]
+    for sub in by_sub:
+        assert [t for t, _ in by_sub[sub]] == [p.host_wall_ns for p in expected]
+    for (_, payload), p in zip(by_sub[0], expected, strict=True):
+        (entity,) = scene_class.FromString(payload).entities
+        assert len(entity.spheres) == NUM_KEYPOINTS
+        centres = [[s.pose.position.x, s.pose.position.y, s.pose.position.z]
+                   for s in entity.spheres]  # fmt: skip
+        np.testing.assert_allclose(centres, p.pose, atol=1e-6)
+    for (_, payload), p in zip(by_sub[1], expected, strict=True):
+        action = json.loads(payload)
+        assert action["seq"] == p.seq
+        assert list(action["probabilities"]) == list(ACTIONS)

@@ -1,0 +1,79 @@
+"""``--lsl``: pylsl inlets on this machine find the daemon's outlets and read
+pose, action probabilities, progress and pressure, stamped with the frame's time."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scotti.daemon.pipeline import Prediction
+from scotti.firmware_protocol.packets import Foot
+from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_ROWS, KEYPOINTS, NUM_ACTIONS
+
+from tests.support.outputs import predictions
+from tests.support.sessions import synthetic_counts, write_synthetic_session
+
+# Find the outlets on this host without relying on multicast (CI containers may have
+# none): liblsl reads this file, named by LSLAPICFG, the first time it is used.
+_CONFIG = Path(tempfile.mkdtemp(prefix="scotti-lsl-")) / "lsl_api.cfg"
+_CONFIG.write_text("[lab]\nKnownPeers = {127.0.0.1}\n")
+os.environ.setdefault("LSLAPICFG", str(_CONFIG))
+pylsl = pytest.importorskip("pylsl")
+
+TIMEOUT_S = 10.0
+
+
+@pytest.fixture(scope="module")
+def preds(tmp_path_factory: pytest.TempPathFactory, tiny_model_path: Path) -> list[Prediction]:
+    session = write_synthetic_session(tmp_path_factory.mktemp("lsl") / "s.scotti", frames=48)
+    return predictions(session.path, tiny_model_path)
+
+
+def test_lsl_clock_is_the_hosts_monotonic_clock() -> None:
+    # The outlets stamp samples with time.monotonic_ns(); that is LSL time only if
+    # liblsl's local_clock reads the same steady clock.
+    assert abs(pylsl.local_clock() - time.monotonic()) < 0.05
+
+
+def test_inlets_read_what_the_outlets_send(preds: list[Prediction]) -> None:
+    from scotti.daemon.outputs.lsl import LslOutput
+
+    device = f"test-{uuid.uuid4().hex[:8]}"  # never another run's outlets
+    output = LslOutput(device)
+    inlets = {}
+    for what in ("pose", "action", "progress", "pressure"):
+        (info,) = pylsl.resolve_byprop("source_id", f"scotti/{device}/{what}", 1, TIMEOUT_S)
+        inlets[what] = pylsl.StreamInlet(info, max_buflen=60)
+        inlets[what].open_stream(timeout=TIMEOUT_S)
+    pose_info = inlets["pose"].info(timeout=TIMEOUT_S)
+    assert pose_info.channel_count() == 3 * len(KEYPOINTS) == 57
+    assert pose_info.get_channel_labels()[:3] == ["nose_x", "nose_y", "nose_z"]
+    assert inlets["action"].info().get_channel_labels() == list(ACTIONS)
+    assert inlets["pressure"].info().channel_count() == 2 * FRAME_ROWS * FRAME_COLS
+    time.sleep(0.2)  # the inlets' connections settle before the first sample
+    sent = preds[:10]
+    for p in sent:
+        output.prediction(p, 1.0)
+    got = {what: inlet.pull_chunk(timeout=TIMEOUT_S, max_samples=len(sent))
+           for what, inlet in inlets.items()}  # fmt: skip
+    for what, (samples, stamps) in got.items():
+        assert len(samples) == len(sent), what
+        np.testing.assert_allclose(stamps, [p.last_byte_mono_ns / 1e9 for p in sent], atol=1e-6)
+    for p, pose, probs, prog, pressure in zip(
+        sent, *(got[w][0] for w in ("pose", "action", "progress", "pressure")), strict=True
+    ):
+        np.testing.assert_allclose(np.reshape(pose, (-1, 3)), p.pose, atol=1e-6)
+        assert len(probs) == NUM_ACTIONS
+        np.testing.assert_allclose(probs, p.action_probs, atol=1e-6)
+        assert prog[1] == p.repetition
+        left = np.reshape(pressure[: FRAME_ROWS * FRAME_COLS], (FRAME_ROWS, FRAME_COLS))
+        right = np.reshape(pressure[FRAME_ROWS * FRAME_COLS :], (FRAME_ROWS, FRAME_COLS))
+        np.testing.assert_array_equal(left, synthetic_counts(Foot.LEFT, p.left_seq))
+        np.testing.assert_array_equal(right, synthetic_counts(Foot.RIGHT, p.right_seq))
+    asyncio.run(output.close())

@@ -1,0 +1,147 @@
+"""``scotti session export --mcap`` read back with the mcap reader: topics, Foxglove
+schemas, log times on the recording's clock, and the pressure images equal to
+the counts the session carries."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scotti.cli.main import main as scotti
+from scotti.firmware_protocol.packets import Foot
+from scotti.models.contract import ACTIONS, BONES, FRAME_COLS, FRAME_ROWS, NUM_KEYPOINTS
+
+from tests.support.outputs import protobuf_class
+from tests.support.sessions import PERIOD_NS, synthetic_counts, write_synthetic_session
+
+pytest.importorskip("foxglove")
+mcap_reader = pytest.importorskip("mcap.reader")
+
+FRAMES = 64
+
+
+def read_mcap(path: Path) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, str], list[Any]]:
+    """topic -> [(log_time, decoded message)], topic -> schema name, metadata records."""
+    messages: dict[str, list[tuple[int, Any]]] = {}
+    schemas: dict[str, str] = {}
+    classes: dict[int, Any] = {}
+    with path.open("rb") as f:
+        reader = mcap_reader.make_reader(f)
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            assert schema is not None
+            schemas[channel.topic] = schema.name
+            if channel.message_encoding == "json":
+                decoded = json.loads(message.data)
+            else:
+                assert channel.message_encoding == "protobuf"
+                if schema.id not in classes:
+                    classes[schema.id] = protobuf_class(schema.name, schema.data)
+                decoded = classes[schema.id].FromString(message.data)
+            messages.setdefault(channel.topic, []).append((message.log_time, decoded))
+        f.seek(0)
+        metadata = list(mcap_reader.make_reader(f).iter_metadata())
+    return messages, schemas, metadata
+
+
+@pytest.fixture(scope="module")
+def exported(
+    tmp_path_factory: pytest.TempPathFactory, tiny_model_path: Path
+) -> tuple[Path, Path, Any]:
+    folder = tmp_path_factory.mktemp("mcap")
+    session = write_synthetic_session(folder / "s.scotti", frames=FRAMES)
+    out = folder / "s.mcap"
+    model = str(tiny_model_path)
+    code = scotti(["session", "export", str(session.path), "--mcap", str(out), "--model", model])
+    assert code == 0
+    return session.path, out, read_mcap(out)
+
+
+def test_export_has_the_channels_in_foxglove_schemas(exported: tuple[Path, Path, Any]) -> None:
+    _, _, (messages, schemas, metadata) = exported
+    assert schemas["/pressure/left"] == schemas["/pressure/right"] == "foxglove.RawImage"
+    assert schemas["/skeleton"] == "foxglove.SceneUpdate"
+    assert {"/pose", "/action", "/progress", "/status"} <= set(schemas)
+    n = len(messages["/action"])
+    assert n > 0
+    for topic in ("/pressure/left", "/pressure/right", "/skeleton", "/pose", "/progress"):
+        assert len(messages[topic]) == n, topic
+    assert metadata[0].name == "scotti"
+    assert metadata[0].metadata["session"] == "s.scotti"
+
+
+def test_log_times_follow_the_recording_not_the_export(
+    exported: tuple[Path, Path, Any],
+) -> None:
+    _, _, (messages, _, _) = exported
+    times = np.array([t for t, _ in messages["/action"]])
+    steps = np.diff(times)
+    # One prediction per recorded frame, 62.5 ms apart on the recording's clock, however
+    # fast the export ran.
+    assert np.median(steps) == pytest.approx(PERIOD_NS, rel=0.02)
+    for t, action in messages["/action"]:
+        assert action["host_wall_ns"] == t
+
+
+def test_pressure_images_carry_the_sessions_counts(exported: tuple[Path, Path, Any]) -> None:
+    _, _, (messages, _, _) = exported
+    for (t_img, left), (t_right, right), (t_act, action) in zip(
+        messages["/pressure/left"], messages["/pressure/right"], messages["/action"], strict=True
+    ):
+        assert t_img == t_right == t_act
+        assert (left.width, left.height, left.encoding) == (FRAME_COLS, FRAME_ROWS, "mono16")
+        seq = action["device_seq"]
+        got_left = np.frombuffer(left.data, dtype="<u2").reshape(FRAME_ROWS, FRAME_COLS)
+        got_right = np.frombuffer(right.data, dtype="<u2").reshape(FRAME_ROWS, FRAME_COLS)
+        np.testing.assert_array_equal(got_left, synthetic_counts(Foot.LEFT, seq["left"]))
+        np.testing.assert_array_equal(got_right, synthetic_counts(Foot.RIGHT, seq["right"]))
+
+
+def test_skeleton_is_the_pose_as_spheres_and_bone_lines(exported: tuple[Path, Path, Any]) -> None:
+    _, _, (messages, _, _) = exported
+    for (_, scene), (_, pose), (_, action) in zip(
+        messages["/skeleton"], messages["/pose"], messages["/action"], strict=True
+    ):
+        (entity,) = scene.entities
+        assert entity.frame_id == "pose"
+        centres = [[s.pose.position.x, s.pose.position.y, s.pose.position.z]
+                   for s in entity.spheres]  # fmt: skip
+        assert len(centres) == NUM_KEYPOINTS
+        np.testing.assert_allclose(centres, pose["keypoints"], atol=1e-6)
+        (lines,) = entity.lines
+        assert len(lines.points) == 2 * len(BONES)
+        meta = {kv.key: kv.value for kv in entity.metadata}
+        assert meta["seq"] == str(action["seq"])
+        assert meta["device_time_us"] == str(action["device_time_us"])
+        assert set(action["probabilities"]) == set(ACTIONS)
+        assert sum(action["probabilities"].values()) == pytest.approx(1.0, abs=1e-4)
+
+
+def test_export_of_a_broken_file_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "bad.scotti"
+    bad.write_bytes(b"not a session")
+    assert scotti(["session", "export", str(bad), "--mcap", str(tmp_path / "o.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("scotti session export: ")
+    assert err.count("\n") == 1
+
+
+def test_a_labelled_session_carries_its_ground_truth(exported: tuple[Path, Path, Any]) -> None:
+    _, _, (messages, schemas, _) = exported
+    assert schemas["/labels/skeleton"] == "foxglove.SceneUpdate"
+    labels = [m for _, m in messages["/labels"]]
+    assert [lb["seq"] for lb in labels] == list(range(FRAMES))
+    # write_synthetic_session labels frame i with action i // 16 and progress (i % 16) / 16.
+    assert [lb["action"] for lb in labels] == [
+        ACTIONS[i // 16 % len(ACTIONS)] for i in range(FRAMES)
+    ]
+    assert [lb["progress"] for lb in labels] == [(i % 16) / 16 for i in range(FRAMES)]
+    truth_times = [t for t, _ in messages["/labels/skeleton"]]
+    assert np.diff(truth_times).tolist() == [PERIOD_NS] * (FRAMES - 1)
+    (entity,) = messages["/labels/skeleton"][0][1].entities
+    assert entity.id == "ground_truth"
+    assert len(entity.spheres) == NUM_KEYPOINTS
