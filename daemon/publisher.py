@@ -289,11 +289,11 @@ class Publisher:
     def _nudge(self) -> None:
         """Write paho's queued packets now.
 
-        aiomqtt asks the loop to watch the socket for writability from paho's
-        callback, through ``call_soon_threadsafe``; around a reconnect that request
-        can be lost (the registration races the old socket's), and the packets then
-        sit in paho's queue until aiomqtt's 5 s timeout. Seen in the fault soak as
-        reconnects that took 6 s instead of 0.3.
+        Seen in the fault soak: reconnects that took 6 s instead of 0.3, the first
+        publish waiting out aiomqtt's 5 s timeout. The likely cause (not proven):
+        aiomqtt asks the loop to watch the socket for writability through
+        ``call_soon_threadsafe``, and around a reconnect that request can be lost
+        (it races the old socket's), leaving the packets in paho's queue.
         """
         paho_client = getattr(self._client, "_client", None)
         if paho_client is not None:

@@ -38,11 +38,13 @@ def test_every_fault_recovers_without_an_error_line(tiny_model_path: Path, tmp_p
     assert "Traceback" not in log
     # A pose made before the cut never follows "receiver disconnected".
     assert sum(r.after_disconnect for r in results) == 0, table
-    # One WARNING per outage (the cut, or the broker going away), with its reason.
-    for r in results:
-        if r.kind in ("unplug", "broker"):
-            assert r.warnings == 1, (r, log)
-    assert log.count("broker") >= 10  # the reasons were said, once each
-    assert "connection lost" in log
+    # One WARNING per outage, with its reason: the broker going away, the cut of the
+    # receiver. (Counted by source: on a loaded host the reader may also see a stall.)
+    lines = log.splitlines()
+    broker = [line for line in lines if line.startswith("WARNING scotti.daemon.publisher")]
+    assert len(broker) == 10, log
+    assert all("connection lost" in line for line in broker), broker
+    cuts = [line for line in lines if line.startswith("WARNING scotti.daemon.sources")]
+    assert len([line for line in cuts if " lost: " in line]) == 10, log
     # The silent foot never stopped the predictions.
     assert all(r.during > 0 for r in results if r.kind == "silent foot"), table

@@ -67,3 +67,14 @@ def test_the_command_prints_its_table(capsys: pytest.CaptureFixture[str]) -> Non
     assert "| all | 80 | 0 |" in out
     for target in fuzz.TARGETS:
         assert f"| {target} | 20 | 0 |" in out
+
+
+def test_a_seq_that_comes_round_again_is_a_new_frame_not_a_finding() -> None:
+    """The first run's two assembler findings: jumps ahead that add up to a wrap."""
+    import numpy as np
+    from scotti.firmware_protocol.packets import Foot, FrameRows
+
+    def whole(seq: int) -> FrameRows:
+        return FrameRows(Foot.LEFT, seq, 0, 32, 22, 12, 0, np.zeros((32, 22), np.uint16))
+
+    fuzz_inputs.check_assembler([(whole(s), 0) for s in (4, 20_004, 40_004, 4)])

@@ -2,7 +2,7 @@
 
 Generates 24 hours of 16 Hz frame pairs (1,382,400) as the receiver would send
 them (row blocks, COBS, CRC; seqs and board clocks counting and wrapping as in
-a real day: the u16 seq wraps 21 times, the u32 microsecond clock 19 times)
+a real day: the u16 seq wraps 21 times, the u32 microsecond clock 20 times)
 and feeds them through the real ``Daemon`` (decode, assemble, pair, window,
 onnxruntime, payloads, publisher into a real mosquitto). The source is not
 live, so the pipeline paces it: nothing is dropped for speed. Every
