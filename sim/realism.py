@@ -24,7 +24,7 @@ from typing import Final
 
 import numpy as np
 from scotti.models.contract import ACTIONS
-from scotti.sim.foot import Feet, draw_feet
+from scotti.sim.foot import ARCH_TYPES, Feet, draw_feet
 from scotti.sim.loads import FootLoads, foot_loads
 from scotti.sim.motion import Motion, Subject
 from scotti.sim.physics_figures import measure
@@ -216,6 +216,7 @@ def realism_markdown(result: Realism, command: str, pictures: list[tuple[str, st
     out += ["", f"{inside} of {len(measured)} measured figures inside their range.", ""]
     out += _subjects_table(result.subjects, result.feet, result.walking_shares)
     out += _spread_table(result.spread)
+    out += _feet_table(result.spread.subjects, result.spread.seed)
     if pictures:
         out += ["## Each action, rendered", ""]
         out += [
@@ -276,6 +277,41 @@ def _spread_table(spread: PopulationSpread) -> list[str]:
         for k in spread.strike_shares
     )
     return [*out, "", f"Strike patterns drawn: {shares}.", ""]
+
+
+def _feet_table(count: int, seed: int) -> list[str]:
+    """Arch types, ball widths and placements over the same population as the traits."""
+    feet = [
+        draw_feet(s.foot_length, s.style_seed, session_seed=i)
+        for i, s in enumerate(draw_subjects(count, seed))
+    ]
+    arches = [f.shape.arch for f in feet]
+    shares = ", ".join(f"{a} {arches.count(a) / len(arches):.2f}" for a in ARCH_TYPES)
+    columns = {
+        "arch height (mm)": [f.shape.arch_height_mm for f in feet],
+        "ball width (x foot length)": [f.shape.ball_width_ratio for f in feet],
+        "placement along (mm, left foot)": [f.placement[0].along_mm for f in feet],
+        "placement across (mm, left foot)": [f.placement[0].across_mm for f in feet],
+        "rotation on the insole (deg, left foot)": [f.placement[0].rotation_deg for f in feet],
+    }
+    out = [
+        "## How feet differ: shape and placement on the insole",
+        "",
+        f"The same {count} subjects' feet (`foot.draw_feet`, one session each). Arch types drawn:"
+        f" {shares} (aimed at a quarter high, half normal, a quarter flat after the arch-index"
+        " quartiles of Cavanagh & Rodgers 1987, J Biomech 20:547).",
+        "",
+        "| trait | min | 5 % | mean | 95 % | max |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, raw in columns.items():
+        v = np.asarray(raw, dtype=np.float64)
+        p5, p95 = np.percentile(v, [5, 95])
+        out.append(
+            f"| {name} | {_fmt(float(v.min()))} | {_fmt(float(p5))} | {_fmt(float(v.mean()))} |"
+            f" {_fmt(float(p95))} | {_fmt(float(v.max()))} |"
+        )
+    return [*out, ""]
 
 
 def render_pictures(subject: Subject, seed: int, out_dir: Path) -> list[tuple[str, Path]]:
