@@ -1,6 +1,6 @@
 """How fast the simulator makes session files, against real time.
 
-Generates ``minutes`` of a two-foot stream (all eight actions in turn) in
+Generates ``minutes`` of a two-foot stream (every action of the contract in turn) in
 three timed stages - motion, pressure + sensor effects, packets + file - and
 extrapolates to one hour. The target is 100x real time: an hour in < 36 s.
 """
@@ -50,7 +50,8 @@ class BenchResult:
     def lines(self) -> list[str]:
         hour = 3600.0 / self.ratio
         return [
-            f"simulated {self.simulated_s:.0f} s ({self.frames} frames x 2 feet, 8 actions)",
+            f"simulated {self.simulated_s:.0f} s"
+            f" ({self.frames} frames x 2 feet, {len(ACTIONS)} actions)",
             f"  motion (sim-body kinematics)     {self.motion_s:8.2f} s",
             f"  pressure + sensor effects only   {self.pressure_s:8.2f} s (measured apart)",
             f"  pressure, packets, session file  {self.session_s:8.2f} s"
