@@ -325,6 +325,7 @@ def render_pictures(subject: Subject, seed: int, out_dir: Path) -> list[tuple[st
         for action in ACTIONS:
             scene = Scene(
                 name=f"realism-{action}",
+                description=f"{action}, 12 s, the first measured subject, realistic insole",
                 seed=seed,
                 subject=measuring_scene(subject, seed).subject,
                 script=[ScriptEntry(action=action, duration_s=12.0, stand_s=1.0)],
