@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 from scotti.importers.grid import GridMapper, Orientation
-from scotti.importers.pose import pose_frame, up_rotation
+from scotti.importers.pose import STANDING_POSE, pose_frame, up_rotation
 from scotti.importers.timebase import PERIOD_S, box_average, plan_timeline
 from scotti.models.contract import BONES, KEYPOINTS, KP
 from scotti.models.insole import counts_from_kpa, insole_mask
@@ -115,32 +115,9 @@ def draw_time(path: Path) -> None:
     plt.close(fig)
 
 
-_STAND: dict[str, tuple[float, float, float]] = {
-    "nose": (0.08, 0.0, 1.62),
-    "left_shoulder": (0.0, 0.18, 1.42),
-    "right_shoulder": (0.0, -0.18, 1.42),
-    "left_elbow": (0.0, 0.22, 1.12),
-    "right_elbow": (0.0, -0.22, 1.12),
-    "left_wrist": (0.05, 0.22, 0.86),
-    "right_wrist": (0.05, -0.22, 0.86),
-    "left_hip": (0.0, 0.1, 0.92),
-    "right_hip": (0.0, -0.1, 0.92),
-    "left_knee": (0.02, 0.1, 0.5),
-    "right_knee": (0.02, -0.1, 0.5),
-    "left_ankle": (-0.02, 0.1, 0.08),
-    "right_ankle": (-0.02, -0.1, 0.08),
-    "left_big_toe": (0.18, 0.12, 0.0),
-    "left_small_toe": (0.15, 0.16, 0.0),
-    "left_heel": (-0.05, 0.1, 0.0),
-    "right_big_toe": (0.18, -0.12, 0.0),
-    "right_small_toe": (0.15, -0.16, 0.0),
-    "right_heel": (-0.05, -0.1, 0.0),
-}
-
-
 def draw_pose(path: Path) -> None:
     plt = _plt()
-    pose = np.array([_STAND[name] for name in KEYPOINTS])
+    pose = np.array([STANDING_POSE[name] for name in KEYPOINTS])
     heading = 0.9
     c, s = np.cos(heading), np.sin(heading)
     world = pose.copy()

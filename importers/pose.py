@@ -33,6 +33,30 @@ from scotti.importers.keypoint_sets import SET_MAPPINGS, SETS, source_index
 from scotti.importers.tables import CsvTable, load_arrays, read_csv
 from scotti.models.contract import KEYPOINTS, KP, NUM_KEYPOINTS
 
+# A person standing in the pose frame (metres; x forwards, y left, z up, floor at 0):
+# the reference the pictures draw and the tests build foreign recordings from.
+STANDING_POSE: Final[dict[str, tuple[float, float, float]]] = {
+    "nose": (0.08, 0.0, 1.62),
+    "left_shoulder": (0.0, 0.18, 1.42),
+    "right_shoulder": (0.0, -0.18, 1.42),
+    "left_elbow": (0.0, 0.22, 1.12),
+    "right_elbow": (0.0, -0.22, 1.12),
+    "left_wrist": (0.05, 0.22, 0.86),
+    "right_wrist": (0.05, -0.22, 0.86),
+    "left_hip": (0.0, 0.1, 0.92),
+    "right_hip": (0.0, -0.1, 0.92),
+    "left_knee": (0.02, 0.1, 0.5),
+    "right_knee": (0.02, -0.1, 0.5),
+    "left_ankle": (-0.02, 0.1, 0.08),
+    "right_ankle": (-0.02, -0.1, 0.08),
+    "left_big_toe": (0.18, 0.12, 0.0),
+    "left_small_toe": (0.15, 0.16, 0.0),
+    "left_heel": (-0.05, 0.1, 0.0),
+    "right_big_toe": (0.18, -0.12, 0.0),
+    "right_small_toe": (0.15, -0.16, 0.0),
+    "right_heel": (-0.05, -0.1, 0.0),
+}
+
 _FEET_POINTS: Final = [KP[n] for n in KEYPOINTS if n.endswith(("heel", "toe", "ankle"))]
 _HEADING_SMOOTH_FRAMES: Final = 9  # 0.5 s at 16 Hz, centred
 FLOOR_PERCENTILE: Final = 5.0

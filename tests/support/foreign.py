@@ -14,30 +14,11 @@ from pathlib import Path
 
 import numpy as np
 from scotti.importers.keypoint_sets import BODY25, COCO_WHOLEBODY, MEDIAPIPE33, SET_MAPPINGS
+from scotti.importers.pose import STANDING_POSE
 from scotti.models.contract import KEYPOINTS, KP
 
 # Standing, facing +x, left = +y, feet flat on the floor (z = 0), metres.
-TEMPLATE: dict[str, tuple[float, float, float]] = {
-    "nose": (0.08, 0.0, 1.62),
-    "left_shoulder": (0.0, 0.18, 1.42),
-    "right_shoulder": (0.0, -0.18, 1.42),
-    "left_elbow": (0.0, 0.22, 1.12),
-    "right_elbow": (0.0, -0.22, 1.12),
-    "left_wrist": (0.05, 0.22, 0.86),
-    "right_wrist": (0.05, -0.22, 0.86),
-    "left_hip": (0.0, 0.1, 0.92),
-    "right_hip": (0.0, -0.1, 0.92),
-    "left_knee": (0.02, 0.1, 0.5),
-    "right_knee": (0.02, -0.1, 0.5),
-    "left_ankle": (-0.02, 0.1, 0.08),
-    "right_ankle": (-0.02, -0.1, 0.08),
-    "left_big_toe": (0.18, 0.12, 0.0),
-    "left_small_toe": (0.15, 0.16, 0.0),
-    "left_heel": (-0.05, 0.1, 0.0),
-    "right_big_toe": (0.18, -0.12, 0.0),
-    "right_small_toe": (0.15, -0.16, 0.0),
-    "right_heel": (-0.05, -0.1, 0.0),
-}
+TEMPLATE = STANDING_POSE
 UPPER = {"nose", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist"}
 UPPER |= {"right_wrist", "left_hip", "right_hip"}
 
