@@ -98,11 +98,7 @@ def load_span(
         msg = f"{path}: no labelled frames in that span"
         raise RenderError(msg)
     span = _assemble(header, labels, blocks, t0 or 0)
-    inside = [r for r in sources if begin - _MARGIN_NS <= r.t_ns < end + _MARGIN_NS]
-    if inside:
-        times = np.array([(r.t_ns - (t0 or 0)) / 1e9 for r in inside])
-        span = replace(span, source_time_s=times, source_frames=[r.frames for r in inside])
-    return span
+    return _with_sources(span, sources, begin, end, t0 or 0)
 
 
 def _unlabelled_span(
@@ -151,11 +147,18 @@ def _unlabelled_span(
         msg = f"{path}: no frames in that span"
         raise RenderError(msg)
     span = _assemble(header, labels, blocks, t0 or 0)
+    return _with_sources(span, sources, begin, end, t0 or 0)
+
+
+def _with_sources(
+    span: Span, sources: list[SourceFrameRecord], begin: int, end: int, t0: int
+) -> Span:
+    """``span`` with the imported source frames stored between ``begin`` and ``end``."""
     inside = [r for r in sources if begin - _MARGIN_NS <= r.t_ns < end + _MARGIN_NS]
-    if inside:
-        times_s = np.array([(r.t_ns - (t0 or 0)) / 1e9 for r in inside])
-        span = replace(span, source_time_s=times_s, source_frames=[r.frames for r in inside])
-    return span
+    if not inside:
+        return span
+    times_s = np.array([(r.t_ns - t0) / 1e9 for r in inside])
+    return replace(span, source_time_s=times_s, source_frames=[r.frames for r in inside])
 
 
 def _assemble(
