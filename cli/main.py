@@ -17,12 +17,12 @@ from typing import Protocol, cast
 # ``add_arguments(parser)`` and ``run(args) -> int``.
 VERBS: dict[str, tuple[str, str]] = {
     "session": ("scotti.firmware_protocol.cli", "inspect session files"),
-    "board": ("scotti.daemon.board_emulator_cli", "emulate the receiver board on a pty"),
+    "board": ("scotti.daemon.tools.board_emulator_cli", "emulate the receiver board on a pty"),
     "sim": ("scotti.sim.cli", "simulate scenes into session files"),
     "import": ("scotti.importers.cli", "import other insoles' and motion-capture recordings"),
     "train": ("scotti.export.train_cli", "train SCOTTI on session files (needs [train])"),
     "export": ("scotti.export.export_cli", "export a checkpoint to ONNX (needs [train])"),
-    "eval": ("scotti.daemon.eval_cli", "evaluate a model on session files"),
+    "eval": ("scotti.evaluation.cli", "evaluate a model on session files"),
 }
 # "verb action" pairs implemented outside the verb's room: ``session export`` runs the
 # model, which firmware_protocol (the owner of ``session``) must not import.

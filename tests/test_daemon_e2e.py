@@ -17,8 +17,8 @@ from typing import Any
 
 import pytest
 from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.local_broker import Mosquitto
 from scotti.daemon.schemas import Action, Health, Info, Pose, Progress, Status
+from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.session import read_session
 from scotti.models.contract import KEYPOINTS, WINDOW
 

@@ -33,7 +33,6 @@ def test_every_daemon_exception_derives_from_daemon_error() -> None:
         "scotti.daemon.sources.SourceError",
         "scotti.daemon.recording.RecordingError",
         "scotti.daemon.board_emulator.EmulatorError",
-        "scotti.daemon.evaluation.EvaluationError",
     } <= names
     stray = sorted(
         n

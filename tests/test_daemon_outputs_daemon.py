@@ -11,9 +11,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scotti.daemon.local_broker import Mosquitto
 from scotti.daemon.main import build_parser, cli_overrides, main
 from scotti.daemon.settings import load_settings
+from scotti.daemon.tools.local_broker import Mosquitto
 
 from tests.support.broker import collect, payloads, start_daemon
 from tests.support.sessions import write_synthetic_session

@@ -10,10 +10,10 @@ from typing import Literal
 import msgpack
 import pytest
 from pydantic import BaseModel
-from scotti.daemon.local_broker import Mosquitto
 from scotti.daemon.publisher import FrameBatch, Publisher
 from scotti.daemon.schemas import DeviceSeq, Info, Progress, Status
 from scotti.daemon.settings import MqttSettings
+from scotti.daemon.tools.local_broker import Mosquitto
 
 from tests.support.broker import Received, collect
 

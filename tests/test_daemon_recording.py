@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 from scotti.daemon.counters import Counters
-from scotti.daemon.local_broker import Mosquitto
 from scotti.daemon.pipeline import Pipeline
 from scotti.daemon.recording import Recorder, RecordingError, candidate_paths
 from scotti.daemon.sources import ReplaySource
+from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.session import read_session
 from scotti.models.runtime import ScottiRuntime
 

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from scotti.daemon.local_broker import Mosquitto
+from scotti.daemon.tools.local_broker import Mosquitto
 
 from tests.support.broker import DaemonProcess, collect, payloads, start_daemon
 from tests.support.certs import Certs, make_certs

@@ -2,7 +2,7 @@
 
 The long runs themselves (training, the sweep) are commands, never tests; here
 their pieces run on small synthetic inputs: reports made by the real
-``scotti.daemon.evaluation.score`` on random frames.
+``scotti.evaluation.evaluation.score`` on random frames.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from scotti.daemon.evaluation import FrameSet, score, task_metrics
+from scotti.evaluation.evaluation import FrameSet, score, task_metrics
 from scotti.models.contract import NUM_ACTIONS, has_progress
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"

@@ -26,10 +26,10 @@ from pathlib import Path
 from typing import Final
 
 from scotti.daemon.app import Daemon
-from scotti.daemon.local_broker import BrokerError, Mosquitto
 from scotti.daemon.settings import ConfigError, Settings, default_model_path, load_settings
 from scotti.daemon.sources import Source, SourceEvent, SourceItem
 from scotti.daemon.tools.generated import GeneratedBoard
+from scotti.daemon.tools.local_broker import BrokerError, Mosquitto
 from scotti.models.contract import FRAME_RATE_HZ
 from scotti.models.errors import ModelError
 from scotti.models.runtime import ScottiRuntime

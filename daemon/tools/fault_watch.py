@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 import aiomqtt
-from scotti.daemon.local_broker import Mosquitto
+from scotti.daemon.tools.local_broker import Mosquitto
 
 KEPT: Final = ("status", "pose", "health")
 RETRY_S: Final = 0.02  # the watcher must be back before the daemon (backoff >= 0.25 s)

@@ -42,10 +42,10 @@ from pathlib import Path
 from typing import Any, Final
 
 from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.local_broker import BrokerError, Mosquitto
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.daemon.tools.fault_watch import Watcher
 from scotti.daemon.tools.generated import GeneratedBoard
+from scotti.daemon.tools.local_broker import BrokerError, Mosquitto
 from scotti.firmware_protocol.framing import decode_all
 from scotti.models.contract import WINDOW
 

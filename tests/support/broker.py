@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import aiomqtt
-from scotti.daemon.local_broker import Mosquitto
+from scotti.daemon.tools.local_broker import Mosquitto
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
-from scotti.daemon.local_broker import Mosquitto
+from scotti.daemon.tools.local_broker import Mosquitto
 
 
 @pytest.fixture

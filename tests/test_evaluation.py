@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scotti.cli.main import main
-from scotti.daemon.evaluation import (
+from scotti.evaluation.evaluation import (
     FrameSet,
     evaluate_models,
     evaluate_sessions,
@@ -259,3 +259,12 @@ def test_cli_defaults_to_the_shipped_model_and_leaves_out_absent_actions(
     assert "nan" not in out
     assert "not in these sessions: " in out
     assert "MPJPE: mean per-joint position error" in out
+
+
+def test_evaluation_errors_share_the_daemon_root() -> None:
+    # scotti eval replays through the daemon's own path, so the CLI's one-line
+    # error handling for DaemonError covers evaluation mistakes too.
+    from scotti.daemon.errors import DaemonError
+    from scotti.evaluation.evaluation import EvaluationError
+
+    assert issubclass(EvaluationError, DaemonError)

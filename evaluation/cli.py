@@ -1,7 +1,7 @@
 """``scotti eval SESSIONS... [--model M] [--json] [--plots DIR]``: score a model like the paper.
 
 Replays labelled session files through the daemon's own streaming path (see
-``scotti.daemon.evaluation``) as fast as the model runs, and prints MPJPE,
+``scotti.evaluation.evaluation``) as fast as the model runs, and prints MPJPE,
 MPJAE, action accuracy and the confusion matrix, progress MSE and APP,
 overall and per action, next to a random baseline. ``--plots DIR`` writes the
 precision-margin curve and the confusion matrix as PNG files. ``--every K``
@@ -18,8 +18,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from scotti.daemon.evaluation import EvaluationError, evaluate_models
 from scotti.daemon.settings import ConfigError, default_model_path
+from scotti.evaluation.evaluation import EvaluationError, evaluate_models
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.session import find_session_files
 from scotti.models.contract import ACTIONS

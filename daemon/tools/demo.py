@@ -7,7 +7,7 @@ installed, else an embedded amqtt); the terminal view subscribes over MQTT
 like any robot controller would. Ctrl-C (or ``--duration``) ends it all:
 the daemon stops gracefully first (publishing ``offline``), then the broker.
 
-    python -m scotti.daemon.demo [--duration S] [--scene demo] [--model PATH]
+    python -m scotti.daemon.tools.demo [--duration S] [--scene demo] [--model PATH]
 """
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 from scotti.daemon.errors import DaemonError
-from scotti.daemon.local_broker import Mosquitto, find_mosquitto, free_port
 from scotti.daemon.settings import EX_CONFIG, ConfigError, MqttSettings, default_model_path
 from scotti.daemon.sources_sim import resolve_scene
-from scotti.daemon.viewer import run_viewer
+from scotti.daemon.tools.local_broker import Mosquitto, find_mosquitto, free_port
+from scotti.daemon.tools.viewer import run_viewer
 
 DEVICE = "demo"
 

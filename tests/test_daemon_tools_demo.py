@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scotti.daemon.local_broker import Mosquitto
 from scotti.daemon.messages import downsample
 from scotti.daemon.schemas import Pressure
-from scotti.daemon.viewer import ViewState, decode_payload, pressure_grid, render
+from scotti.daemon.tools.local_broker import Mosquitto
+from scotti.daemon.tools.viewer import ViewState, decode_payload, pressure_grid, render
 from scotti.firmware_protocol.packets import Foot
 
 from tests.support.broker import collect, start_daemon
@@ -167,7 +167,7 @@ def test_pressure_topic_carries_the_downsampled_frames(
 @pytest.mark.mosquitto
 @pytest.mark.slow
 def test_demo_runs_for_a_duration_and_ends_cleanly(tiny_model_path: Path) -> None:
-    demo = [sys.executable, "-m", "scotti.daemon.demo", "--duration", "8", "--speed", "2"]
+    demo = [sys.executable, "-m", "scotti.daemon.tools.demo", "--duration", "8", "--speed", "2"]
     out = subprocess.run(
         [*demo, "--model", str(tiny_model_path)],
         capture_output=True,
@@ -189,7 +189,7 @@ def test_demo_runs_for_a_duration_and_ends_cleanly(tiny_model_path: Path) -> Non
 def test_demo_with_an_unknown_scene_is_one_line(
     tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from scotti.daemon import demo
+    from scotti.daemon.tools import demo
 
     assert demo.main(["--scene", "no-such-scene", "--model", str(tiny_model_path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()

@@ -5,7 +5,7 @@ action with its confidence and every action's probability, a progress bar
 with the repetition count, status and latency. ``render`` is a pure function
 of what arrived, so it is tested without a terminal.
 
-    python -m scotti.daemon.viewer --broker mqtt://localhost:1883 [--device ID]
+    python -m scotti.daemon.tools.viewer --broker mqtt://localhost:1883 [--device ID]
 """
 
 from __future__ import annotations
@@ -241,7 +241,7 @@ async def _draw(state: ViewState, stop: asyncio.Event, out: TextIO, fps: float) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m scotti.daemon.viewer")
+    parser = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.viewer")
     parser.add_argument("--broker", default="mqtt://localhost:1883")
     parser.add_argument("--topic-prefix", default="scotti")
     parser.add_argument("--device", default="+", help="device id (default: any)")

@@ -8,8 +8,8 @@ import time
 
 import aiomqtt
 import pytest
-from scotti.daemon.bench import PERIOD_NS, board_records, collect
-from scotti.daemon.local_broker import Mosquitto
+from scotti.daemon.tools.bench import PERIOD_NS, board_records, collect
+from scotti.daemon.tools.local_broker import Mosquitto
 
 
 def test_board_records_are_four_row_blocks_per_foot_frame() -> None:
@@ -45,8 +45,8 @@ def test_collect_ends_on_time_under_a_flood_of_poses(mosquitto: Mosquitto) -> No
 
 
 def test_bench_percentiles_and_the_health_ring_summarise_alike() -> None:
-    from scotti.daemon.bench import percentiles
     from scotti.daemon.counters import LatencyRing
+    from scotti.daemon.tools.bench import percentiles
 
     values = [1.0, 2.0, 3.0, 10.0]
     ring = LatencyRing(8)

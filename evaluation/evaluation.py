@@ -27,9 +27,9 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 from scotti.daemon.errors import DaemonError
-from scotti.daemon.eval_sampling import Prediction, SampledTrack, window_timing
 from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.daemon.window import Window
+from scotti.evaluation.sampling import Prediction, SampledTrack, window_timing
 from scotti.firmware_protocol.assembly import FrameAssembler
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
