@@ -142,6 +142,19 @@ def barrier(ctx: DistContext) -> None:
         dist.barrier()
 
 
+def sync_buffers(module: torch.nn.Module, ctx: DistContext) -> None:
+    """Rank 0's buffers (batch-norm running statistics) on every rank.
+
+    DDP hands rank 0's buffers to all ranks at the start of each forward pass,
+    but the pass itself then updates each rank's copy from its own batch; after
+    the last step they differ until synced here.
+    """
+    if not ctx.distributed:
+        return
+    for buffer in module.buffers():
+        dist.broadcast(buffer, src=0)
+
+
 def wrap(module: torch.nn.Module, ctx: DistContext, device: torch.device) -> torch.nn.Module:
     """``module`` under DDP when there are several ranks (on the GPU of this rank)."""
     if not ctx.distributed:

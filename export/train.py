@@ -324,6 +324,7 @@ class Trainer:
     def checkpoint(self) -> dict[str, Any]:
         """The run as plain values (a collective under torchrun: every rank calls it)."""
         st = self.state
+        distributed.sync_buffers(self.model, self.dist)
         rng: dict[str, Any] = dict(self._rng_state())
         if self.dist.distributed:
             rng["by_rank"] = distributed.gather(self._rng_state(), self.dist)

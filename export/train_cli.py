@@ -253,6 +253,12 @@ def _options(args: argparse.Namespace) -> TrainOptions:
 
 
 def _run(args: argparse.Namespace) -> int:
+    run_training(args)
+    return 0
+
+
+def run_training(args: argparse.Namespace) -> Trainer | None:
+    """This process's part of the run: alone, or one rank of torchrun's (its environment)."""
     ctx = context_from_environment()
     if not ctx.is_main:
         logging.getLogger().setLevel(logging.WARNING)  # rank 0 alone logs
@@ -262,8 +268,7 @@ def _run(args: argparse.Namespace) -> int:
     device = resolve_device(args.device, ctx.local_rank)
     check_precision(args.precision, device)
     with distributed.process_group(ctx, device):
-        train(args, ctx=ctx, device=device)
-    return 0
+        return train(args, ctx=ctx, device=device)
 
 
 def train(
