@@ -114,3 +114,15 @@ def test_benchmark_prints_fp32_and_bf16_side_by_side(
     assert float(rates.group(1)) > 0
     assert float(rates.group(2)) > 0
     assert not (tmp_path / "r" / "last.pt").exists()  # measured, not trained
+
+
+def test_help_lists_the_device_and_distributed_options(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit) as exited:
+        main(["train", "--help"])
+    assert exited.value.code == 0
+    text = capsys.readouterr().out
+    for option in ("--device", "--precision", "--workers", "torchrun", "--val-subjects"):
+        assert option in text, option
+    assert "--patience" in text
