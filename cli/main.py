@@ -21,6 +21,7 @@ VERBS: dict[str, tuple[str, str]] = {
     "sim": ("scotti.sim.cli", "simulate scenes into session files"),
     "import": ("scotti.importers.cli", "import other insoles' and motion-capture recordings"),
     "train": ("scotti.export.train_cli", "train SCOTTI on session files (needs [train])"),
+    "train-history": ("scotti.export.history", "draw a training run's history.jsonl into a PNG"),
     "export": ("scotti.export.export_cli", "export a checkpoint to ONNX (needs [train])"),
     "eval": ("scotti.evaluation.cli", "evaluate a model on session files"),
 }

@@ -50,12 +50,14 @@ def predict(
     """Outputs for every usable window at ``stride`` (phase 0), and their labels."""
     was_training = model.training
     model.eval()
+    device = next(model.parameters()).device  # the model's, CPU or GPU; results come back
     outs: list[ScottiOutputs] = []
     keypoints, action, progress = [], [], []
     with torch.no_grad():
         for c in dataset.chunks(stride=stride, chunk=EVAL_CHUNK):
-            frames = torch.from_numpy(dataset.frames(c).astype(np.float32))
-            outs.append(chunked_outputs(model, [frames], dataset.window, stride))
+            frames = torch.from_numpy(dataset.frames(c).astype(np.float32)).to(device)
+            out = chunked_outputs(model, [frames], dataset.window, stride)
+            outs.append(ScottiOutputs(*(o.float().cpu() for o in out)))
             t = dataset.targets(c)
             keypoints.append(t.keypoints)
             action.append(t.action)

@@ -1,4 +1,5 @@
-"""Training SCOTTI: chunked embeddings, Adam with warmup + cosine, exact resume.
+"""Training SCOTTI: chunked embeddings, Adam with warmup + cosine, exact resume,
+any device, several processes, early stopping on a validation plateau.
 
 A step takes ``batch`` windows as a few chunks of ``chunk`` consecutive
 windows. The CNN sees each frame of a chunk once; the chunk's windows are
@@ -6,10 +7,12 @@ then views (unfold) of its embeddings. This is exact because the CNN works
 per frame, and it cuts the CNN's work from T frames per window to about
 stride + T/chunk (export/TRAINING.md has the measured gain).
 
-Everything random in an epoch (window phase, chunk cuts, order, shifts) is
-drawn from a generator seeded with (seed, epoch); dropout uses torch's
-generator, whose state the checkpoint keeps. So a run stopped after any
-step and resumed from its checkpoint continues exactly as if never stopped.
+Everything random in an epoch is drawn from a generator seeded with (seed,
+epoch) (export/epochs.py); dropout uses torch's generator, whose state the
+checkpoint keeps. So a run stopped after any step and resumed from its
+checkpoint continues exactly as if never stopped. Batches are built ahead
+in background threads (export/prefetch.py) without changing any number;
+under torchrun each rank takes its share of the plan (export/distributed.py).
 """
 
 from __future__ import annotations
@@ -18,21 +21,43 @@ import json
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from contextlib import closing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
-from scotti.export.augment import draw_shifts, shift_feet
+from scotti.export import distributed
 from scotti.export.checkpoint import save_checkpoint
+from scotti.export.devices import autocast, batch_to_device, pin_batch
+from scotti.export.distributed import DistContext
+from scotti.export.early_stop import plateau
+from scotti.export.epochs import PlannedChunk, batch_tensors, plan_epoch, warmup_cosine
 from scotti.export.errors import ExportError
-from scotti.export.evaluate import chunked_outputs, evaluate, to_targets
+from scotti.export.evaluate import chunked_outputs, evaluate
+from scotti.export.finetune import FREEZE_GROUPS, freeze_parts, load_initial_weights
 from scotti.export.losses import LossWeights, ScottiTargets, scotti_loss
-from scotti.export.model import Scotti
-from scotti.export.windows import Chunk, WindowDataset
+from scotti.export.model import Scotti, ScottiOutputs
+from scotti.export.prefetch import prefetched
+from scotti.export.throughput import measure_throughput, unfold_frames
+from scotti.export.windows import WindowDataset
 from tqdm import tqdm
+
+# The pieces that moved into their own modules, still importable from here.
+__all__ = [
+    "FREEZE_GROUPS",
+    "PlannedChunk",
+    "TrainOptions",
+    "Trainer",
+    "TrainingDivergedError",
+    "batch_tensors",
+    "freeze_parts",
+    "load_initial_weights",
+    "measure_throughput",
+    "plan_epoch",
+    "unfold_frames",
+    "warmup_cosine",
+]
 
 log = logging.getLogger(__name__)
 
@@ -43,8 +68,8 @@ class TrainingDivergedError(ExportError):
 
 @dataclass(frozen=True)
 class TrainOptions:
-    epochs: int = 10
-    batch: int = 32  # windows per optimiser step (a step may run up to chunk-1 over)
+    epochs: int = 10  # at most; a validation plateau (patience) may end the run sooner
+    batch: int = 32  # windows per optimiser step and rank (a step may run up to chunk-1 over)
     chunk: int = 8  # consecutive windows that share one pass of their frames through the CNN
     stride: int = 2  # slots between the starts of windows in an epoch (random phase per epoch)
     val_stride: int = 4  # the same for validation (fixed phase 0)
@@ -58,122 +83,25 @@ class TrainOptions:
     progress_bar: bool = True
     loss_weights: LossWeights = field(default_factory=LossWeights)
     freeze: tuple[str, ...] = ()  # parts kept as they are (FREEZE_GROUPS), e.g. to fine-tune
+    precision: str = "fp32"  # or "bf16": autocast of the forward pass (devices.py)
+    workers: int = 1  # threads building batches ahead of the step; 0 = in the loop
+    patience: int = 4  # epochs without a validation improvement before stopping; 0 = never
+    min_delta: float = 1e-3  # what counts as an improvement of the validation loss
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
-# Parts of the model that fine-tuning may keep fixed: the per-frame CNN, and the
-# encoder (class token, positions, transformer layers, final norm, pooling).
-FREEZE_GROUPS = ("cnn", "encoder")
+class ChunkedWindows(torch.nn.Module):
+    """The training forward pass as one module's ``forward``, so DDP's hooks see it."""
 
+    def __init__(self, model: Scotti, stride: int) -> None:
+        super().__init__()
+        self.model = model
+        self.stride = stride
 
-def freeze_parts(model: Scotti, groups: Sequence[str]) -> list[torch.nn.Module]:
-    """Stop gradients into the named parts; returns their modules (kept in eval mode
-    while training, so batch-norm statistics and dropout stay as they were)."""
-    unknown = sorted(set(groups) - set(FREEZE_GROUPS))
-    if unknown:
-        msg = f"cannot freeze {', '.join(unknown)}: the parts are {', '.join(FREEZE_GROUPS)}"
-        raise ExportError(msg)
-    modules: list[torch.nn.Module] = []
-    params: list[torch.nn.Parameter] = []
-    if "cnn" in groups:
-        modules.append(model.cnn)
-        params += list(model.cnn.parameters())
-    if "encoder" in groups:
-        modules += [model.encoder, model.ln_final]
-        params += [model.class_token, model.positions, model.pool_weights]
-        params += list(model.encoder.parameters()) + list(model.ln_final.parameters())
-    for p in params:
-        p.requires_grad_(False)
-    return modules
-
-
-def load_initial_weights(model: Scotti, state: dict[str, torch.Tensor]) -> list[str]:
-    """Start from another run's weights (``--init``); returns what could not be copied whole.
-
-    The action head may have grown since the checkpoint (the contract appends
-    actions at the end): its rows for the actions both know are copied, the new
-    ones keep their fresh initialisation. Any other difference is an error.
-    """
-    own = model.state_dict()
-    notes: list[str] = []
-    missing = sorted(set(own) - set(state))
-    unexpected = sorted(set(state) - set(own))
-    if missing or unexpected:
-        msg = f"--init checkpoint does not fit this model (missing {missing[:3]}, extra "
-        msg += f"{unexpected[:3]})"
-        raise ExportError(msg)
-    merged: dict[str, torch.Tensor] = {}
-    for name, value in state.items():
-        mine = own[name]
-        if value.shape == mine.shape:
-            merged[name] = value
-        elif (
-            name.startswith("action_head.")
-            and value.shape[1:] == mine.shape[1:]
-            and value.shape[0] < mine.shape[0]
-        ):
-            grown = mine.clone()
-            grown[: value.shape[0]] = value
-            merged[name] = grown
-            notes.append(f"{name}: {value.shape[0]} of {mine.shape[0]} rows from the checkpoint")
-        else:
-            msg = f"--init checkpoint's {name} is {tuple(value.shape)}, this model's "
-            msg += f"{tuple(mine.shape)}"
-            raise ExportError(msg)
-    model.load_state_dict(merged)
-    return notes
-
-
-@dataclass(frozen=True)
-class PlannedChunk:
-    chunk: Chunk
-    shifts: np.ndarray  # (2, 2) (rows, cols) per foot
-
-
-def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[list[PlannedChunk]]:
-    """The epoch's batches, a pure function of (dataset, options, seed, epoch)."""
-    rng = np.random.default_rng([opts.seed, epoch])
-    phase = int(rng.integers(opts.stride))
-    chunks = dataset.chunks(stride=opts.stride, chunk=opts.chunk, phase=phase, rng=rng)
-    batches: list[list[PlannedChunk]] = []
-    current: list[PlannedChunk] = []
-    windows = 0
-    for i in rng.permutation(len(chunks)):
-        current.append(PlannedChunk(chunks[i], draw_shifts(rng, opts.max_shift)))
-        windows += chunks[i].count
-        if windows >= opts.batch:
-            batches.append(current)
-            current, windows = [], 0
-    if current:
-        batches.append(current)
-    return batches
-
-
-def batch_tensors(
-    dataset: WindowDataset, batch: Sequence[PlannedChunk]
-) -> tuple[list[torch.Tensor], ScottiTargets]:
-    """Shifted frames (float32 counts) per chunk and the batch's targets."""
-    cols = dataset.sessions[0].frames.shape[2] // 2
-    frames = [
-        torch.from_numpy(shift_feet(dataset.frames(p.chunk), p.shifts, cols).astype(np.float32))
-        for p in batch
-    ]
-    return frames, to_targets([dataset.targets(p.chunk) for p in batch])
-
-
-def warmup_cosine(total_steps: int, warmup_fraction: float) -> Callable[[int], float]:
-    """LR factor: linear from ~0 to 1 over the warmup, then cosine down to 0 at the end."""
-    warmup = max(1, round(warmup_fraction * total_steps))
-
-    def factor(step: int) -> float:
-        if step < warmup:
-            return (step + 1) / warmup
-        done = min(1.0, (step - warmup) / max(1, total_steps - warmup))
-        return 0.5 * (1.0 + math.cos(math.pi * done))
-
-    return factor
+    def forward(self, frames: list[torch.Tensor]) -> ScottiOutputs:
+        return chunked_outputs(self.model, frames, self.model.cfg.window, self.stride)
 
 
 @dataclass
@@ -181,11 +109,12 @@ class TrainState:
     """Where a run is: completed epochs, steps into the current one, and history."""
 
     epoch: int = 0
-    step_in_epoch: int = 0
+    step_in_epoch: int = 0  # steps of this rank's share of the epoch's plan
     global_step: int = 0
     history: list[dict[str, Any]] = field(default_factory=list)
     best_loss: float = math.inf
-    # running sums of the epoch in progress (kept so a mid-epoch resume reports the same)
+    # running sums of the epoch in progress, over all ranks (kept so a mid-epoch
+    # resume reports the same)
     epoch_loss_sum: float = 0.0
     epoch_windows: int = 0
 
@@ -197,26 +126,30 @@ class Trainer:
         self,
         model: Scotti,
         train_set: WindowDataset,
-        test_set: WindowDataset | None,
+        val_set: WindowDataset | None,
         opts: TrainOptions,
         *,
         run_dir: Path | None = None,
         training_data: dict[str, Any] | None = None,
+        device: torch.device | None = None,
+        dist_ctx: DistContext | None = None,
     ) -> None:
-        self.model = model
+        self.device = device or torch.device("cpu")
+        self.dist = dist_ctx or DistContext()
+        self.model = model.to(self.device)
         self.train_set = train_set
-        self.test_set = test_set
+        self.val_set = val_set
         self.opts = opts
         self.run_dir = run_dir
         self.training_data = training_data or {}
-        self.window = model.cfg.window
         self.frozen = freeze_parts(model, opts.freeze)
+        self.forward = distributed.wrap(ChunkedWindows(model, opts.stride), self.dist, self.device)
         self.optimizer = torch.optim.Adam(
             [p for p in model.parameters() if p.requires_grad],
             lr=opts.lr,
             weight_decay=opts.weight_decay,
         )
-        self.total_steps = max(1, opts.epochs * len(plan_epoch(train_set, opts, 0)))
+        self.total_steps = max(1, opts.epochs * len(self.epoch_batches(0)))
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, warmup_cosine(self.total_steps, opts.warmup_fraction)
         )
@@ -224,15 +157,25 @@ class Trainer:
         self.last_metrics: dict[str, Any] = {}
         self.step_losses: list[float] = []  # every step's loss in this process, for tests
 
+    def epoch_batches(self, epoch: int) -> list[list[PlannedChunk]]:
+        """This rank's batches of the epoch (all of them in a single process)."""
+        return distributed.shard(plan_epoch(self.train_set, self.opts, epoch), self.dist)
+
+    def _build(self, batch: list[PlannedChunk]) -> tuple[list[torch.Tensor], ScottiTargets]:
+        """A batch's tensors on the CPU, pinned for a GPU (runs in a prefetch thread)."""
+        return pin_batch(*batch_tensors(self.train_set, batch), self.device)
+
     # --- one step ------------------------------------------------------------
 
-    def train_step(self, batch: Sequence[PlannedChunk]) -> tuple[float, int]:
-        """One optimiser step; returns the batch's mean loss and its window count."""
+    def train_step(self, frames: list[torch.Tensor], targets: ScottiTargets) -> tuple[float, int]:
+        """One optimiser step; returns the mean loss and the window count over all ranks."""
         self.model.train()
         for module in self.frozen:
             module.eval()  # frozen: batch-norm statistics and dropout as they were
-        frames, targets = batch_tensors(self.train_set, batch)
-        outputs = chunked_outputs(self.model, frames, self.window, self.opts.stride)
+        with autocast(self.device, self.opts.precision):
+            outputs = self.forward(frames)
+        # The loss in float32 whatever the forward pass ran in (a no-op for fp32).
+        outputs = ScottiOutputs(*(o.float() for o in outputs))
         loss, _ = scotti_loss(outputs, targets, self.opts.loss_weights)
         if not torch.isfinite(loss):
             msg = (
@@ -241,46 +184,58 @@ class Trainer:
             )
             raise TrainingDivergedError(msg)
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()  # type: ignore[no-untyped-call]
+        loss.backward()  # type: ignore[no-untyped-call]  # DDP averages the gradients here
         if self.opts.grad_clip > 0:
             trainable = [p for p in self.model.parameters() if p.requires_grad]
             torch.nn.utils.clip_grad_norm_(trainable, self.opts.grad_clip)
         self.optimizer.step()
         self.scheduler.step()
-        return float(loss.detach()), int(targets.action.shape[0])
+        n = int(targets.action.shape[0])
+        if not self.dist.distributed:
+            return float(loss.detach()), n
+        loss_sum, windows = distributed.all_sum(
+            [float(loss.detach()) * n, n], self.dist, self.device
+        )
+        return loss_sum / windows, int(windows)
 
     # --- the loop --------------------------------------------------------------
 
     def fit(self, max_steps: int = 0) -> str:
-        """Train until ``epochs`` are done ("done"), or stop with a checkpoint ("stopped").
+        """Train until ``epochs`` are done ("done"), the validation loss has reached its
+        plateau ("plateau"), or stop with a checkpoint ("stopped").
 
-        A run stops early when ``max_minutes`` run out or after ``max_steps``
-        steps of this call (0: no limit).
+        A run stops early when ``max_minutes`` run out (on any rank) or after
+        ``max_steps`` steps of this call (0: no limit).
         """
         opts, st = self.opts, self.state
         started = time.monotonic()
         steps = 0
         while st.epoch < opts.epochs:
-            batches = plan_epoch(self.train_set, opts, st.epoch)
-            windows_total = sum(p.chunk.count for b in batches for p in b)
+            if self.plateau_reached():
+                return "plateau"  # resumed from a run that had already reached it
+            batches = self.epoch_batches(st.epoch)
+            windows_total = sum(p.chunk.count for b in batches for p in b) * self.dist.world_size
             bar = tqdm(
                 total=windows_total,
                 initial=st.epoch_windows,
                 unit="win",
                 desc=f"epoch {st.epoch + 1}/{opts.epochs}",
-                disable=not opts.progress_bar,
+                disable=not opts.progress_bar or not self.dist.is_main,
                 leave=False,
             )
             epoch_started = time.monotonic()
             windows_now = 0
-            with bar:
-                for batch in batches[st.step_in_epoch :]:
+            ready = prefetched(batches[st.step_in_epoch :], self._build, opts.workers)
+            with bar, closing(ready):
+                for built in ready:
                     out_of_time = 0 < 60.0 * opts.max_minutes < time.monotonic() - started
+                    out_of_time = distributed.any_rank(out_of_time, self.dist, self.device)
                     if out_of_time or 0 < max_steps <= steps:
-                        log.info("stopping at epoch %d step %d", st.epoch + 1, st.step_in_epoch)
+                        if self.dist.is_main:
+                            log.info("stopping at epoch %d step %d", st.epoch + 1, st.step_in_epoch)
                         self.save("last.pt")
                         return "stopped"
-                    loss, n = self.train_step(batch)
+                    loss, n = self.train_step(*batch_to_device(*built, self.device))
                     self.step_losses.append(loss)
                     steps += 1
                     st.step_in_epoch += 1
@@ -293,7 +248,21 @@ class Trainer:
                     bar.set_postfix(loss=f"{loss:.3f}", win_s=f"{rate:.1f}", refresh=False)
             seconds = time.monotonic() - epoch_started
             self._end_epoch(windows_now / max(1e-9, seconds), seconds)
-        return "done"
+        return "plateau" if self.plateau_reached() else "done"
+
+    def plateau_reached(self) -> bool:
+        return plateau(self.state.history, self.opts.patience, self.opts.min_delta).reached
+
+    def _validate(self) -> dict[str, Any] | None:
+        """Validation metrics, computed on rank 0 and handed to every rank."""
+        val_set = self.val_set
+        if val_set is None or val_set.count(self.opts.val_stride) == 0:
+            return None
+        metrics = None
+        if self.dist.is_main:
+            metrics = evaluate(self.model, val_set, self.opts.val_stride, self.opts.loss_weights)
+        result: dict[str, Any] = distributed.from_main(metrics, self.dist)
+        return result
 
     def _end_epoch(self, windows_per_s: float, seconds: float) -> None:
         st = self.state
@@ -305,36 +274,60 @@ class Trainer:
             "seconds": seconds,
             "lr": float(self.scheduler.get_last_lr()[0]),
         }
-        if self.test_set is not None and self.test_set.count(self.opts.val_stride) > 0:
-            record["val"] = evaluate(
-                self.model, self.test_set, self.opts.val_stride, self.opts.loss_weights
-            )
+        val = self._validate()
+        if val is not None:
+            record["val"] = val
+            where = plateau([*st.history, record], self.opts.patience, self.opts.min_delta)
+            record["best_epoch"] = where.best_epoch
+            record["stale_epochs"] = where.stale_epochs
+            if where.reached:
+                record["status"] = "plateau"
         self.last_metrics = record
         st.history.append(record)
         st.epoch += 1
         st.step_in_epoch = 0
         st.epoch_loss_sum, st.epoch_windows = 0.0, 0
-        val = record.get("val", {})
+        score = float(record["val"]["loss"] if val is not None else record["train_loss"])
+        better = score < st.best_loss
+        if better:
+            st.best_loss = score
+        self.save("last.pt", *(["best.pt"] if better else []))
+        if not self.dist.is_main:
+            return
         log.info(
             "epoch %d: loss %.4f, %.1f windows/s%s",
             record["epoch"],
             record["train_loss"],
             windows_per_s,
-            "".join(f", val {k} {v:.4g}" for k, v in val.items() if isinstance(v, float)),
+            "".join(f", val {k} {v:.4g}" for k, v in (val or {}).items() if isinstance(v, float)),
         )
-        score = float(val.get("loss", record["train_loss"]))
-        self.save("last.pt")
+        if record.get("status") == "plateau":
+            log.info(
+                "plateau: validation loss no better by %g for %d epochs; best epoch %d (%.4g)",
+                self.opts.min_delta,
+                record["stale_epochs"],
+                record["best_epoch"],
+                st.best_loss,
+            )
         if self.run_dir is not None:
             with (self.run_dir / "history.jsonl").open("w") as f:
                 f.writelines(json.dumps(r) + "\n" for r in st.history)
-        if score < st.best_loss:
-            st.best_loss = score
-            self.save("best.pt")
 
     # --- checkpoints -------------------------------------------------------------
 
+    def _rng_state(self) -> dict[str, torch.Tensor]:
+        state = {"torch": torch.get_rng_state()}
+        if self.device.type == "cuda":  # dropout on a GPU draws from the GPU's generator
+            state["cuda"] = torch.cuda.get_rng_state(self.device)
+        return state
+
     def checkpoint(self) -> dict[str, Any]:
+        """The run as plain values (a collective under torchrun: every rank calls it)."""
         st = self.state
+        distributed.sync_buffers(self.model, self.dist)
+        rng: dict[str, Any] = dict(self._rng_state())
+        if self.dist.distributed:
+            rng["by_rank"] = distributed.gather(self._rng_state(), self.dist)
         return {
             "config": self.model.cfg.to_dict(),
             "model": self.model.state_dict(),
@@ -344,7 +337,8 @@ class Trainer:
             "step_in_epoch": st.step_in_epoch,
             "global_step": st.global_step,
             "total_steps": self.total_steps,
-            "rng": {"torch": torch.get_rng_state()},  # numpy draws: seeded by (seed, epoch)
+            "world_size": self.dist.world_size,
+            "rng": rng,  # numpy draws: seeded by (seed, epoch)
             "options": self.opts.to_dict(),
             "training_data": self.training_data,
             "metrics": self.last_metrics,
@@ -353,12 +347,22 @@ class Trainer:
             "running": {"loss_sum": st.epoch_loss_sum, "windows": st.epoch_windows},
         }
 
-    def save(self, name: str) -> None:
-        if self.run_dir is not None:
-            save_checkpoint(self.checkpoint(), self.run_dir / name)
+    def save(self, *names: str) -> None:
+        """Write the checkpoint under each name (rank 0 only; every rank must call it)."""
+        ckpt = self.checkpoint()
+        if self.run_dir is not None and self.dist.is_main:
+            for name in names:
+                save_checkpoint(ckpt, self.run_dir / name)
 
     def restore(self, ckpt: dict[str, Any]) -> None:
-        """Continue from ``ckpt`` (model, optimiser, schedule, position, torch RNG)."""
+        """Continue from ``ckpt`` (model, optimiser, schedule, position, RNGs)."""
+        saved_world = int(ckpt.get("world_size", 1))
+        if saved_world != self.dist.world_size and int(ckpt["step_in_epoch"]) > 0:
+            msg = (
+                f"the checkpoint stopped mid-epoch with {saved_world} process(es): resume it "
+                f"with {saved_world}, or from a checkpoint at an epoch's end"
+            )
+            raise ExportError(msg)
         self.model.load_state_dict(ckpt["model"])
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self.scheduler.load_state_dict(ckpt["scheduler"])
@@ -372,44 +376,10 @@ class Trainer:
             epoch_windows=int(ckpt["running"]["windows"]),
         )
         self.last_metrics = dict(ckpt.get("metrics", {}))
-        torch.set_rng_state(ckpt["rng"]["torch"])
-
-
-def measure_throughput(
-    model: Scotti, dataset: WindowDataset, opts: TrainOptions, steps: int = 5
-) -> dict[str, float]:
-    """Training windows/s (forward + backward) the naive way and chunked, same batches.
-
-    Naive: every window's T frames go through the CNN on their own, as
-    ``model(frames (B, T, H, 2W))`` does. Chunked: ``chunked_outputs``. The
-    two alternate batch by batch, so a machine whose load changes meanwhile
-    slows both alike.
-    """
-    batches = plan_epoch(dataset, opts, 0)[: steps + 1]
-    window = model.cfg.window
-    model.train()
-    seconds = {"naive": 0.0, "chunked": 0.0}
-    windows = 0
-    for i, batch in enumerate(batches):
-        frames, targets = batch_tensors(dataset, batch)
-        for way in seconds:
-            started = time.perf_counter()
-            if way == "naive":
-                stacked = [unfold_frames(f, window, opts.stride) for f in frames]
-                outputs = model(torch.cat(stacked))  # (B, T, H, 2W) in
-            else:
-                outputs = chunked_outputs(model, frames, window, opts.stride)
-            loss, _ = scotti_loss(outputs, targets, opts.loss_weights)
-            model.zero_grad(set_to_none=True)
-            loss.backward()  # type: ignore[no-untyped-call]
-            if i > 0:  # the first batch warms up allocators and kernels: not counted
-                seconds[way] += time.perf_counter() - started
-        windows += int(targets.action.shape[0]) if i > 0 else 0
-    rates = {way: windows / max(1e-9, s) for way, s in seconds.items()}
-    rates["ratio"] = rates["chunked"] / max(1e-9, rates["naive"])
-    return rates
-
-
-def unfold_frames(frames: torch.Tensor, window: int, stride: int) -> torch.Tensor:
-    """Frames (L, H, 2W) -> windows of frames (K, T, H, 2W), copied: the naive layout."""
-    return frames.unfold(0, window, stride).permute(0, 3, 1, 2).contiguous()
+        rng = ckpt["rng"]
+        by_rank = rng.get("by_rank")
+        if isinstance(by_rank, list) and len(by_rank) == self.dist.world_size:
+            rng = by_rank[self.dist.rank]
+        torch.set_rng_state(rng["torch"])
+        if self.device.type == "cuda" and "cuda" in rng:
+            torch.cuda.set_rng_state(rng["cuda"], self.device)

@@ -1,8 +1,11 @@
 """``scotti train SESSIONS_OR_DIRS... -o runs/NAME``: train SCOTTI on labelled session files.
 
 Writes runs/NAME/last.pt after every epoch (and when --max-minutes runs
-out), runs/NAME/best.pt at the best validation loss, and runs/NAME/history.jsonl.
+out), runs/NAME/best.pt at the best validation loss, runs/NAME/history.jsonl,
+and at the end runs/NAME/test.json (best.pt on the test subjects).
 ``--resume`` continues from runs/NAME/last.pt exactly where it stopped.
+Under ``torchrun --nproc-per-node N -m scotti.cli.main train ...`` it trains
+with N processes (export/distributed.py).
 """
 
 from __future__ import annotations
@@ -16,101 +19,27 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from scotti.export import distributed
 from scotti.export.checkpoint import load_checkpoint
-from scotti.export.data import SessionArrays, find_sessions, load_session
+from scotti.export.devices import check_precision, resolve_device
+from scotti.export.distributed import DistContext, context_from_environment
 from scotti.export.errors import ExportError
 from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
-from scotti.export.train import (
-    FREEZE_GROUPS,
-    Trainer,
-    TrainOptions,
-    load_initial_weights,
-    measure_throughput,
-)
-from scotti.export.windows import WindowDataset, split_by_subject
+from scotti.export.run_data import RunData, load_sessions, prepare
+from scotti.export.test_report import write_test_report
+from scotti.export.throughput import measure_precisions, measure_throughput
+from scotti.export.train import Trainer, TrainOptions, load_initial_weights
+from scotti.export.train_args import CONFIG_PRESETS, add_arguments
+from scotti.export.validation import is_legacy
 
 log = logging.getLogger("scotti.train")
 
-# Named model sizes. "paper" is the paper's E=512; "small" trains in hours on
-# a CPU; "tiny" is for tests and smoke runs only.
-CONFIG_PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {},
-    "small": {"embed_dim": 128, "layers": 2, "heads": 4, "head_hidden": 128},
-    "tiny": {
-        "embed_dim": 32,
-        "layers": 1,
-        "heads": 2,
-        "head_hidden": 32,
-        "conv_channels": [4, 8],
-        "dropout": 0.0,
-    },
-}
+__all__ = ["CONFIG_PRESETS", "add_arguments", "parse_config", "run", "run_training", "train"]
 
 
 class TrainCliError(ExportError):
     """A mistake in the command line or its inputs: one line, exit status 2."""
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    d = TrainOptions()
-    parser.add_argument("sessions", nargs="+", type=Path, help="session files or directories")
-    parser.add_argument("-o", "--output", type=Path, required=True, help="run directory")
-    parser.add_argument(
-        "--config",
-        default=None,
-        help="model size: "
-        + "|".join(CONFIG_PRESETS)
-        + ", a JSON object or a .json file"
-        + " (default small; with --init, the checkpoint's)",
-    )
-    parser.add_argument(
-        "--init",
-        type=Path,
-        default=None,
-        metavar="CHECKPOINT",
-        help="start from this checkpoint's weights (fine-tuning); fresh optimiser and schedule",
-    )
-    parser.add_argument(
-        "--freeze",
-        nargs="+",
-        choices=FREEZE_GROUPS,
-        default=[],
-        help="keep these parts as they are (with --init: fine-tune the rest)",
-    )
-    parser.add_argument("--epochs", type=int, default=d.epochs)
-    parser.add_argument("--batch", type=int, default=d.batch, help="windows per step")
-    parser.add_argument(
-        "--chunk", type=int, default=d.chunk, help="consecutive windows sharing one CNN pass"
-    )
-    parser.add_argument("--stride", type=int, default=d.stride, help="slots between windows")
-    parser.add_argument("--val-stride", type=int, default=d.val_stride)
-    parser.add_argument("--lr", type=float, default=d.lr)
-    parser.add_argument("--weight-decay", type=float, default=d.weight_decay)
-    parser.add_argument("--max-shift", type=int, default=d.max_shift, help="augmentation, taxels")
-    w = d.loss_weights
-    parser.add_argument(
-        "--loss-weights",
-        default=f"{w.pose:g},{w.action:g},{w.progress:g}",
-        metavar="POSE,ACTION,PROGRESS",
-        help="weights of the three losses (paper: 0.01,1,1); 0 switches a task off",
-    )
-    parser.add_argument("--seed", type=int, default=d.seed)
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    parser.add_argument("--max-minutes", type=float, default=0.0, help="0 = no time limit")
-    parser.add_argument("--test-subjects", nargs="*", default=None, help="held-out subjects")
-    parser.add_argument("--test-fraction", type=float, default=0.2)
-    parser.add_argument("--resume", action="store_true", help="continue from OUTPUT/last.pt")
-    parser.add_argument("--cache", type=Path, default=None, help="decoded-session cache dir")
-    parser.add_argument("--allow-invalid", action="store_true", help="keep windows with gaps")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument(
-        "--benchmark",
-        type=int,
-        default=0,
-        metavar="STEPS",
-        help="only measure naive vs chunked training throughput over STEPS batches",
-    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -163,6 +92,13 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         if getattr(args, name) < 1:
             msg = f"--{name.replace('_', '-')} must be at least 1"
             raise TrainCliError(msg)
+    for name in ("workers", "patience"):
+        if getattr(args, name) < 0:
+            msg = f"--{name} must be at least 0"
+            raise TrainCliError(msg)
+    if not args.min_delta >= 0.0:
+        msg = f"--min-delta must be at least 0, got {args.min_delta}"
+        raise TrainCliError(msg)
     return TrainOptions(
         epochs=args.epochs,
         batch=args.batch,
@@ -177,10 +113,41 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         max_minutes=args.max_minutes,
         progress_bar=not args.no_progress and sys.stderr.isatty(),
         freeze=tuple(args.freeze),
+        precision=args.precision,
+        workers=args.workers,
+        patience=args.patience,
+        min_delta=args.min_delta,
     )
 
 
 def _run(args: argparse.Namespace) -> int:
+    run_training(args)
+    return 0
+
+
+def run_training(args: argparse.Namespace) -> Trainer | None:
+    """This process's part of the run: alone, or one rank of torchrun's (its environment)."""
+    ctx = context_from_environment()
+    if not ctx.is_main:
+        logging.getLogger().setLevel(logging.WARNING)  # rank 0 alone logs
+    if args.benchmark and ctx.distributed:
+        msg = "--benchmark measures one process: run it without torchrun"
+        raise TrainCliError(msg)
+    device = resolve_device(args.device, ctx.local_rank)
+    check_precision(args.precision, device)
+    with distributed.process_group(ctx, device):
+        return train(args, ctx=ctx, device=device)
+
+
+def train(
+    args: argparse.Namespace,
+    *,
+    ctx: DistContext | None = None,
+    device: torch.device | None = None,
+) -> Trainer | None:
+    """The whole run of ``scotti train`` in this process; None for ``--benchmark``."""
+    ctx = ctx or DistContext()
+    device = device or torch.device("cpu")
     torch.set_num_threads(args.threads)
     opts = _options(args)
     out: Path = args.output
@@ -199,26 +166,10 @@ def _run(args: argparse.Namespace) -> int:
     else:
         cfg = parse_config(args.config or "small")
 
-    cache = args.cache or out.parent / ".session-cache"
-    sessions = [load_session(p, cache) for p in find_sessions(args.sessions)]
-    _log_sessions(sessions)
-    split = split_by_subject(
-        sessions, args.test_subjects, test_fraction=args.test_fraction, seed=opts.seed
-    )
-    train_set = WindowDataset(split.train, cfg.window, allow_invalid=args.allow_invalid)
-    test_set = WindowDataset(split.test, cfg.window, allow_invalid=args.allow_invalid)
-    if train_set.count(opts.stride) == 0:
-        msg = f"no usable training windows of {cfg.window} frames in the given sessions"
-        raise TrainCliError(msg)
-    training_data: dict[str, Any] = {
-        "files": [s.path for s in sessions],
-        "subjects": sorted({s.subject for s in sessions}),
-        "split": split.describe(),
-        "frames": sum(len(s) for s in sessions),
-        "windows": {"train": train_set.count(1), "test": test_set.count(1)},
-        "train_targets": train_set.target_counts(),  # windows per action: no class balancing
-        "problems": _sum_counters(sessions),
-    }
+    data = _load_data(args, ckpt, cfg, opts, ctx)
+    training_data = data.training_data()
+    if data.splits.legacy and ckpt is not None:
+        training_data["split"] = ckpt["training_data"]["split"]  # stays an old run's split
     if args.init is not None:
         training_data["init"] = str(
             ckpt["training_data"].get("init", args.init) if ckpt else args.init
@@ -228,21 +179,6 @@ def _run(args: argparse.Namespace) -> int:
     ):
         msg = f"--resume with other session files than {resume_from} was trained on"
         raise TrainCliError(msg)
-    log.info(
-        "%d sessions, subjects train %s / test %s (%s split), windows train %d / test %d",
-        len(sessions),
-        ",".join(split.train_subjects),
-        ",".join(split.test_subjects) or "-",
-        split.kind,
-        train_set.count(1),
-        test_set.count(1),
-    )
-    targets = training_data["train_targets"]
-    total = max(1, sum(targets.values()))
-    log.info(
-        "training windows per target action: %s",
-        ", ".join(f"{name} {n} ({100 * n / total:.1f} %)" for name, n in targets.items()),
-    )
 
     torch.manual_seed(opts.seed)
     model = Scotti(cfg)
@@ -251,20 +187,20 @@ def _run(args: argparse.Namespace) -> int:
             log.info("--init: %s", note)
         log.info("--init: weights from %s%s", args.init, _frozen_note(opts.freeze))
     if args.benchmark:
-        rates = measure_throughput(model, train_set, replace(opts, max_shift=0), args.benchmark)
-        print(
-            f"E={cfg.embed_dim} T={cfg.window} batch={opts.batch} chunk={opts.chunk} "
-            f"stride={opts.stride} threads={args.threads}: naive {rates['naive']:.1f} "
-            f"windows/s, chunked {rates['chunked']:.1f} windows/s, x{rates['ratio']:.1f}"
-        )
-        return 0
+        _benchmark(model, data, opts, args, device)
+        return None
+    if ctx.distributed:
+        # The same weights everywhere (DDP checks), but each rank its own dropout draws.
+        torch.manual_seed(opts.seed + 7919 * (ctx.rank + 1))
     trainer = Trainer(
         model,
-        train_set,
-        test_set if test_set.count(1) else None,
+        data.train,
+        data.validation if data.validation.count(1) else None,
         opts,
         run_dir=out,
         training_data=training_data,
+        device=device,
+        dist_ctx=ctx,
     )
     if ckpt is not None:
         _warn_changed_options(ckpt.get("options", {}), opts.to_dict())
@@ -275,10 +211,88 @@ def _run(args: argparse.Namespace) -> int:
             trainer.state.epoch + 1,
             trainer.state.step_in_epoch,
         )
-    out.mkdir(parents=True, exist_ok=True)
+    if ctx.is_main:
+        out.mkdir(parents=True, exist_ok=True)
+    log.info(
+        "training on %s in %s, %d process(es), %d batch worker thread(s)",
+        device,
+        opts.precision,
+        ctx.world_size,
+        opts.workers,
+    )
     status = trainer.fit()
     log.info("%s: %s after %d epochs, checkpoint %s", out, status, trainer.state.epoch, resume_from)
-    return 0
+    if status != "stopped" and ctx.is_main:
+        report = write_test_report(
+            out, data.test, stride=opts.val_stride, weights=opts.loss_weights, device=device
+        )
+        if report is not None:
+            test = report["test"]
+            log.info(
+                "test subjects %s (best.pt, epoch %s): %s -> %s",
+                ",".join(report["test_subjects"] or []) or "-",
+                report["epoch"],
+                ", ".join(f"{k} {v:.4g}" for k, v in test.items() if isinstance(v, float)),
+                out / "test.json",
+            )
+    return trainer
+
+
+def _load_data(
+    args: argparse.Namespace,
+    ckpt: dict[str, Any] | None,
+    cfg: ScottiConfig,
+    opts: TrainOptions,
+    ctx: DistContext,
+) -> RunData:
+    cache = args.cache or args.output.parent / ".session-cache"
+    # Under torchrun rank 0 decodes first (filling the cache), then the others read it.
+    if not ctx.is_main:
+        distributed.barrier(ctx)
+    sessions = load_sessions(args.sessions, cache)
+    if ctx.is_main:
+        distributed.barrier(ctx)
+    legacy = ckpt is not None and is_legacy(ckpt.get("training_data", {}))
+    if legacy and args.val_subjects:
+        log.warning("--val-subjects ignored: %s predates the validation split", args.output)
+    data = prepare(
+        sessions,
+        window=cfg.window,
+        allow_invalid=args.allow_invalid,
+        test_subjects=args.test_subjects,
+        test_fraction=args.test_fraction,
+        val_subjects=args.val_subjects,
+        val_fraction=args.val_fraction,
+        seed=opts.seed,
+        legacy=legacy,
+    )
+    if data.train.count(opts.stride) == 0:
+        msg = f"no usable training windows of {cfg.window} frames in the given sessions"
+        raise TrainCliError(msg)
+    return data
+
+
+def _benchmark(
+    model: Scotti,
+    data: RunData,
+    opts: TrainOptions,
+    args: argparse.Namespace,
+    device: torch.device,
+) -> None:
+    """Print naive vs chunked (fp32, CPU) and fp32 vs bf16 (chunked, on ``device``)."""
+    cfg = model.cfg
+    plain = replace(opts, max_shift=0)
+    rates = measure_throughput(model, data.train, plain, args.benchmark)
+    print(
+        f"E={cfg.embed_dim} T={cfg.window} batch={opts.batch} chunk={opts.chunk} "
+        f"stride={opts.stride} threads={args.threads}: naive {rates['naive']:.1f} "
+        f"windows/s, chunked {rates['chunked']:.1f} windows/s, x{rates['ratio']:.1f}"
+    )
+    rates = measure_precisions(model, data.train, plain, args.benchmark, device)
+    print(
+        f"precision on {device} (chunked, alternating): fp32 {rates['fp32']:.1f} windows/s, "
+        f"bf16 {rates['bf16']:.1f} windows/s, bf16/fp32 x{rates['ratio']:.2f}"
+    )
 
 
 def _frozen_note(freeze: tuple[str, ...]) -> str:
@@ -287,26 +301,10 @@ def _frozen_note(freeze: tuple[str, ...]) -> str:
 
 def _warn_changed_options(before: dict[str, Any], now: dict[str, Any]) -> None:
     """Resuming with other batching or augmentation is allowed, but no longer exact."""
-    ignore = {"epochs", "max_minutes", "progress_bar"}
+    ignore = {"epochs", "max_minutes", "progress_bar", "workers", "patience", "min_delta"}
     changed = sorted(k for k in now if k not in ignore and k in before and before[k] != now[k])
     if changed:
         log.warning(
             "resuming with changed %s: the run will not match an uninterrupted one",
             ", ".join(changed),
         )
-
-
-def _log_sessions(sessions: list[SessionArrays]) -> None:
-    for s in sessions:
-        bad = {k: v for k, v in s.counters.items() if v}
-        log.info(
-            "%s: subject %s, %d frames%s", s.path, s.subject, len(s), f", {bad}" if bad else ""
-        )
-
-
-def _sum_counters(sessions: list[SessionArrays]) -> dict[str, int]:
-    total: dict[str, int] = {}
-    for s in sessions:
-        for k, v in s.counters.items():
-            total[k] = total.get(k, 0) + int(v)
-    return total

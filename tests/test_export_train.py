@@ -162,14 +162,16 @@ def test_cli_trains_resumes_and_exports(
 ) -> None:
     run = tmp_path / "runs" / "tiny"
     common = [str(sessions_dir), "-o", str(run), "--config", json.dumps(TINY)]
-    common += ["--batch", "8", "--chunk", "4", "--stride", "2", "--test-subjects", "b"]
+    common += ["--batch", "8", "--chunk", "4", "--stride", "2"]
+    common += ["--val-subjects", "b", "--test-fraction", "0"]  # two subjects: no test set
     assert main(["train", *common, "--epochs", "1"]) == 0
     assert main(["train", *common, "--epochs", "2", "--resume"]) == 0
     ckpt = torch.load(run / "last.pt", weights_only=True)
     assert ckpt["epoch"] == 2
     assert ckpt["config"]["window"] == TINY["window"]
     data = ckpt["training_data"]
-    assert data["split"]["test_subjects"] == ["b"]
+    assert data["split"]["validation_subjects"] == ["b"]
+    assert data["split"]["test_subjects"] == []
     assert len(data["files"]) == 2
     assert data["problems"]["missing_left"] == 1
     val = ckpt["metrics"]["val"]
@@ -203,7 +205,7 @@ def test_cli_loss_weights_make_a_single_task_run(
 ) -> None:
     run = tmp_path / "action-only"
     args = [str(sessions_dir), "-o", str(run), "--config", json.dumps(TINY), "--epochs", "1"]
-    args += ["--batch", "8", "--chunk", "4", "--test-subjects", "b"]
+    args += ["--batch", "8", "--chunk", "4", "--val-subjects", "b", "--test-fraction", "0"]
     assert main(["train", *args, "--loss-weights", "0,1,0"]) == 0
     ckpt = torch.load(run / "last.pt", weights_only=True)
     assert ckpt["options"]["loss_weights"] == {"pose": 0.0, "action": 1.0, "progress": 0.0}

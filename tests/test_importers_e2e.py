@@ -150,7 +150,8 @@ def test_import_train_export_eval(
     run = tmp_path / "runs" / "ft"
     train = [str(session), "-o", str(run), "--init", str(TINY_CHECKPOINT), "--freeze", "cnn"]
     train += ["--epochs", "1", "--batch", "16", "--chunk", "8", "--stride", "4", "--no-progress"]
-    train += ["--test-fraction", "0.4"]  # a time split: the last 4 s hold 24 windows
+    # One subject, no test set; validation is a time split: the last 4 s hold 24 windows.
+    train += ["--test-fraction", "0", "--val-fraction", "0.4"]
     assert main(["train", *train]) == 0
     tuned = torch.load(run / "last.pt", weights_only=True)
     start = torch.load(TINY_CHECKPOINT, weights_only=True)

@@ -1,0 +1,74 @@
+"""An epoch's plan (which windows, in which batches, with which shifts) and its tensors.
+
+Everything random in an epoch (window phase, chunk cuts, order, shifts) is
+drawn from a generator seeded with (seed, epoch), so the plan is a pure
+function of (dataset, options, seed, epoch): a resumed run, a prefetch
+thread and every rank of a distributed run all see the same plan.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+from scotti.export.augment import draw_shifts, shift_feet
+from scotti.export.evaluate import to_targets
+from scotti.export.losses import ScottiTargets
+from scotti.export.windows import Chunk, WindowDataset
+
+if TYPE_CHECKING:
+    from scotti.export.train import TrainOptions
+
+
+@dataclass(frozen=True)
+class PlannedChunk:
+    chunk: Chunk
+    shifts: np.ndarray  # (2, 2) (rows, cols) per foot
+
+
+def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[list[PlannedChunk]]:
+    """The epoch's batches, a pure function of (dataset, options, seed, epoch)."""
+    rng = np.random.default_rng([opts.seed, epoch])
+    phase = int(rng.integers(opts.stride))
+    chunks = dataset.chunks(stride=opts.stride, chunk=opts.chunk, phase=phase, rng=rng)
+    batches: list[list[PlannedChunk]] = []
+    current: list[PlannedChunk] = []
+    windows = 0
+    for i in rng.permutation(len(chunks)):
+        current.append(PlannedChunk(chunks[i], draw_shifts(rng, opts.max_shift)))
+        windows += chunks[i].count
+        if windows >= opts.batch:
+            batches.append(current)
+            current, windows = [], 0
+    if current:
+        batches.append(current)
+    return batches
+
+
+def batch_tensors(
+    dataset: WindowDataset, batch: Sequence[PlannedChunk]
+) -> tuple[list[torch.Tensor], ScottiTargets]:
+    """Shifted frames (float32 counts) per chunk and the batch's targets."""
+    cols = dataset.sessions[0].frames.shape[2] // 2
+    frames = [
+        torch.from_numpy(shift_feet(dataset.frames(p.chunk), p.shifts, cols).astype(np.float32))
+        for p in batch
+    ]
+    return frames, to_targets([dataset.targets(p.chunk) for p in batch])
+
+
+def warmup_cosine(total_steps: int, warmup_fraction: float) -> Callable[[int], float]:
+    """LR factor: linear from ~0 to 1 over the warmup, then cosine down to 0 at the end."""
+    warmup = max(1, round(warmup_fraction * total_steps))
+
+    def factor(step: int) -> float:
+        if step < warmup:
+            return (step + 1) / warmup
+        done = min(1.0, (step - warmup) / max(1, total_steps - warmup))
+        return 0.5 * (1.0 + math.cos(math.pi * done))
+
+    return factor

@@ -1,0 +1,147 @@
+"""``scotti train``'s command line: the options, grouped as ``--help`` shows them."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from scotti.export.devices import DEVICES, PRECISIONS
+from scotti.export.finetune import FREEZE_GROUPS
+from scotti.export.train import TrainOptions
+from scotti.export.validation import VAL_FRACTION
+
+# Named model sizes. "paper" is the paper's E=512; "small" trains in hours on
+# a CPU; "tiny" is for tests and smoke runs only.
+CONFIG_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "small": {"embed_dim": 128, "layers": 2, "heads": 4, "head_hidden": 128},
+    "tiny": {
+        "embed_dim": 32,
+        "layers": 1,
+        "heads": 2,
+        "head_hidden": 32,
+        "conv_channels": [4, 8],
+        "dropout": 0.0,
+    },
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    d = TrainOptions()
+    parser.add_argument("sessions", nargs="+", type=Path, help="session files or directories")
+    parser.add_argument("-o", "--output", type=Path, required=True, help="run directory")
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="model size: "
+        + "|".join(CONFIG_PRESETS)
+        + ", a JSON object or a .json file"
+        + " (default small; with --init, the checkpoint's)",
+    )
+    parser.add_argument(
+        "--init",
+        type=Path,
+        default=None,
+        metavar="CHECKPOINT",
+        help="start from this checkpoint's weights (fine-tuning); fresh optimiser and schedule",
+    )
+    parser.add_argument(
+        "--freeze",
+        nargs="+",
+        choices=FREEZE_GROUPS,
+        default=[],
+        help="keep these parts as they are (with --init: fine-tune the rest)",
+    )
+    parser.add_argument("--epochs", type=int, default=d.epochs)
+    parser.add_argument("--batch", type=int, default=d.batch, help="windows per step")
+    parser.add_argument(
+        "--chunk", type=int, default=d.chunk, help="consecutive windows sharing one CNN pass"
+    )
+    parser.add_argument("--stride", type=int, default=d.stride, help="slots between windows")
+    parser.add_argument("--val-stride", type=int, default=d.val_stride)
+    parser.add_argument("--lr", type=float, default=d.lr)
+    parser.add_argument("--weight-decay", type=float, default=d.weight_decay)
+    parser.add_argument("--max-shift", type=int, default=d.max_shift, help="augmentation, taxels")
+    w = d.loss_weights
+    parser.add_argument(
+        "--loss-weights",
+        default=f"{w.pose:g},{w.action:g},{w.progress:g}",
+        metavar="POSE,ACTION,PROGRESS",
+        help="weights of the three losses (paper: 0.01,1,1); 0 switches a task off",
+    )
+    parser.add_argument("--seed", type=int, default=d.seed)
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--max-minutes", type=float, default=0.0, help="0 = no time limit")
+    parser.add_argument(
+        "--test-subjects", nargs="*", default=None, help="subjects held out, never trained on"
+    )
+    parser.add_argument("--test-fraction", type=float, default=0.2)
+    parser.add_argument("--resume", action="store_true", help="continue from OUTPUT/last.pt")
+    parser.add_argument("--cache", type=Path, default=None, help="decoded-session cache dir")
+    parser.add_argument("--allow-invalid", action="store_true", help="keep windows with gaps")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--benchmark",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="only measure training windows/s over STEPS batches: naive vs chunked, fp32 vs bf16",
+    )
+    add_validation_arguments(parser)
+    add_device_arguments(parser)
+
+
+def add_validation_arguments(parser: argparse.ArgumentParser) -> None:
+    d = TrainOptions()
+    group = parser.add_argument_group(
+        "validation and early stopping",
+        "validation is drawn from the training subjects (never the test subjects); it picks "
+        "best.pt and stops the run on a plateau",
+    )
+    group.add_argument(
+        "--val-subjects", nargs="*", default=None, help="validation subjects (default: drawn)"
+    )
+    group.add_argument(
+        "--val-fraction",
+        type=float,
+        default=VAL_FRACTION,
+        help="share of the training subjects drawn for validation, at least one (one subject: "
+        "the last part of each session)",
+    )
+    group.add_argument(
+        "--patience",
+        type=int,
+        default=d.patience,
+        help="stop after this many epochs without a validation improvement (0 = never)",
+    )
+    group.add_argument(
+        "--min-delta",
+        type=float,
+        default=d.min_delta,
+        help="the smallest fall of the validation loss that counts as an improvement",
+    )
+
+
+def add_device_arguments(parser: argparse.ArgumentParser) -> None:
+    d = TrainOptions()
+    group = parser.add_argument_group(
+        "device and distributed",
+        "several processes: torchrun --nproc-per-node N -m scotti.cli.main train ... "
+        "(gloo on CPU, nccl on CUDA; RANK, WORLD_SIZE, LOCAL_RANK from torchrun)",
+    )
+    group.add_argument(
+        "--device", choices=DEVICES, default="auto", help="auto: cuda if torch sees a GPU"
+    )
+    group.add_argument(
+        "--precision",
+        choices=PRECISIONS,
+        default=d.precision,
+        help="bf16: autocast of the forward pass (CPU and CUDA)",
+    )
+    group.add_argument(
+        "--workers",
+        type=int,
+        default=d.workers,
+        help="threads building batches ahead of the step (0 = in the training loop)",
+    )
