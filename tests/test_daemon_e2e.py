@@ -152,7 +152,9 @@ def test_a_model_that_says_standing_publishes_null_progress_over_mqtt(
     assert 0 < len(progress) <= FRAMES - WINDOW + 1
     assert [a.seq for a in actions] == [p.seq for p in progress]
     assert {a.action for a in actions} == {"standing"}
-    assert all(a.schema_version == 2 and a.probabilities["standing"] > 0.99 for a in actions)
+    assert all(a.schema_version == 3 and a.probabilities["standing"] > 0.99 for a in actions)
+    # The tiny model is not calibrated: no unfamiliar score; a plausible map: nothing withheld.
+    assert all(a.withheld is None and a.unfamiliar_score is None for a in actions)
     assert {(p.action, p.progress, p.repetition) for p in progress} == {("standing", None, -1)}
     raw = json.loads(next(m for m in msgs if m.topic.endswith("/progress")).payload)
     assert raw["progress"] is None  # JSON null on the wire, not NaN or a number

@@ -24,15 +24,28 @@ from scotti.models.contract import (
     SAMPLE_BITS,
     has_progress,
 )
+from scotti.models.insole import insole_mask
 
 PERIOD_NS = 62_500_000  # 16 Hz
 PERIOD_US = 62_500
 
 
+# Random counts inside the insole outline, up to this: about 1 kN a foot, a plausible
+# map for the model's input checks (models/input_checks.py), which call a map with
+# load outside the outline or thousands of newtons "out_of_range". MAX_COUNT still
+# crosses the wire: the last taxel of row 0 inside the outline is pinned to it.
+SYNTHETIC_TOP = 1500
+_OUTLINE = insole_mask()
+_PINNED = (0, int(np.flatnonzero(_OUTLINE[0])[-1]))
+
+
 def synthetic_counts(foot: int, seq: int) -> np.ndarray:
     """The (32, 22) uint16 frame a synthetic session carries for ``foot`` at ``seq``."""
     rng = np.random.default_rng(seq * 2 + int(foot))
-    return rng.integers(0, MAX_COUNT + 1, size=(FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
+    counts = rng.integers(0, SYNTHETIC_TOP + 1, size=(FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
+    counts[~_OUTLINE] = 0
+    counts[_PINNED] = MAX_COUNT
+    return counts
 
 
 def frame_packets(
