@@ -27,7 +27,7 @@ import torch
 from scotti.export.card import card_markdown, file_entry, jsonable, tool_versions
 from scotti.export.errors import ExportError
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
-from scotti.export.ood_calibration import Calibration, calibrate
+from scotti.export.ood_calibration import Calibration, calibrate, gather
 from scotti.export.parity import (
     FP32,
     STEP_INPUTS,
@@ -304,6 +304,7 @@ def export_model(
     """
     paths = GraphPaths.for_output(out)
     model, cfg = ckpt.model.eval(), ckpt.model.cfg
+    sets = gather(ckpt.training_data, calibration) if calibration is not None else None
     name = out.with_suffix("").name
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f".{name}.", dir=out.parent) as tmp:
@@ -320,8 +321,8 @@ def export_model(
         write_metadata(staged.window, "window", cfg, card)
         parity = prove(model, staged.step, staged.window, threads, tol)
         ood = None
-        if calibration is not None:
-            ood = calibrate(staged.window, ckpt.training_data, calibration, threads)
+        if calibration is not None and sets is not None:
+            ood = calibrate(staged.window, sets, calibration, threads)
             card = {**card, "ood": ood_card(ood)}
             write_metadata(staged.step, "step", cfg, card, ood)
             write_metadata(staged.window, "window", cfg, card, ood)

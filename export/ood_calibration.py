@@ -93,10 +93,18 @@ def _measure(
     return out, {flag: n / len(out) for flag, n in flagged.items()}
 
 
-def calibrate(
-    window_graph_path: Path, training_data: Any, request: Calibration, threads: int = 1
-) -> OodStats:
-    """Fit the OOD statistics of an exported window graph; one ``ExportError`` line on misfit."""
+@dataclass(frozen=True)
+class CalibrationSets:
+    """The decoded sessions of the training and the held-out subjects."""
+
+    train: list[SessionArrays]
+    held_out: list[SessionArrays]
+    held_kind: str  # "val" or "test": which split of the checkpoint was held out
+
+
+def gather(training_data: Any, request: Calibration) -> CalibrationSets:
+    """The sessions to calibrate on, by the checkpoint's split (before any export work:
+    a mistake here is one ``ExportError`` line, at once)."""
     train_ids, held_ids, held_kind = split_subjects(training_data)
     by_subject: dict[str, list[SessionArrays]] = {}
     for path in find_sessions(request.sessions):
@@ -111,18 +119,25 @@ def calibrate(
                 f"{', ...' if len(ids) > 5 else ''}) among the calibration sessions"
             )
             raise ExportError(msg)
+    return CalibrationSets(train, held, held_kind)
+
+
+def calibrate(
+    window_graph_path: Path, sets: CalibrationSets, request: Calibration, threads: int = 1
+) -> OodStats:
+    """Fit the OOD statistics of an exported window graph; one ``ExportError`` line on misfit."""
     graph = ScottiRuntime(window_graph_path, threads)
-    train_pooled, train_flags = _measure(graph, train, request.max_windows)
-    held_pooled, held_flags = _measure(graph, held, request.max_windows)
+    train_pooled, train_flags = _measure(graph, sets.train, request.max_windows)
+    held_pooled, held_flags = _measure(graph, sets.held_out, request.max_windows)
     if len(train_pooled) < 2 or len(held_pooled) < 1:
         msg = "too few usable windows in the calibration sessions"
         raise ExportError(msg)
     stats = fit(train_pooled, held_pooled, request.percentile)
     summary = {
         **stats.summary,
-        "train_subjects": sorted({a.subject for a in train}),
-        "held_out_subjects": sorted({a.subject for a in held}),
-        "held_out_split": held_kind,
+        "train_subjects": sorted({a.subject for a in sets.train}),
+        "held_out_subjects": sorted({a.subject for a in sets.held_out}),
+        "held_out_split": sets.held_kind,
         "input_checks_on_held_out": held_flags,
         "input_checks_on_train": train_flags,
     }

@@ -8,7 +8,7 @@ test needs to check what comes out the other end.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -96,12 +96,14 @@ def write_synthetic_session(
     feet: Sequence[Foot] = (Foot.LEFT, Foot.RIGHT),
     garbage_every: int = 0,
     labels: bool = True,
+    counts_of: Callable[[Foot, int, int], np.ndarray] | None = None,
 ) -> SyntheticSession:
     """Write a session of ``frames`` frame pairs; see the module docstring.
 
     ``seq_start`` may sit near 65535 to exercise the wrap; ``right_seq_offset``
     makes the right board count from elsewhere. ``garbage_every=k`` adds a
-    record of line noise after every k-th frame pair.
+    record of line noise after every k-th frame pair. ``counts_of(foot, seq, i)``
+    replaces ``synthetic_counts`` (an empty insole, a stuck taxel, ...).
     """
     seqs: dict[Foot, list[int]] = {foot: [] for foot in feet}
     records: list[tuple[int, bytes]] = []
@@ -114,7 +116,9 @@ def write_synthetic_session(
                 seq = (seq_start + i + (right_seq_offset if foot == Foot.RIGHT else 0)) % 65536
                 clock = (clock_start_us + i * PERIOD_US + 7_000 * int(foot)) % (1 << 32)
                 seqs[foot].append(seq)
-                counts = synthetic_counts(foot, seq)
+                counts = (
+                    synthetic_counts(foot, seq) if counts_of is None else counts_of(foot, seq, i)
+                )
                 for packet in frame_packets(foot, seq, clock, counts, rows_per_packet):
                     data = encode_packet(packet)
                     writer.write_packet(t, data)
