@@ -130,20 +130,40 @@ class FrameCheck:
 
 def check_frame(counts: npt.ArrayLike) -> FrameCheck:
     """Statistics of one model input frame (H, 2W) of raw counts, left foot then right."""
-    x = np.asarray(counts, dtype=np.float64)
-    if x.shape != (FRAME_ROWS, 2 * FRAME_COLS):
-        msg = f"a frame is ({FRAME_ROWS}, {2 * FRAME_COLS}), got {x.shape}"
+    return check_frames(np.asarray(counts)[None])[0]
+
+
+# kPa of every whole count (the curve turned round once, not per taxel and frame).
+_KPA_OF_COUNT: Final = kpa_from_counts(np.arange(MAX_COUNT + 1))
+_N_PER_KPA: Final = 1e3 * TAXEL_AREA_M2  # one kPa on one taxel, in newtons
+
+
+def check_frames(frames: npt.ArrayLike) -> list[FrameCheck]:
+    """``check_frame`` of N frames (N, H, 2W) at once (counts rounded to whole counts)."""
+    x = np.asarray(frames, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1:] != (FRAME_ROWS, 2 * FRAME_COLS):
+        msg = f"frames are (N, {FRAME_ROWS}, {2 * FRAME_COLS}), got {x.shape}"
         raise ValueError(msg)
-    x = np.nan_to_num(np.clip(x, 0.0, MAX_COUNT), nan=0.0)
-    total = float(x.sum())
-    outside = float(x[_OUTSIDE].sum()) / total if total > 0 else 0.0
-    force, rail, peak = [], [], []
-    for foot in (x[:, :FRAME_COLS], x[:, FRAME_COLS:]):
-        force.append(float(kpa_from_counts(foot).sum()) * 1e3 * TAXEL_AREA_M2)
-        rail.append(float((foot[_MASK] >= RAIL_COUNTS).mean()))
-        s = float(foot.sum())
-        peak.append(float(foot.max()) / s if s > 0 else 0.0)
-    return FrameCheck((force[0], force[1]), outside, max(rail), max(peak))
+    x = np.clip(np.nan_to_num(x, nan=0.0), 0.0, MAX_COUNT)
+    n = x.shape[0]
+    feet = x.reshape(n, FRAME_ROWS, 2, FRAME_COLS)  # (N, H, foot, W)
+    kpa = _KPA_OF_COUNT[np.rint(feet).astype(np.intp)]
+    force = kpa.sum(axis=(1, 3)) * _N_PER_KPA  # (N, 2)
+    total = x.sum(axis=(1, 2))
+    outside = np.where(total > 0, (x * _OUTSIDE).sum(axis=(1, 2)) / np.maximum(total, 1), 0.0)
+    at_rail = (feet >= RAIL_COUNTS) & _MASK[None, :, None, :]
+    rail = at_rail.sum(axis=(1, 3)) / _MASK.sum()  # (N, 2)
+    sums = feet.sum(axis=(1, 3))
+    peak = np.where(sums > 0, feet.max(axis=(1, 3)) / np.maximum(sums, 1), 0.0)  # (N, 2)
+    return [
+        FrameCheck(
+            (float(force[i, 0]), float(force[i, 1])),
+            float(outside[i]),
+            float(rail[i].max()),
+            float(peak[i].max()),
+        )
+        for i in range(n)
+    ]
 
 
 @dataclass(frozen=True)
@@ -184,7 +204,7 @@ def verdict(checks: Sequence[FrameCheck], window: int = WINDOW) -> WindowVerdict
 
 def check_window(frames: npt.ArrayLike) -> WindowVerdict:
     """The rules over a whole window (T, H, 2W) of raw counts (the window graph's input)."""
-    checks = [check_frame(f) for f in np.asarray(frames)]
+    checks = check_frames(frames)
     return verdict(checks, window=len(checks))
 
 
