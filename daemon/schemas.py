@@ -89,6 +89,7 @@ class FrameStamp(_Payload):
         "progress and repetition are withheld and the pose is not to be trusted."
     )
     unfamiliar_score: float | None = Field(
+        default=None,
         description="Mahalanobis distance of the model's pooled representation from its "
         "training data; above info.model.ood.threshold the flags say unfamiliar. Null when "
         "the model is not calibrated (info.model.ood.calibrated false)."
