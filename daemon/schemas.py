@@ -92,7 +92,7 @@ class FrameStamp(_Payload):
         default=None,
         description="Mahalanobis distance of the model's pooled representation from its "
         "training data; above info.model.ood.threshold the flags say unfamiliar. Null when "
-        "the model is not calibrated (info.model.ood.calibrated false)."
+        "the model is not calibrated (info.model.ood.calibrated false).",
     )
 
 
