@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 from pydantic import BaseModel
@@ -25,6 +25,7 @@ from scotti.daemon.schemas import (
     Pressure,
     Progress,
     Status,
+    WithheldFlag,
 )
 from scotti.firmware_protocol.framing import DecoderCounters
 from scotti.models.contract import (
@@ -35,6 +36,7 @@ from scotti.models.contract import (
     NO_ACTION,
     has_progress,
 )
+from scotti.models.input_checks import input_check_thresholds
 
 if TYPE_CHECKING:
     from scotti.daemon.pipeline import PipelineState, Prediction
@@ -58,8 +60,10 @@ def frame_payloads(
         "predicted_for_mono_ns": p.predicted_for_mono_ns,
         "latency_ms": round(latency_ms, 3),
         "flags": list(p.flags),
+        "unfamiliar_score": p.unfamiliar_score,
     }
     probs = [float(x) for x in p.action_probs]
+    withheld = _withheld(p.withheld)
     # ACTION_NAMES is ACTIONS typed as the schema's literal (a test keeps them equal).
     action = ACTION_NAMES[p.action] if p.action != NO_ACTION else None
     confidence = probs[p.action] if action is not None else 0.0
@@ -74,16 +78,31 @@ def frame_payloads(
                 action=action,
                 confidence=confidence,
                 probabilities=dict(zip(ACTIONS, probs, strict=True)),
+                withheld=withheld,
             ),
         ),
         (
             "progress",
-            Progress(**stamp, action=action, progress=progress, repetition=p.repetition),
+            Progress(
+                **stamp,
+                action=action,
+                progress=progress,
+                repetition=p.repetition,
+                withheld=withheld,
+            ),
         ),
     ]
     if pressure_downsample:
         out.append(("pressure", pressure(stamp, p.counts, pressure_downsample)))
     return out
+
+
+def _withheld(flag: str | None) -> WithheldFlag | None:
+    """The pipeline's flag as the schema's literal (a test keeps OOD_FLAGS and it equal)."""
+    for name in get_args(WithheldFlag):
+        if flag == name:
+            return name  # type: ignore[no-any-return]
+    return None
 
 
 def downsample(counts: np.ndarray, k: int) -> np.ndarray:
@@ -162,6 +181,8 @@ def info(
             "embed_dim": runtime.embed_dim,
             "threads": runtime.threads,
             "card": runtime.card,
+            "ood": runtime.ood_info(),
+            "input_checks": input_check_thresholds(),
         },
         keypoints=list(KEYPOINTS),
         actions=list(ACTIONS),

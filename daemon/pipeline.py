@@ -31,7 +31,8 @@ from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
 from scotti.firmware_protocol.errors import DecodeError
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import BoardStatus, FrameRows
-from scotti.models.contract import FRAME_RATE_HZ, has_progress
+from scotti.models.contract import FRAME_RATE_HZ, NO_ACTION, has_progress
+from scotti.models.ood import withheld
 from scotti.models.runtime import ScottiRuntime
 
 log = logging.getLogger(__name__)
@@ -52,14 +53,20 @@ class Prediction:
     last_byte_mono_ns: int  # last byte of the newest frame
     pose: npt.NDArray[np.float32]  # (19, 3) metres, pose frame
     action_probs: npt.NDArray[np.float32]  # (NUM_ACTIONS,)
-    action: int  # index into ACTIONS
-    progress: float  # 0..1, NaN when the action has none (standing)
+    action: int  # index into ACTIONS; NO_ACTION when withheld (see ``withheld``)
+    progress: float  # 0..1, NaN when the action has none (standing) or is withheld
     repetition: int  # repetitions completed in the current action, -1: none (standing)
-    flags: tuple[str, ...]  # "left_held", "right_filled", "rows_missing", ...
+    flags: tuple[str, ...]  # "left_held", "right_filled", "rows_missing", "unloaded", ...
     inference_ms: float
     # (H, 2W) uint16: the model input that made this prediction (the window's newest
     # frame, left columns then right). A read-only view of the paired frame, not a copy.
     counts: npt.NDArray[np.uint16]
+    # Mahalanobis distance of the pooled vector from the training data (None: the
+    # model is not calibrated); above the model's threshold the flags say "unfamiliar".
+    unfamiliar_score: float | None = None
+    # The OOD flag that withheld action, progress and repetition count (models/ood.py):
+    # "unloaded", "out_of_range" or "unfamiliar"; None: a confident prediction.
+    withheld: str | None = None
 
 
 @dataclass(frozen=True)
@@ -99,6 +106,7 @@ class Pipeline:
         self._warming = (0, self.window.needed)
         self._warming_from_seq = 0  # results of older frames say nothing about the window now
         self._model_error: str | None = None
+        self._ood_reasons: tuple[str, ...] = ()  # while the newest prediction is withheld
         self._state: PipelineState | None = None
         self._on_prediction: Callable[[Prediction], None] = lambda _: None
         self._on_state: Callable[[PipelineState], None] = lambda _: None
@@ -198,6 +206,7 @@ class Pipeline:
         """The window starts over with the next frame: say so now, not at its result
         (a replugged receiver must not read as warmed up until T new frames are in)."""
         self._warming = (0, self.window.needed)
+        self._ood_reasons = ()
         self._warming_from_seq = self._seq
 
     # --- results out (event loop thread) ---------------------------------------------
@@ -218,7 +227,15 @@ class Pipeline:
             self._warming = (output.frames_in_window, output.needed)
         step = output.result
         if step is not None:
-            self._predict(result, step.pose, step.action_probs, step.progress)
+            self._ood_reasons = output.reasons
+            self._predict(
+                result,
+                step.pose,
+                step.action_probs,
+                step.progress,
+                step.flags,
+                step.unfamiliar_score,
+            )
         self._update_state()
 
     def _predict(
@@ -227,13 +244,23 @@ class Pipeline:
         pose: npt.NDArray[np.float32],
         probs: npt.NDArray[np.float32],
         progress: float,
+        model_flags: tuple[str, ...] = (),
+        unfamiliar_score: float | None = None,
     ) -> None:
         pair = result.job.frame
         now_mono = time.monotonic_ns()
         last_byte = pair.last_byte_mono_ns
         action = int(np.argmax(probs))
-        if not has_progress(action):
-            progress = float("nan")  # the progress head says nothing while standing
+        held_back = withheld(model_flags)
+        if held_back is not None:
+            # Nobody there, not a pressure map, or unlike anything learnt: no action, no
+            # progress, and the repetition counter neither counts nor forgets.
+            action, progress = NO_ACTION, float("nan")
+            repetition = -1
+        else:
+            if not has_progress(action):
+                progress = float("nan")  # the progress head says nothing while standing
+            repetition = self.repetitions.update(action, progress)
         left_clock, right_clock = pair.clocks
         prediction = Prediction(
             seq=result.job.seq,
@@ -248,10 +275,12 @@ class Pipeline:
             action_probs=probs,
             action=action,
             progress=progress,
-            repetition=self.repetitions.update(action, progress),
-            flags=pair.flags,
+            repetition=repetition,
+            flags=(*pair.flags, *model_flags),
             inference_ms=result.inference_ms,
             counts=_read_only(pair.counts),
+            unfamiliar_score=unfamiliar_score,
+            withheld=held_back,
         )
         self.counters.predictions += 1
         if last_byte:
@@ -267,6 +296,8 @@ class Pipeline:
             reasons.insert(0, f"receiver disconnected: {self._disconnect_reason}")
         if self._model_error is not None:
             reasons.append(f"inference failed: {self._model_error}")
+        if self._warming[0] >= self._warming[1]:
+            reasons.extend(self._ood_reasons)  # a warming window predicts nothing yet
         if self.recorder is not None and self.recorder.failed:
             reasons.append(self.recorder.failed)
         state = PipelineState(

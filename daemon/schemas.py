@@ -7,7 +7,9 @@ Per-frame payloads (``pose``, ``action``, ``progress``, ``pressure``) share a
 Each payload has its own ``schema_version``, bumped when that payload changes
 in a way a consumer must know about. ``action`` and ``progress`` are at 2
 since model contract 2: the action ``standing`` (no repetitions), with
-``progress`` null and ``repetition`` -1 while it holds.
+``progress`` null and ``repetition`` -1 while it holds. Every per-frame payload
+went up by one when the model learnt to say what it does not know: the stamp's
+``unfamiliar_score``, and ``withheld`` on ``action`` and ``progress``.
 
 Run ``python -m scotti.daemon.schemas --write`` to regenerate
 ``docs/schemas/*.schema.json`` and the generated section of ``docs/mqtt.md``;
@@ -44,6 +46,8 @@ ActionName = Literal[
     "standing",
 ]
 ACTION_NAMES: Final[tuple[ActionName, ...]] = get_args(ActionName)
+# Why a prediction's action is withheld (models.ood.OOD_FLAGS; a test keeps them equal).
+WithheldFlag = Literal["unloaded", "out_of_range", "unfamiliar"]
 
 
 def _version(n: int, why: str = "") -> Any:
@@ -78,11 +82,25 @@ class FrameStamp(_Payload):
     host_mono_ns: int = Field(description="Host monotonic clock (ns) at inference.")
     predicted_for_mono_ns: int = Field(description="Host monotonic time the output is for.")
     latency_ms: float = Field(description="From the frame's last byte in to publish.")
-    flags: list[str] = Field(description="Degradations, e.g. left_filled, rows_missing.")
+    flags: list[str] = Field(
+        description="Degradations, e.g. left_filled, rows_missing; and what the model does "
+        "not know: unloaded (nobody on the insoles), out_of_range (not a plantar pressure "
+        "map), unfamiliar (unlike the training data). With any of the last three the action, "
+        "progress and repetition are withheld and the pose is not to be trusted."
+    )
+    unfamiliar_score: float | None = Field(
+        default=None,
+        description="Mahalanobis distance of the model's pooled representation from its "
+        "training data; above info.model.ood.threshold the flags say unfamiliar. Null when "
+        "the model is not calibrated (info.model.ood.calibrated false).",
+    )
+
+
+_V_OOD = "2 (pose, pressure) and 3 (action, progress) since the OOD flags."
 
 
 class Pose(FrameStamp):
-    schema_version: Literal[1] = _version(1)
+    schema_version: Literal[2] = _version(2, _V_OOD)
     keypoints: Annotated[list[Vec3], Field(min_length=19, max_length=19)] = Field(
         description="19 x [x, y, z] metres; order and frame in info.keypoints / info.pose_frame."
     )
@@ -92,10 +110,15 @@ _V2 = "2 since model contract 2: the action `standing`."
 
 
 class Action(FrameStamp):
-    schema_version: Literal[2] = _version(2, _V2)
+    schema_version: Literal[3] = _version(3, f"{_V2} {_V_OOD}")
     action: ActionName | None = Field(
         description="Most likely action (`standing`: weight on both feet, no repetition "
-        "running), or null when none is likely."
+        "running), or null when withheld (see `withheld`)."
+    )
+    withheld: WithheldFlag | None = Field(
+        default=None,
+        description="Why `action` is null: the first of unloaded, out_of_range, unfamiliar "
+        "in `flags`; null for a confident prediction. `probabilities` stay the model's own.",
     )
     confidence: float = Field(ge=0, le=1, description="Probability of `action`.")
     probabilities: dict[str, float] = Field(
@@ -104,21 +127,25 @@ class Action(FrameStamp):
 
 
 class Progress(FrameStamp):
-    schema_version: Literal[2] = _version(2, _V2)
+    schema_version: Literal[3] = _version(3, f"{_V2} {_V_OOD}")
     action: ActionName | None = Field(description="The action this progress belongs to.")
     progress: float | None = Field(
         description="0..1 through the current repetition; null while `standing` (it runs "
         "no repetitions) or without an action."
     )
     repetition: int = Field(
-        description="Repetitions of `action` counted so far; -1: none (`standing`, or no action)."
+        description="Repetitions of `action` counted so far; -1: none (`standing`, or no action). "
+        "While withheld nothing is counted and the count resumes where it was."
+    )
+    withheld: WithheldFlag | None = Field(
+        default=None, description="Why `action` and `progress` are null (as on `action`)."
     )
 
 
 class Pressure(FrameStamp):
     """Optional (mqtt.pressure = true): downsampled counts for viewers."""
 
-    schema_version: Literal[1] = _version(1)
+    schema_version: Literal[2] = _version(2, _V_OOD)
     rows: int = Field(description="Rows per foot after downsampling.")
     cols: int = Field(description="Columns per foot after downsampling.")
     downsample: int = Field(description="Block size averaged into one value.")

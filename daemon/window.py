@@ -21,6 +21,7 @@ class WindowOutput:
     result: StepResult | None  # None while warming
     frames_in_window: int
     needed: int  # T
+    reasons: tuple[str, ...] = ()  # why the result is flagged (unloaded, out_of_range, ...)
 
     @property
     def warming(self) -> bool:
@@ -44,8 +45,10 @@ class Window:
 
     def push(self, counts: npt.NDArray[np.uint16]) -> WindowOutput:
         """One paired frame (H, 2W) of raw counts; normalisation is inside the graph."""
-        result = self._streaming.push(counts.astype(np.float32))
-        return WindowOutput(result, self._streaming.frames_in_window, self._streaming.needed)
+        streaming = self._streaming
+        result = streaming.push(counts.astype(np.float32))
+        reasons = streaming.reasons if result is not None else ()
+        return WindowOutput(result, streaming.frames_in_window, streaming.needed, reasons)
 
     def restart(self) -> None:
         """Forget every frame: the next T frames warm the window up again."""

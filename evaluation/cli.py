@@ -24,6 +24,7 @@ from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.session import find_session_files
 from scotti.models.contract import ACTIONS
 from scotti.models.errors import ModelError
+from scotti.models.ood import format_flag_shares
 from scotti.models.runtime import ScottiRuntime
 
 
@@ -65,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
         models = args.model or [default_model_path()]
         runtimes = [ScottiRuntime(m, threads=args.threads) for m in models]
         reports = evaluate_models(files, runtimes, every=args.every, on_session=_progress)
+        for report, runtime in zip(reports, runtimes, strict=True):
+            report["model"]["ood"] = runtime.ood_info()
         if args.plots is not None:
             for report in reports:
                 where = args.plots if len(reports) == 1 else args.plots / _stem(report)
@@ -126,6 +129,7 @@ def format_report(report: dict[str, Any]) -> list[str]:
             f"{w['batch_size']}: {w['mean']:.2f} ms per scored window "
             "(throughput, not streaming latency)"
         )
+    lines.append(format_flag_shares(report.get("ood"), report["model"].get("ood")))
     lines.append(
         f"  {'action':18s} {'frames':>7s} {'MPJPE':>8s} {'acc %':>7s} {'MSE':>8s} {'APP':>7s}"
     )

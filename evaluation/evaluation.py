@@ -10,7 +10,7 @@ a session therefore have no prediction (the window warms up on T frames and
 the first prediction is for frame T).
 
 ``every=K`` > 1 scores every K-th prediction time instead, through the window
-graph in batches (``daemon.eval_sampling``): same decoding, assembly, pairing
+graph in batches (``evaluation.sampling``): same decoding, assembly, pairing
 and restarts, a fraction of the model time.
 
 No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
@@ -37,6 +37,7 @@ from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionR
 from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models import metrics
 from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS, has_progress
+from scotti.models.ood import flag_shares
 from scotti.models.runtime import ScottiRuntime, load_pair
 
 F32 = npt.NDArray[np.float32]
@@ -241,7 +242,9 @@ class _Track:
         self.out.pairs += 1
         self.out.degraded_pairs += bool(pair.flags)
         if result is not None and ext is not None:
-            self.made.append(Prediction(ext + 1, result.pose, result.action_probs, result.progress))
+            self.made.append(
+                Prediction(ext + 1, result.pose, result.action_probs, result.progress, result.flags)
+            )
 
     @property
     def restarts(self) -> int:
@@ -458,4 +461,5 @@ def _report(
         batches = [b for r in replays for b in r.window_batches]
         report["window_ms_per_prediction"] = window_timing(batches)
     report |= score(frames)
+    report["ood"] = flag_shares([m.flags for r in replays for m in r.made])  # every prediction
     return report

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 from scotti.daemon.pairing import PairedFrame
+from scotti.models.input_checks import check_window
+from scotti.models.ood import UNFAMILIAR
 from scotti.models.runtime import ScottiRuntime
 
 if TYPE_CHECKING:  # evaluation imports this module
@@ -38,6 +40,7 @@ class Prediction:
     pose: F32  # (19, 3)
     probs: F32  # (NUM_ACTIONS,)
     progress: float
+    flags: tuple[str, ...] = ()  # the model's OOD flags (models/ood.py OOD_FLAGS)
 
 
 @dataclass
@@ -90,9 +93,13 @@ class SampledTrack:
         start = time.perf_counter()
         result = self.runtime.run_windows(frames, batch_size=len(frames))
         self.out.window_batches.append(((time.perf_counter() - start) * 1e3, len(frames)))
-        for i, (ext, _) in enumerate(self._queue):
+        unfamiliar = result.unfamiliar
+        for i, (ext, window) in enumerate(self._queue):
+            flags = (*check_window(window).flags, *((UNFAMILIAR,) if unfamiliar[i] else ()))
             self.made.append(
-                Prediction(ext, result.pose[i], result.action_probs[i], float(result.progress[i]))
+                Prediction(
+                    ext, result.pose[i], result.action_probs[i], float(result.progress[i]), flags
+                )
             )
         self._queue.clear()
 

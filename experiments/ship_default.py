@@ -3,6 +3,18 @@
     python experiments/ship_default.py runs/X/models/NAME.onnx [--int8] \\
         --eval runs/.../p1.json ... --data "what it was trained on" [--note "..."]
 
+or, in one command from a training checkpoint (export with the unfamiliar
+score calibrated, held-out evaluation, ship):
+
+    python experiments/ship_default.py --checkpoint runs/X/best.pt \\
+        --calibrate data/corpus/realistic --data "what it was trained on" [--every 4]
+
+``--checkpoint`` runs ``scotti export CKPT -o runs/X/models/scotti-ship.onnx
+--calibrate SESSIONS`` (statistics from the checkpoint's training subjects,
+threshold from its held-out ones) and, unless ``--eval`` is given, ``scotti
+eval --json`` on the held-out subjects' session files found among SESSIONS;
+then ships as below.
+
 Copies the step and window graphs (the int8 copies with --int8) to
 models/scotti-default.onnx and models/scotti-default.window.onnx, and writes
 the model card: the export's card (config, parity proof, tools) plus what
@@ -24,8 +36,9 @@ from pathlib import Path
 from typing import Any
 
 import onnx
-from common import ROOT, fmt, mean_sd, scoring, utc_now
+from common import ROOT, ExperimentError, fmt, mean_sd, run, scoring, scotti_command, utc_now
 from measure import describe
+from scotti.export.card import ood_markdown
 from scotti.models.contract import META_CARD
 from scotti.models.runtime import ScottiRuntime
 
@@ -46,6 +59,7 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
             "frames": r["metrics"]["frames"],
             **{k: r["metrics"][k] for k in KEYS},
             "random_baseline": r["random_baseline"],
+            "flagged": r.get("ood"),  # share of predictions each OOD flag withheld
         }
         for r in reports
     ]
@@ -94,6 +108,11 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
         "spread_over": spread,
         "commands": commands,
     }
+
+
+def _flagged(shares: dict[str, Any]) -> str:
+    names = ("unloaded", "out_of_range", "unfamiliar")
+    return "flagged " + ", ".join(f"{k} {100 * (shares.get(k) or 0):.2f} %" for k in names)
 
 
 def card_md(card: dict[str, Any]) -> str:
@@ -148,6 +167,7 @@ def card_md(card: dict[str, Any]) -> str:
                 f"APP {p['app']:.4f}; random baseline: accuracy "
                 f"{100 * p['random_baseline']['action_accuracy']:.2f} %, APP "
                 f"{p['random_baseline']['app']:.4f}"
+                + (f"; {_flagged(p['flagged'])}" if p.get("flagged") else "")
                 for p in ev["partitions"]
             ),
         ]
@@ -168,6 +188,7 @@ def card_md(card: dict[str, Any]) -> str:
         lines += ["", "Commands:", "", "```", *ev["commands"], "```"]
     else:
         lines.append("Not evaluated.")
+    lines += ood_markdown(card.get("ood"))
     lat = card["latency"]
     lines += [
         "",
@@ -217,9 +238,43 @@ def embed_card(src: Path, dst: Path, card: dict[str, Any]) -> None:
     onnx.save(proto, str(dst))
 
 
+def export_calibrated(args: argparse.Namespace) -> Path:
+    """``scotti export --calibrate``, then ``scotti eval`` on the held-out subjects."""
+    # The verbs run from the repository root: paths as given here, made absolute.
+    args.checkpoint = args.checkpoint.absolute()
+    args.calibrate = [p.absolute() for p in args.calibrate]
+    out = args.checkpoint.parent / "models" / "scotti-ship.onnx"
+    export = ["export", args.checkpoint, "-o", out, "--calibrate", *args.calibrate]
+    run(scotti_command(*export, "--cache-dir", args.cache_dir))
+    if args.eval:
+        return out
+    card = json.loads(out.with_name("scotti-ship.card.json").read_text())
+    held = card["ood"]["held_out_subjects"]
+    files = [
+        p
+        for p in sorted(f for d in args.calibrate for f in (d.glob("*.ses") if d.is_dir() else [d]))
+        if p.stem in held
+    ]
+    report = args.checkpoint.parent / "eval" / "ship.json"
+    report.parent.mkdir(parents=True, exist_ok=True)
+    command = ["eval", *files, "--json", "--every", str(args.every)]
+    report.write_text(run(scotti_command(*command, "--model", out)))
+    args.eval = [report]
+    args.eval_command.append(f"scotti eval {' '.join(map(str, command[1:]))} --model {out}")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python experiments/ship_default.py", description=__doc__)
-    parser.add_argument("model", type=Path, help="exported fp32 step graph (NAME.onnx)")
+    parser.add_argument("model", type=Path, nargs="?", help="exported fp32 step graph (NAME.onnx)")
+    parser.add_argument(
+        "--checkpoint", type=Path, help="export this training checkpoint first (one command)"
+    )
+    parser.add_argument(
+        "--calibrate", type=Path, nargs="+", default=[], help="with --checkpoint: sessions"
+    )
+    parser.add_argument("--every", type=int, default=1, help="with --checkpoint: scotti eval")
+    parser.add_argument("--cache-dir", type=Path, default=ROOT / "data" / "cache")
     parser.add_argument("--int8", action="store_true", help="ship the int8 copies")
     parser.add_argument(
         "--eval", type=Path, nargs="+", action="extend", default=[], help="scotti eval --json files"
@@ -230,6 +285,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--from", dest="source", default="", help="the checkpoint, for the card")
     parser.add_argument("--out-dir", type=Path, default=MODELS, help="where to ship (models/)")
     args = parser.parse_args(argv)
+    if (args.model is None) == (args.checkpoint is None):
+        parser.error("give either an exported MODEL or --checkpoint CKPT")
+    if args.checkpoint is not None:
+        if not args.calibrate:
+            parser.error("--checkpoint needs --calibrate SESSIONS (training and held-out files)")
+        try:
+            args.model = export_calibrated(args)
+        except ExperimentError as exc:
+            print(f"ship_default: {exc}", file=sys.stderr)
+            return 1
+        args.source = args.source or str(args.checkpoint)
 
     base = args.model
     stem = base.name.removesuffix(".onnx")

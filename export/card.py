@@ -80,8 +80,52 @@ def card_markdown(card: dict[str, Any]) -> str:
     if card.get("int8_drift_max_abs"):
         lines += ["", "## int8 drift against fp32 (measured, not bounded)", ""]
         lines += [f"- {line}" for line in format_report(card["int8_drift_max_abs"])]
+    lines += ood_markdown(card.get("ood"))
     lines += ["", "## Tools", "", ", ".join(f"{k} {v}" for k, v in card["tools"].items()), ""]
     return "\n".join(lines)
+
+
+def ood_markdown(ood: dict[str, Any] | None) -> list[str]:
+    """The card's section on what the model does not know (flags, statistics, threshold)."""
+    lines = ["", "## What it does not know (OOD flags)", ""]
+    if not ood or not ood.get("calibrated"):
+        return [*lines, "Not calibrated: the `unfamiliar` score is null (export --calibrate)."]
+    checks = ood.get("input_checks", {})
+    held, train = ood["held_out_score_percentiles"], ood["train_score_percentiles"]
+    lines += [
+        f"`unfamiliar`: {ood['method']} (E={ood['dim']}, shrinkage {ood['shrinkage']:.4f}), "
+        f"statistics of {ood['train_windows']} windows of the training subjects "
+        f"({', '.join(ood['train_subjects'])}); threshold **{ood['threshold']:.2f}** = the "
+        f"{ood['threshold_percentile']:g}th percentile over {ood['held_out_windows']} windows "
+        f"of the held-out ({ood['held_out_split']}) subjects "
+        f"({', '.join(ood['held_out_subjects'])}).",
+        "",
+        "| score percentile | 50 | 90 | 99 | 99.9 | flagged |",
+        "|---|---|---|---|---|---|",
+        "| training windows | "
+        + " | ".join(f"{train[k]:.2f}" for k in ("50.0", "90.0", "99.0", "99.9"))
+        + f" | {100 * ood['train_flagged']:.2f} % |",
+        "| held-out windows | "
+        + " | ".join(f"{held[k]:.2f}" for k in ("50.0", "90.0", "99.0", "99.9"))
+        + f" | {100 * ood['held_out_flagged']:.2f} % |",
+        "",
+        f"`unloaded`: both feet under {checks.get('unloaded_force_n')} N (nominal) for "
+        f"{checks.get('unloaded_frames')} frames. `out_of_range`: "
+        f"{checks.get('out_of_range_frames')} frames of a window with load outside the "
+        f"outline (> {checks.get('outside_share_max')}), "
+        f"a quarter of a foot at the rail, one taxel holding > {checks.get('peak_share_max')} of "
+        f"a foot, more than {checks.get('force_max_n')} N, or one foot under "
+        f"{checks.get('foot_empty_n')} N for the whole window. On these windows: training "
+        f"{_shares(ood.get('input_checks_on_train'))}; held out "
+        f"{_shares(ood.get('input_checks_on_held_out'))}. Figures: docs/ood.md.",
+    ]
+    return lines
+
+
+def _shares(shares: dict[str, float] | None) -> str:
+    if not shares:
+        return "not measured"
+    return ", ".join(f"{k} {100 * v:.2f} %" for k, v in sorted(shares.items()))
 
 
 def _block(value: Any) -> str:

@@ -1,9 +1,13 @@
-"""``scotti export CHECKPOINT -o models/NAME.onnx [--int8] [--threads N]``.
+"""``scotti export CHECKPOINT -o models/NAME.onnx [--int8] [--calibrate SESSIONS...]``.
 
 Writes NAME.onnx (streaming step), NAME.window.onnx, NAME.card.json and
 NAME.card.md (plus NAME.int8.onnx / NAME.int8.window.onnx with --int8), only
 after onnxruntime agreed with torch; prints the differences it measured.
-Exit 0 on success, 2 for a bad checkpoint or argument, 1 when a proof fails.
+With ``--calibrate``, the unfamiliar score is calibrated on those session
+files (the checkpoint's training subjects for the statistics, its held-out
+subjects for the threshold; export/ood_calibration.py) and both graphs carry
+the statistics. Exit 0 on success, 2 for a bad checkpoint or argument, 1
+when a proof fails.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from pathlib import Path
 
 from scotti.export.errors import ExportError, ParityError
 from scotti.export.onnx_export import export_checkpoint
+from scotti.export.ood_calibration import Calibration
 from scotti.export.parity import format_report
 
 
@@ -36,12 +41,48 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--threads", type=_threads, default=1, help="onnxruntime threads for the proofs"
     )
+    parser.add_argument(
+        "--calibrate",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="SESSIONS",
+        help="session files or directories holding the checkpoint's training and held-out "
+        "subjects: fit the unfamiliar score's statistics and threshold",
+    )
+    parser.add_argument(
+        "--ood-percentile",
+        type=float,
+        default=99.0,
+        help="threshold: this percentile of held-out windows' scores (default 99)",
+    )
+    parser.add_argument(
+        "--ood-windows",
+        type=_threads,
+        default=4000,
+        help="windows per side (training, held out) for the calibration (default 4000)",
+    )
+    parser.add_argument(
+        "--cache-dir", type=Path, default=None, help="decoded-session cache (as scotti train)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
+    calibration = None
+    if args.calibrate:
+        if not 50.0 <= args.ood_percentile < 100.0:
+            print("scotti export: --ood-percentile must be in [50, 100)", file=sys.stderr)
+            return 2
+        calibration = Calibration(
+            tuple(args.calibrate), args.ood_percentile, args.ood_windows, args.cache_dir
+        )
     try:
         result = export_checkpoint(
-            args.checkpoint, args.output, int8=args.int8, threads=args.threads
+            args.checkpoint,
+            args.output,
+            int8=args.int8,
+            threads=args.threads,
+            calibration=calibration,
         )
     except ParityError as exc:
         print(f"scotti export: parity check failed, nothing written: {exc}", file=sys.stderr)
@@ -62,6 +103,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"max abs difference, onnxruntime vs torch (atol {tol['atol']:g}, rtol {tol['rtol']:g}):")
     for line in format_report(result.parity):
         print(f"  {line}")
+    ood = card.get("ood") or {}
+    if ood.get("calibrated"):
+        print(
+            f"unfamiliar score: threshold {ood['threshold']:.2f} (p{ood['threshold_percentile']:g} "
+            f"of {ood['held_out_windows']} {ood['held_out_split']} windows), statistics of "
+            f"{ood['train_windows']} training windows, shrinkage {ood['shrinkage']:.3f}"
+        )
+    else:
+        print("unfamiliar score: not calibrated (give --calibrate SESSIONS)")
     if result.int8_drift:
         print("int8 drift against fp32 (max abs, measured, not bounded):")
         for line in format_report(result.int8_drift):

@@ -218,6 +218,11 @@ class Scotti(nn.Module):
 
     def forward_embeddings(self, emb: torch.Tensor) -> ScottiOutputs:
         """The T frame embeddings of a window (B, T, E), oldest first -> the three heads."""
+        return self.forward_embeddings_pooled(emb)[0]
+
+    def forward_embeddings_pooled(self, emb: torch.Tensor) -> tuple[ScottiOutputs, torch.Tensor]:
+        """``forward_embeddings`` plus the pooled vector (B, E) the heads read: the
+        exported graphs publish it, so the runtime can tell an unfamiliar window."""
         b = emb.shape[0]
         cls = self.class_token.expand(b, -1, -1)  # (B, 1, E)
         x = torch.cat([cls, emb], dim=1) + self.positions  # (B, T+1, E)
@@ -230,7 +235,7 @@ class Scotti(nn.Module):
         pose = self.pose_head(pooled).view(b, contract.NUM_KEYPOINTS, 3)  # (B, 19, 3)
         action_logits = self.action_head(pooled)  # (B, NUM_ACTIONS)
         progress = torch.sigmoid(self.progress_head(pooled)).squeeze(-1)  # (B,)
-        return ScottiOutputs(pose, action_logits, progress)
+        return ScottiOutputs(pose, action_logits, progress), pooled
 
     def forward(self, frames: torch.Tensor) -> ScottiOutputs:
         """Raw counts (B, T, H, 2W) -> pose, action logits and progress for time t."""

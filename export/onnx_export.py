@@ -27,6 +27,7 @@ import torch
 from scotti.export.card import card_markdown, file_entry, jsonable, tool_versions
 from scotti.export.errors import ExportError
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
+from scotti.export.ood_calibration import Calibration, calibrate, gather
 from scotti.export.parity import (
     FP32,
     STEP_INPUTS,
@@ -40,6 +41,8 @@ from scotti.export.parity import (
 )
 from scotti.export.quantize import quantize_int8
 from scotti.models import contract
+from scotti.models.input_checks import input_check_thresholds
+from scotti.models.ood import OodStats
 from torch import nn
 
 OPSET = 20
@@ -54,11 +57,11 @@ class StepGraph(nn.Module):
 
     def forward(
         self, frame: torch.Tensor, past_embeddings: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         emb = self.model.embed_frames(frame)  # (B, E), the newest frame
         window = torch.cat([past_embeddings, emb[:, None]], dim=1)  # (B, T, E), oldest first
-        pose, action_logits, progress = self.model.forward_embeddings(window)
-        return pose, action_logits, progress, emb
+        (pose, action_logits, progress), pooled = self.model.forward_embeddings_pooled(window)
+        return pose, action_logits, progress, emb, pooled
 
 
 class WindowGraph(nn.Module):
@@ -68,9 +71,13 @@ class WindowGraph(nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        pose, action_logits, progress = self.model(frames)  # (B, T, H, 2W) -> heads
-        return pose, action_logits, progress
+    def forward(
+        self, frames: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        b, t, h, w2 = frames.shape
+        emb = self.model.embed_frames(frames.reshape(b * t, h, w2)).view(b, t, -1)  # (B, T, E)
+        (pose, action_logits, progress), pooled = self.model.forward_embeddings_pooled(emb)
+        return pose, action_logits, progress, pooled
 
 
 @dataclass(frozen=True)
@@ -235,7 +242,9 @@ def export_graph(
     program.save(str(path), external_data=False)
 
 
-def write_metadata(path: Path, graph: str, cfg: ScottiConfig, card: dict[str, Any]) -> None:
+def write_metadata(
+    path: Path, graph: str, cfg: ScottiConfig, card: dict[str, Any], ood: OodStats | None = None
+) -> None:
     """Set the contract's metadata_props (contract.META_*) on a saved graph."""
     proto = onnx.load(str(path))
     values = {
@@ -249,6 +258,8 @@ def write_metadata(path: Path, graph: str, cfg: ScottiConfig, card: dict[str, An
         contract.META_ACTIONS: json.dumps(list(contract.ACTIONS)),
         contract.META_CARD: json.dumps(card, sort_keys=True, default=jsonable),
     }
+    if ood is not None:
+        values[contract.META_OOD] = ood.to_json()
     del proto.metadata_props[:]
     for key, value in values.items():
         entry = proto.metadata_props.add()
@@ -278,11 +289,22 @@ def base_card(ckpt: Checkpoint, name: str, precision: str) -> dict[str, Any]:
 
 
 def export_model(
-    ckpt: Checkpoint, out: Path, *, int8: bool = False, threads: int = 1, tol: Tolerance = FP32
+    ckpt: Checkpoint,
+    out: Path,
+    *,
+    int8: bool = False,
+    threads: int = 1,
+    tol: Tolerance = FP32,
+    calibration: Calibration | None = None,
 ) -> ExportResult:
-    """Export, prove and card one model; files appear under ``out``'s names only if proven."""
+    """Export, prove and card one model; files appear under ``out``'s names only if proven.
+
+    With ``calibration``, the unfamiliar score's statistics are fitted on the proven
+    window graph and go into both graphs' metadata (``contract.META_OOD``) and the card.
+    """
     paths = GraphPaths.for_output(out)
     model, cfg = ckpt.model.eval(), ckpt.model.cfg
+    sets = gather(ckpt.training_data, calibration) if calibration is not None else None
     name = out.with_suffix("").name
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f".{name}.", dir=out.parent) as tmp:
@@ -298,6 +320,14 @@ def export_model(
         write_metadata(staged.step, "step", cfg, card)
         write_metadata(staged.window, "window", cfg, card)
         parity = prove(model, staged.step, staged.window, threads, tol)
+        ood = None
+        if calibration is not None and sets is not None:
+            ood = calibrate(staged.window, sets, calibration, threads)
+            card = {**card, "ood": ood_card(ood)}
+            write_metadata(staged.step, "step", cfg, card, ood)
+            write_metadata(staged.window, "window", cfg, card, ood)
+        else:
+            card = {**card, "ood": {"calibrated": False}}
         files = {"step": file_entry(staged.step), "window": file_entry(staged.window)}
         int8_drift: Report = {}
         if int8:
@@ -307,7 +337,8 @@ def export_model(
                 (staged.window, staged.int8_window, "window"),
             ):
                 quantize_int8(src, dst)
-                write_metadata(dst, graph, cfg, int8_card)
+                # The fp32 statistics, as a first guess: int8 drift moves the pooled vector.
+                write_metadata(dst, graph, cfg, int8_card, ood)
             int8_drift = drift(
                 cfg, (staged.step, staged.window), (staged.int8_step, staged.int8_window), threads
             )
@@ -329,7 +360,19 @@ def export_model(
     return ExportResult(paths=paths, card=full_card, parity=parity, int8_drift=int8_drift)
 
 
+def ood_card(ood: OodStats) -> dict[str, Any]:
+    """The card's OOD section: the statistics' summary and the input checks' thresholds."""
+    return {"calibrated": True, **ood.summary, "input_checks": input_check_thresholds()}
+
+
 def export_checkpoint(
-    checkpoint: Path, out: Path, *, int8: bool = False, threads: int = 1
+    checkpoint: Path,
+    out: Path,
+    *,
+    int8: bool = False,
+    threads: int = 1,
+    calibration: Calibration | None = None,
 ) -> ExportResult:
-    return export_model(load_checkpoint(checkpoint), out, int8=int8, threads=threads)
+    return export_model(
+        load_checkpoint(checkpoint), out, int8=int8, threads=threads, calibration=calibration
+    )

@@ -28,8 +28,10 @@ U16_MAX = 0xFFFF  # what a corrupt 16-bit sample on the wire could carry
 # Graph I/O names in the order the graphs declare them (contract.py names).
 STEP_INPUTS = (contract.STEP_INPUT_FRAME, contract.STEP_INPUT_PAST)
 WINDOW_INPUTS = (contract.WINDOW_INPUT_FRAMES,)
-WINDOW_OUTPUTS = (contract.OUTPUT_POSE, contract.OUTPUT_ACTION_LOGITS, contract.OUTPUT_PROGRESS)
-STEP_OUTPUTS = (*WINDOW_OUTPUTS, contract.STEP_OUTPUT_EMBEDDING)
+HEAD_OUTPUTS = (contract.OUTPUT_POSE, contract.OUTPUT_ACTION_LOGITS, contract.OUTPUT_PROGRESS)
+# The pooled representation comes last in both graphs (the existing outputs keep their places).
+WINDOW_OUTPUTS = (*HEAD_OUTPUTS, contract.OUTPUT_POOLED)
+STEP_OUTPUTS = (*HEAD_OUTPUTS, contract.STEP_OUTPUT_EMBEDDING, contract.OUTPUT_POOLED)
 
 
 @dataclass(frozen=True)
@@ -151,9 +153,13 @@ def check_structure(path: Path, graph: str) -> None:
 
 
 def torch_window(model: Scotti, frames: np.ndarray) -> Arrays:
+    """The window graph's outputs computed by torch: the three heads and the pooled vector."""
+    b, t = frames.shape[:2]
     with torch.no_grad():
-        out = model.eval()(torch.from_numpy(frames))
-    return {n: t.numpy() for n, t in zip(WINDOW_OUTPUTS, out, strict=True)}
+        emb = model.eval().embed_frames(torch.from_numpy(frames.reshape(b * t, *frames.shape[2:])))
+        heads, pooled = model.forward_embeddings_pooled(emb.view(b, t, -1))
+    out = {n: x.numpy() for n, x in zip(HEAD_OUTPUTS, heads, strict=True)}
+    return {**out, contract.OUTPUT_POOLED: pooled.numpy()}
 
 
 def stream(step: ort.InferenceSession, frames: np.ndarray, embed_dim: int, window: int) -> Arrays:

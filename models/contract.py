@@ -153,6 +153,10 @@ OUTPUT_POSE: Final = "pose"  # float32 (B, 19, 3) metres, pose frame
 OUTPUT_ACTION_LOGITS: Final = "action_logits"  # float32 (B, NUM_ACTIONS)
 OUTPUT_PROGRESS: Final = "progress"  # float32 (B,) in [0, 1]; meaningless while standing
 STEP_OUTPUT_EMBEDDING: Final = "embedding"  # float32 (B, E), the new frame's
+# Both graphs, last output: the pooled representation the three heads read. The
+# runtime scores it against the training data's statistics (``META_OOD``) for the
+# ``unfamiliar`` flag (models/ood.py); a graph without it still runs, unscored.
+OUTPUT_POOLED: Final = "pooled"  # float32 (B, E)
 
 # Metadata keys (onnx metadata_props) every exported graph carries.
 META_CONTRACT_VERSION: Final = "scotti.contract_version"
@@ -164,3 +168,6 @@ META_FRAME_COLS: Final = "scotti.frame_cols"  # per foot (W)
 META_KEYPOINTS: Final = "scotti.keypoints"  # JSON list
 META_ACTIONS: Final = "scotti.actions"  # JSON list
 META_CARD: Final = "scotti.card"  # JSON model card (training data, metrics, ...)
+# Optional: statistics of the pooled vectors over training windows and the calibrated
+# threshold of the unfamiliar score (JSON, models/ood.py ``OodStats``).
+META_OOD: Final = "scotti.ood"

@@ -22,6 +22,7 @@ import numpy.typing as npt
 import onnxruntime as ort
 from scotti.models import contract as c
 from scotti.models.errors import ModelContractError, ModelError, ModelInputError
+from scotti.models.ood import UNFAMILIAR, OodStats
 
 F32 = npt.NDArray[np.float32]
 _FLOAT = "tensor(float)"
@@ -46,6 +47,9 @@ class StepResult:
     action_probs: F32  # (8,) softmax of the logits
     progress: float  # 0..1 through the current repetition
     embedding: F32  # (E,) the new frame's embedding, for the cache
+    pooled: F32 | None = None  # (E,) what the heads read; None from a graph without it
+    unfamiliar_score: float | None = None  # Mahalanobis distance; None: not calibrated
+    flags: tuple[str, ...] = ()  # "unfamiliar"; the streaming window adds the input flags
 
 
 @dataclass(frozen=True)
@@ -56,6 +60,17 @@ class WindowResult:
     action_logits: F32  # (B, NUM_ACTIONS)
     action_probs: F32  # (B, NUM_ACTIONS)
     progress: F32  # (B,)
+    pooled: F32 | None = None  # (B, E); None from a graph without it
+    unfamiliar_score: npt.NDArray[np.float64] | None = None  # (B,); None: not calibrated
+    threshold: float | None = None  # the OOD threshold the scores were judged by
+
+    @property
+    def unfamiliar(self) -> npt.NDArray[np.bool_]:
+        """(B,) scores above the calibrated threshold (all False when not calibrated)."""
+        n = self.progress.shape[0]
+        if self.unfamiliar_score is None or self.threshold is None:
+            return np.zeros(n, dtype=bool)
+        return np.asarray(self.unfamiliar_score > self.threshold)
 
 
 def softmax(logits: npt.ArrayLike, axis: int = -1) -> F32:
@@ -79,13 +94,16 @@ class ScottiRuntime:
         meta = dict(self._session.get_modelmeta().custom_metadata_map)
         try:
             self._graph, self._window, self._embed_dim, self._card = _check_metadata(meta)
-            _check_io(self._session, self._graph, self._window, self._embed_dim)
+            self._has_pooled = _check_io(self._session, self._graph, self._window, self._embed_dim)
+            self._ood = _ood_stats(meta, self._embed_dim, self._has_pooled)
         except ModelContractError as exc:
             msg = f"{self._path.name}: {exc}"
             raise ModelContractError(msg) from None
         self._outputs = [c.OUTPUT_POSE, c.OUTPUT_ACTION_LOGITS, c.OUTPUT_PROGRESS]
         if self._graph == "step":
             self._outputs.append(c.STEP_OUTPUT_EMBEDDING)
+        if self._has_pooled:
+            self._outputs.append(c.OUTPUT_POOLED)
         self._frame_shape = (c.FRAME_ROWS, 2 * c.FRAME_COLS)
 
     # --- what was loaded -----------------------------------------------------
@@ -124,6 +142,26 @@ class ScottiRuntime:
         return dict(self._card)
 
     @property
+    def ood(self) -> OodStats | None:
+        """The training data's pooled-vector statistics (None: not calibrated)."""
+        return self._ood
+
+    def ood_info(self) -> dict[str, Any]:
+        """What ``info`` says about the unfamiliar score: calibrated or why not."""
+        if self._ood is None:
+            why = (
+                "the graph has no pooled output (an export from before the OOD score)"
+                if not self._has_pooled
+                else "the model carries no OOD statistics (export it with --calibrate)"
+            )
+            return {"calibrated": False, "reason": f"not calibrated: {why}"}
+        return {
+            "calibrated": True,
+            "threshold": self._ood.threshold,
+            "summary": self._ood.summary,
+        }
+
+    @property
     def frame_shape(self) -> tuple[int, int]:
         """(H, 2W): one input frame, left insole then right, raw counts."""
         return self._frame_shape
@@ -137,15 +175,23 @@ class ScottiRuntime:
             raise ModelError(msg)
         f = _as_f32(frame, self._frame_shape, "frame")
         p = _as_f32(past, (self._window - 1, self._embed_dim), "past embeddings")
-        pose, logits, progress, embedding = self._session.run(
+        pose, logits, progress, embedding, *rest = self._session.run(
             self._outputs, {c.STEP_INPUT_FRAME: f[None], c.STEP_INPUT_PAST: p[None]}
         )
+        pooled = rest[0][0] if rest else None
+        score = None
+        if pooled is not None and self._ood is not None:
+            score = float(self._ood.score(pooled))
+        unfamiliar = score is not None and self._ood is not None and score > self._ood.threshold
         return StepResult(
             pose=pose[0],
             action_logits=logits[0],
             action_probs=softmax(logits[0]),
             progress=float(progress[0]),
             embedding=embedding[0],
+            pooled=pooled,
+            unfamiliar_score=score,
+            flags=(UNFAMILIAR,) if unfamiliar else (),
         )
 
     def run_windows(self, frames: npt.ArrayLike, batch_size: int = 32) -> WindowResult:
@@ -173,8 +219,14 @@ class ScottiRuntime:
                 logits.copy(),
                 np.zeros(0, np.float32),
             )
-        pose, logits, progress = (np.concatenate(parts) for parts in zip(*chunks, strict=True))
-        return WindowResult(pose, logits, softmax(logits), progress)
+        pose, logits, progress, *rest = (
+            np.concatenate(parts) for parts in zip(*chunks, strict=True)
+        )
+        pooled = rest[0] if rest else None
+        ood = self._ood
+        score = ood.score(pooled) if pooled is not None and ood is not None else None
+        threshold = ood.threshold if ood is not None else None
+        return WindowResult(pose, logits, softmax(logits), progress, pooled, score, threshold)
 
     # --- files -------------------------------------------------------------------
 
@@ -329,6 +381,15 @@ def _meta_card(meta: dict[str, str]) -> dict[str, Any]:
     return card
 
 
+def _ood_stats(meta: dict[str, str], embed_dim: int, has_pooled: bool) -> OodStats | None:
+    if c.META_OOD not in meta:
+        return None
+    if not has_pooled:
+        msg = f"model carries {c.META_OOD} statistics but no {c.OUTPUT_POOLED!r} output"
+        raise ModelContractError(msg)
+    return OodStats.from_json(meta[c.META_OOD], embed_dim)
+
+
 def _expected_io(
     graph: str, window: int, embed_dim: int
 ) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
@@ -345,7 +406,8 @@ def _expected_io(
     return inputs, {**outputs, c.STEP_OUTPUT_EMBEDDING: (embed_dim,)}
 
 
-def _check_io(session: ort.InferenceSession, graph: str, window: int, embed_dim: int) -> None:
+def _check_io(session: ort.InferenceSession, graph: str, window: int, embed_dim: int) -> bool:
+    """Checks inputs and outputs; returns whether the graph has the optional pooled output."""
     want_in, want_out = _expected_io(graph, window, embed_dim)
     have_in = {arg.name: arg for arg in session.get_inputs()}
     have_out = {arg.name: arg for arg in session.get_outputs()}
@@ -356,9 +418,13 @@ def _check_io(session: ort.InferenceSession, graph: str, window: int, embed_dim:
         if name not in have_out:
             msg = f"model lacks output {name!r} that a {graph} graph needs"
             raise ModelContractError(msg)
+    has_pooled = c.OUTPUT_POOLED in have_out
+    if has_pooled:
+        want_out = {**want_out, c.OUTPUT_POOLED: (embed_dim,)}
     for kind, have, want in (("input", have_in, want_in), ("output", have_out, want_out)):
         for name, shape in want.items():
             _check_arg(kind, name, have[name].type, list(have[name].shape), shape)
+    return has_pooled
 
 
 def _check_arg(kind: str, name: str, dtype: str, dims: list[Any], want: tuple[int, ...]) -> None:

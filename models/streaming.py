@@ -5,13 +5,21 @@ embedding is cached, like an LLM's past keys and values, so that one step
 costs one CNN pass plus the transformer over T tokens. The first T-1 frames
 only fill the cache: until T frames have been seen the window is "warming"
 and ``push`` returns None.
+
+Beside the embeddings it keeps the input checks of the last T frames
+(models/input_checks.py): each prediction carries the ``unloaded`` and
+``out_of_range`` flags of its window next to the runtime's ``unfamiliar``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import numpy.typing as npt
 from scotti.models.errors import ModelError, ModelInputError
+from scotti.models.input_checks import FrameChecks
+from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON
 from scotti.models.runtime import ScottiRuntime, StepResult
 
 
@@ -77,7 +85,9 @@ class StreamingWindow:
             raise ModelError(msg)
         self._runtime = runtime
         self._cache = EmbeddingCache(runtime.window - 1, runtime.embed_dim)
+        self._checks = FrameChecks(runtime.window)
         self._seen = 0
+        self.reasons: tuple[str, ...] = ()  # why the last prediction's input was flagged
 
     @property
     def runtime(self) -> ScottiRuntime:
@@ -109,10 +119,20 @@ class StreamingWindow:
         """
         result = self._runtime.step(frame, self._cache.past())
         self._cache.push(result.embedding)
+        verdict = self._checks.push(frame)
         self._seen += 1
-        return None if self.warming else result
+        if self.warming:
+            return None
+        self.reasons = verdict.reasons
+        if UNFAMILIAR in result.flags:
+            self.reasons += (UNFAMILIAR_REASON,)
+        if not verdict.flags:
+            return result
+        return dataclasses.replace(result, flags=(*verdict.flags, *result.flags))
 
     def reset(self) -> None:
         """Forget every frame (after a long gap): the window warms up again."""
         self._cache.reset()
+        self._checks.reset()
         self._seen = 0
+        self.reasons = ()

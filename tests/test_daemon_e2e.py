@@ -15,12 +15,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from scotti.daemon.board_emulator import BoardEmulator
 from scotti.daemon.schemas import Action, Health, Info, Pose, Progress, Status
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.session import read_session
-from scotti.models.contract import KEYPOINTS, WINDOW
+from scotti.models.contract import FRAME_COLS, FRAME_ROWS, KEYPOINTS, WINDOW
 
 from tests.support.broker import Received, collect, payloads, start_daemon
 from tests.support.sessions import SyntheticSession, write_synthetic_session
@@ -152,13 +153,49 @@ def test_a_model_that_says_standing_publishes_null_progress_over_mqtt(
     assert 0 < len(progress) <= FRAMES - WINDOW + 1
     assert [a.seq for a in actions] == [p.seq for p in progress]
     assert {a.action for a in actions} == {"standing"}
-    assert all(a.schema_version == 2 and a.probabilities["standing"] > 0.99 for a in actions)
+    assert all(a.schema_version == 3 and a.probabilities["standing"] > 0.99 for a in actions)
+    # The tiny model is not calibrated: no unfamiliar score; a plausible map: nothing withheld.
+    assert all(a.withheld is None and a.unfamiliar_score is None for a in actions)
     assert {(p.action, p.progress, p.repetition) for p in progress} == {("standing", None, -1)}
     raw = json.loads(next(m for m in msgs if m.topic.endswith("/progress")).payload)
     assert raw["progress"] is None  # JSON null on the wire, not NaN or a number
     info = Info.model_validate_json(next(m for m in msgs if m.topic.endswith("/info")).payload)
     assert info.actions[-1] == "standing"
     assert info.model["card"]["contract_version"] == 2
+
+
+def test_an_empty_insole_pair_is_published_as_unloaded_with_no_action(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
+) -> None:
+    """Nobody on the insoles: zeros from both feet, the whole session. Every prediction
+    says unloaded, names no action, no progress and no count; status says why."""
+    empty = np.zeros((FRAME_ROWS, FRAME_COLS), np.uint16)
+    session = write_synthetic_session(
+        tmp_path / "empty.scotti", frames=WINDOW + 20, counts_of=lambda *_: empty
+    )
+    msgs = replay(mosquitto, session.path, tiny_model_path, tmp_path, "e2e-empty")
+    actions = [Action.model_validate_json(m.payload) for m in msgs if m.topic.endswith("/action")]
+    progress = [
+        Progress.model_validate_json(m.payload) for m in msgs if m.topic.endswith("/progress")
+    ]
+    poses = [Pose.model_validate_json(m.payload) for m in msgs if m.topic.endswith("/pose")]
+    assert 0 < len(actions) <= 21
+    assert [a.seq for a in actions] == [p.seq for p in progress] == [p.seq for p in poses]
+    for a in actions:
+        assert (a.action, a.confidence, a.withheld) == (None, 0.0, "unloaded")
+        assert "unloaded" in a.flags
+        assert a.unfamiliar_score is None  # the tiny model is not calibrated
+    assert {(p.action, p.progress, p.repetition, p.withheld) for p in progress} == {
+        (None, None, -1, "unloaded")
+    }
+    assert all("unloaded" in p.flags for p in poses)
+    statuses = [Status.model_validate_json(m.payload) for m in msgs if m.topic.endswith("/status")]
+    unloaded = [s for s in statuses if any(r.startswith("unloaded: ") for r in s.reasons)]
+    assert unloaded
+    assert all(s.state == "degraded" for s in unloaded)
+    info = Info.model_validate_json(next(m for m in msgs if m.topic.endswith("/info")).payload)
+    assert info.model["ood"]["calibrated"] is False
+    assert info.model["input_checks"]["unloaded_force_n"] == 100.0
 
 
 def test_live_board_subscriber_example_and_last_will_on_sigkill(

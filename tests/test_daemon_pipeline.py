@@ -16,10 +16,21 @@ from scotti.daemon.schemas import Action, Progress
 from scotti.daemon.sources import ReplaySource, SerialSource, Source
 from scotti.daemon.sources_sim import SimulatedSource
 from scotti.daemon.waiting import Backoff
-from scotti.models.contract import ACTIONS, NUM_ACTIONS, NUM_KEYPOINTS, STANDING
+from scotti.firmware_protocol.packets import Foot
+from scotti.models.contract import (
+    ACTIONS,
+    FRAME_COLS,
+    FRAME_ROWS,
+    MAX_COUNT,
+    NO_ACTION,
+    NUM_ACTIONS,
+    NUM_KEYPOINTS,
+    STANDING,
+)
+from scotti.models.input_checks import UNLOADED_FRAMES
 from scotti.models.runtime import ScottiRuntime
 
-from tests.support.sessions import write_synthetic_session
+from tests.support.sessions import synthetic_counts, write_synthetic_session
 
 
 @pytest.fixture(scope="module")
@@ -256,3 +267,61 @@ def test_after_a_replug_the_state_warms_up_from_zero_before_reading_ready(
     assert back[0].warming == (0, t)  # reconnected: still empty, not the old (T, T)
     ready = next(i for i, s in enumerate(back) if s.warming == (t, t))
     assert [s.warming[0] for s in back[:ready]] == sorted(s.warming[0] for s in back[:ready])
+
+
+def test_an_empty_insole_pair_withholds_action_progress_and_counting_while_it_lasts(
+    tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    """Frames 60..89 read zero (nobody on the insoles): once 16 of them are the newest
+    frames, predictions are flagged unloaded with no action, no progress and no count,
+    and status says why; when the person steps back on, both clear."""
+    empty_from, empty_to = 60, 90
+
+    def counts(foot: Foot, seq: int, i: int) -> np.ndarray:
+        if empty_from <= i < empty_to:
+            return np.zeros((FRAME_ROWS, FRAME_COLS), np.uint16)
+        return synthetic_counts(foot, seq)
+
+    session = write_synthetic_session(tmp_path / "off.scotti", frames=130, counts_of=counts)
+    predictions, states, _ = run_pipeline(ReplaySource(session.path, speed="max"), runtime)
+    by_seq = {p.seq: p for p in predictions}
+    assert len(by_seq) == 130 - runtime.window + 1
+    first_unloaded = empty_from + UNLOADED_FRAMES - 1  # the 16th empty frame is the newest
+    for seq, p in by_seq.items():
+        unloaded = first_unloaded <= seq < empty_to
+        assert ("unloaded" in p.flags) == unloaded, seq
+        assert np.isfinite(p.pose).all()
+        if unloaded:
+            assert (p.action, p.withheld, p.repetition) == (NO_ACTION, "unloaded", -1)
+            assert np.isnan(p.progress)
+            payloads = dict(frame_payloads(p, 1.0))
+            action, progress = payloads["action"], payloads["progress"]
+            assert isinstance(action, Action)
+            assert isinstance(progress, Progress)
+            assert (action.action, action.confidence, action.withheld) == (None, 0.0, "unloaded")
+            assert (progress.progress, progress.repetition) == (None, -1)
+        else:
+            assert p.withheld is None
+            assert 0 <= p.action < NUM_ACTIONS
+    said = [s for s in states if any(r.startswith("unloaded: ") for r in s.reasons)]
+    assert said, [s.reasons for s in states]
+    assert not any(r.startswith("unloaded") for r in states[-1].reasons)
+
+
+def test_noise_on_the_line_is_out_of_range_with_its_reason(
+    tmp_path: Path, runtime: ScottiRuntime
+) -> None:
+    """Full-scale uniform noise on both insoles, the whole session: every prediction is
+    flagged out_of_range (load outside the outline, more force than a landing)."""
+
+    def noise(foot: Foot, seq: int, i: int) -> np.ndarray:
+        rng = np.random.default_rng(seq * 2 + int(foot))
+        return rng.integers(0, MAX_COUNT + 1, (FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
+
+    session = write_synthetic_session(tmp_path / "noise.scotti", frames=60, counts_of=noise)
+    predictions, states, _ = run_pipeline(ReplaySource(session.path, speed="max"), runtime)
+    assert predictions
+    assert all(p.withheld == "out_of_range" and p.action == NO_ACTION for p in predictions)
+    reasons = [r for s in states for r in s.reasons if r.startswith("out_of_range: ")]
+    assert reasons
+    assert "load outside the insole outline" in reasons[-1]

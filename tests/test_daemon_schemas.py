@@ -5,7 +5,7 @@ from __future__ import annotations
 import base64
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import msgpack
 import pytest
@@ -22,6 +22,7 @@ from scotti.daemon.schemas import (
     encode,
 )
 from scotti.models.contract import ACTIONS
+from scotti.models.ood import OOD_FLAGS
 
 DOCS = Path(__file__).parent.parent / "docs"
 STAMP: dict[str, Any] = {
@@ -33,6 +34,7 @@ STAMP: dict[str, Any] = {
     "predicted_for_mono_ns": 185_956_789,
     "latency_ms": 3.5,
     "flags": ["left_filled"],
+    "unfamiliar_score": 12.5,
 }
 
 
@@ -55,7 +57,7 @@ def test_round_trip_both_formats(fmt: str) -> None:
 def test_json_is_plain_json_and_msgpack_has_binary_pressure() -> None:
     p = Pressure(**STAMP, rows=1, cols=2, downsample=16, left=b"\xfb\xff\x01\x00", right=b"")
     doc = json.loads(encode(p, "json"))
-    assert doc["schema_version"] == 1
+    assert doc["schema_version"] == 2
     assert doc["device_seq"] == {"left": 65535, "right": 3}
     assert base64.urlsafe_b64decode(doc["left"]) == b"\xfb\xff\x01\x00"
     assert msgpack.unpackb(encode(p, "msgpack"))["left"] == b"\xfb\xff\x01\x00"
@@ -70,28 +72,46 @@ def test_bad_payloads_are_rejected() -> None:
         Status.model_validate({"state": "sleepy", "reasons": [], "source": "connected"})
     with pytest.raises(ValidationError):
         decode(Pose, b'{"schema_version": 2}', "json")
+    with pytest.raises(ValidationError):  # a withheld action names one of the three flags
+        Action(**STAMP, action=None, confidence=0.0, probabilities={}, withheld="asleep")  # type: ignore[arg-type]
 
 
-def test_action_names_are_the_contracts_and_v2_payloads_carry_standing() -> None:
+def test_action_names_are_the_contracts_and_payloads_carry_standing() -> None:
     assert schemas.ACTION_NAMES == ACTIONS  # the schema's literal follows the model contract
     still = Progress(**STAMP, action="standing", progress=None, repetition=-1)
     doc = json.loads(encode(still, "json"))
-    assert doc["schema_version"] == 2
+    assert doc["schema_version"] == 3
     assert doc["progress"] is None
     assert decode(Progress, encode(still, "msgpack"), "msgpack") == still
-    assert Action(**STAMP, action="standing", confidence=0.9, probabilities={}).schema_version == 2
-    assert pose().schema_version == 1  # unchanged payloads keep their version
+    assert Action(**STAMP, action="standing", confidence=0.9, probabilities={}).schema_version == 3
+    assert pose().schema_version == 2
     with pytest.raises(ValidationError):
         Action(**STAMP, action="sitting", confidence=0.9, probabilities={})
     with pytest.raises(ValidationError):  # a version-1 progress payload is not misread
         decode(
             Progress,
-            encode(still, "json").replace(b'"schema_version":2', b'"schema_version":1'),
+            encode(still, "json").replace(b'"schema_version":3', b'"schema_version":2'),
             "json",
         )
     schema = json.loads(schemas.json_schemas()["progress"])
     names = schema["properties"]["action"]["anyOf"][0]["enum"]
     assert names == list(ACTIONS)
+
+
+def test_withheld_names_are_the_ood_flags_and_a_withheld_action_is_null() -> None:
+    assert get_args(schemas.WithheldFlag) == OOD_FLAGS
+    gone = Action(
+        **{**STAMP, "flags": ["unloaded"], "unfamiliar_score": None},
+        action=None,
+        confidence=0.0,
+        probabilities={},
+        withheld="unloaded",
+    )
+    doc = json.loads(encode(gone, "json"))
+    assert doc["action"] is None
+    assert doc["withheld"] == "unloaded"
+    assert doc["unfamiliar_score"] is None  # an uncalibrated model publishes null
+    assert decode(Action, encode(gone, "msgpack"), "msgpack") == gone
 
 
 def test_committed_docs_equal_the_generated_ones() -> None:
@@ -102,11 +122,11 @@ def test_committed_docs_equal_the_generated_ones() -> None:
 
 
 def test_doc_generator_replaces_only_its_section() -> None:
-    doc = "# Title\n\nprose\n\n" + schemas.BEGIN + "\nold\n" + schemas.END + "\n\nafter\n"
+    doc = "# Title\n\nprose\n\n" + schemas.BEGIN + "\nstale section\n" + schemas.END + "\n\nafter\n"
     out = schemas.render_doc(doc)
     assert out.startswith("# Title\n\nprose\n\n")
     assert out.endswith("\n\nafter\n")
-    assert "old" not in out
+    assert "stale section" not in out  # ("old" is in "threshold")
     assert '"title": "Pose"' in out
     assert schemas.render_doc(out) == out
 

@@ -17,11 +17,14 @@ from scotti.evaluation.evaluation import (
     replay_session,
     score,
 )
+from scotti.firmware_protocol.packets import Foot
 from scotti.firmware_protocol.session import LabelRecord, read_session
 from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS, STANDING
+from scotti.models.input_checks import UNLOADED_FRAMES
 from scotti.models.runtime import ScottiRuntime
 
 from tests.support.export_sessions import write_session
+from tests.support.sessions import synthetic_counts, write_synthetic_session
 
 FRAMES = 90
 
@@ -268,3 +271,33 @@ def test_evaluation_errors_share_the_daemon_root() -> None:
     from scotti.evaluation.evaluation import EvaluationError
 
     assert issubclass(EvaluationError, DaemonError)
+
+
+def test_eval_reports_the_share_of_predictions_each_flag_withheld(
+    tmp_path: Path, runtime: ScottiRuntime, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """40 frames of a plausible map, then 40 of nobody on the insoles: the predictions
+    whose newest 16 frames are all empty are unloaded, streaming and sampled alike."""
+    empty = np.zeros((32, 22), np.uint16)
+
+    def counts(foot: Foot, seq: int, i: int) -> np.ndarray:
+        return synthetic_counts(foot, seq) if i < 40 else empty
+
+    path = write_synthetic_session(tmp_path / "off.scotti", frames=80, counts_of=counts).path
+    full = replay_session(path, runtime)
+    assert len(full.made) == 41  # predictions for frames 40..80
+    unloaded = [m.ext for m in full.made if "unloaded" in m.flags]
+    assert unloaded == [m.ext for m in full.made if m.ext >= 40 + UNLOADED_FRAMES]
+    sampled = replay_session(path, runtime, every=2)
+    assert [m.flags for m in sampled.made] == [m.flags for m in full.made[1::2]]
+
+    assert main(["eval", str(path), "--model", str(runtime.path), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["ood"]["predictions"] == 41
+    assert report["ood"]["unloaded"] == pytest.approx(len(unloaded) / 41)
+    assert report["ood"]["out_of_range"] == 0.0
+    assert report["model"]["ood"]["calibrated"] is False
+    assert main(["eval", str(path), "--model", str(runtime.path)]) == 0
+    out = capsys.readouterr().out
+    assert f"flagged (of 41 predictions): unloaded {100 * len(unloaded) / 41:.2f} %" in out
+    assert "(unfamiliar: model not calibrated)" in out

@@ -51,6 +51,8 @@ def frame_event(p: Prediction, latency_ms: float) -> dict[str, Any]:
         "probabilities": probs,
         "progress": progress,
         "repetition": p.repetition,
+        "withheld": p.withheld,  # unloaded, out_of_range or unfamiliar: no action
+        "unfamiliar_score": p.unfamiliar_score,
         "pose": np.round(np.asarray(p.pose, dtype=np.float64), 4).tolist(),
         "rows": int(counts.shape[0]),
         "cols": FRAME_COLS,

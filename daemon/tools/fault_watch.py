@@ -82,7 +82,16 @@ class Watcher:
 
     def online_since(self, t: float) -> bool:
         statuses = self._since("status", t)
-        return bool(statuses) and statuses[-1].payload.get("state") == "online"
+        if not statuses:
+            return False
+        last = statuses[-1].payload
+        # A withheld prediction (unloaded, out_of_range, unfamiliar) degrades status
+        # with its reason; the pipeline itself is up.
+        ood = ("unloaded:", "out_of_range:", "unfamiliar:")
+        reasons = last.get("reasons") or []
+        return last.get("state") == "online" or (
+            last.get("state") == "degraded" and all(str(r).startswith(ood) for r in reasons)
+        )
 
     def pose_since(self, t: float) -> bool:
         return bool(self._since("pose", t))

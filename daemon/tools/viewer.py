@@ -147,7 +147,9 @@ def _feet(pressure: dict[str, Any] | None) -> list[str]:
 def _action(action: dict[str, Any] | None) -> list[str]:
     if action is None:
         return ["action    (waiting)"]
-    name = action.get("action") or "none"
+    name = action.get("action") or (
+        f"withheld: {action['withheld']}" if action.get("withheld") else "none"
+    )
     out = [f"action    \x1b[1m{name}\x1b[0m  confidence {action.get('confidence', 0.0):.2f}"]
     for act, p in sorted(action.get("probabilities", {}).items(), key=lambda kv: -kv[1]):
         out.append(f"  {act:<18} {bar(p, 20)} {p:5.2f}")

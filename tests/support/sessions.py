@@ -8,7 +8,7 @@ test needs to check what comes out the other end.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,15 +24,28 @@ from scotti.models.contract import (
     SAMPLE_BITS,
     has_progress,
 )
+from scotti.models.insole import insole_mask
 
 PERIOD_NS = 62_500_000  # 16 Hz
 PERIOD_US = 62_500
 
 
+# Random counts inside the insole outline, up to this: about 1 kN a foot, a plausible
+# map for the model's input checks (models/input_checks.py), which call a map with
+# load outside the outline or thousands of newtons "out_of_range". MAX_COUNT still
+# crosses the wire: the last taxel of row 0 inside the outline is pinned to it.
+SYNTHETIC_TOP = 1500
+_OUTLINE = insole_mask()
+_PINNED = (0, int(np.flatnonzero(_OUTLINE[0])[-1]))
+
+
 def synthetic_counts(foot: int, seq: int) -> np.ndarray:
     """The (32, 22) uint16 frame a synthetic session carries for ``foot`` at ``seq``."""
     rng = np.random.default_rng(seq * 2 + int(foot))
-    return rng.integers(0, MAX_COUNT + 1, size=(FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
+    counts = rng.integers(0, SYNTHETIC_TOP + 1, size=(FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
+    counts[~_OUTLINE] = 0
+    counts[_PINNED] = MAX_COUNT
+    return counts
 
 
 def frame_packets(
@@ -83,12 +96,14 @@ def write_synthetic_session(
     feet: Sequence[Foot] = (Foot.LEFT, Foot.RIGHT),
     garbage_every: int = 0,
     labels: bool = True,
+    counts_of: Callable[[Foot, int, int], np.ndarray] | None = None,
 ) -> SyntheticSession:
     """Write a session of ``frames`` frame pairs; see the module docstring.
 
     ``seq_start`` may sit near 65535 to exercise the wrap; ``right_seq_offset``
     makes the right board count from elsewhere. ``garbage_every=k`` adds a
-    record of line noise after every k-th frame pair.
+    record of line noise after every k-th frame pair. ``counts_of(foot, seq, i)``
+    replaces ``synthetic_counts`` (an empty insole, a stuck taxel, ...).
     """
     seqs: dict[Foot, list[int]] = {foot: [] for foot in feet}
     records: list[tuple[int, bytes]] = []
@@ -101,7 +116,9 @@ def write_synthetic_session(
                 seq = (seq_start + i + (right_seq_offset if foot == Foot.RIGHT else 0)) % 65536
                 clock = (clock_start_us + i * PERIOD_US + 7_000 * int(foot)) % (1 << 32)
                 seqs[foot].append(seq)
-                counts = synthetic_counts(foot, seq)
+                counts = (
+                    synthetic_counts(foot, seq) if counts_of is None else counts_of(foot, seq, i)
+                )
                 for packet in frame_packets(foot, seq, clock, counts, rows_per_packet):
                     data = encode_packet(packet)
                     writer.write_packet(t, data)

@@ -1,0 +1,144 @@
+"""Calibrating the ``unfamiliar`` score at export: statistics from training windows,
+the threshold from held-out ones.
+
+The checkpoint names the subjects it was trained on and those it held out
+(``training_data.split``: ``train_subjects``, and ``val_subjects`` when the
+trainer drew a validation split, else ``test_subjects``). The session files
+given to ``scotti export --calibrate`` are grouped by subject; the usable
+windows of the training subjects (as training draws them,
+``WindowDataset``), thinned evenly to at most ``max_windows``, go through
+the exported window graph, and the mean and shrunk covariance of their
+pooled vectors are fitted (models/ood.py). The threshold is the
+``percentile`` of the held-out subjects' window scores: about 1 % of windows
+from people the model never saw are called unfamiliar, by construction.
+
+The same windows also measure the input checks (models/input_checks.py):
+the share of real windows flagged ``unloaded`` or ``out_of_range``, which
+should be about 0, goes into the card.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scotti.export.data import SessionArrays, find_sessions, load_session
+from scotti.export.errors import ExportError
+from scotti.export.windows import WindowDataset
+from scotti.models import input_checks
+from scotti.models.contract import WINDOW
+from scotti.models.ood import OodStats, fit
+from scotti.models.runtime import ScottiRuntime
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """What ``scotti export --calibrate`` was asked for."""
+
+    sessions: tuple[Path, ...]  # session files or directories
+    percentile: float = 99.0  # of held-out window scores: the threshold
+    max_windows: int = 4000  # per side (training, held out), thinned evenly
+    cache_dir: Path | None = None  # decoded-session cache (training's --cache-dir)
+
+
+def split_subjects(training_data: Any) -> tuple[list[str], list[str], str]:
+    """(training subjects, held-out subjects, which split held out) from a checkpoint."""
+    split = training_data.get("split") if isinstance(training_data, dict) else None
+    if not isinstance(split, dict) or not split.get("train_subjects"):
+        msg = (
+            "the checkpoint does not name its training subjects (training_data.split."
+            "train_subjects): cannot calibrate the unfamiliar score"
+        )
+        raise ExportError(msg)
+    for key in ("val_subjects", "test_subjects"):
+        if split.get(key):
+            return list(split["train_subjects"]), list(split[key]), key.removesuffix("_subjects")
+    msg = "the checkpoint names no held-out subjects (val_subjects or test_subjects)"
+    raise ExportError(msg)
+
+
+def _window_batches(
+    sessions: Sequence[SessionArrays], max_windows: int, batch: int = 64
+) -> Iterator[np.ndarray]:
+    """At most ``max_windows`` usable windows, evenly over time, in batches (b, T, H, 2W)
+    float32 (a batch at a time: thousands of windows would take gigabytes at once)."""
+    data = WindowDataset(sessions, WINDOW)
+    stride = max(1, -(-data.count() // max(max_windows, 1)))
+    starts = [(i, int(t)) for i in range(len(sessions)) for t in data.starts(i, stride=stride)]
+    for k in range(0, len(starts), batch):
+        chunk = starts[k : k + batch]
+        yield np.stack([sessions[i].frames[t : t + WINDOW] for i, t in chunk]).astype(np.float32)
+
+
+def _measure(
+    graph: ScottiRuntime, sessions: Sequence[SessionArrays], max_windows: int
+) -> tuple[np.ndarray, dict[str, float]]:
+    """Pooled vectors (n, E) of the windows, and the share the input checks flag."""
+    pooled, flagged = [], dict.fromkeys((input_checks.UNLOADED, input_checks.OUT_OF_RANGE), 0)
+    for windows in _window_batches(sessions, max_windows):
+        result = graph.run_windows(windows, batch_size=len(windows))
+        if result.pooled is None:
+            msg = f"{graph.path.name} has no pooled output to calibrate"
+            raise ExportError(msg)
+        pooled.append(result.pooled)
+        for w in windows:
+            for flag in input_checks.check_window(w).flags:
+                flagged[flag] += 1
+    if not pooled:
+        return np.zeros((0, graph.embed_dim), np.float32), {}
+    out = np.concatenate(pooled)
+    return out, {flag: n / len(out) for flag, n in flagged.items()}
+
+
+@dataclass(frozen=True)
+class CalibrationSets:
+    """The decoded sessions of the training and the held-out subjects."""
+
+    train: list[SessionArrays]
+    held_out: list[SessionArrays]
+    held_kind: str  # "val" or "test": which split of the checkpoint was held out
+
+
+def gather(training_data: Any, request: Calibration) -> CalibrationSets:
+    """The sessions to calibrate on, by the checkpoint's split (before any export work:
+    a mistake here is one ``ExportError`` line, at once)."""
+    train_ids, held_ids, held_kind = split_subjects(training_data)
+    by_subject: dict[str, list[SessionArrays]] = {}
+    for path in find_sessions(request.sessions):
+        arrays = load_session(path, request.cache_dir)
+        by_subject.setdefault(arrays.subject, []).append(arrays)
+    train = [a for s in train_ids for a in by_subject.get(s, [])]
+    held = [a for s in held_ids for a in by_subject.get(s, [])]
+    for side, found, ids in (("training", train, train_ids), (held_kind, held, held_ids)):
+        if not found:
+            msg = (
+                f"no session of the {side} subjects ({', '.join(ids[:5])}"
+                f"{', ...' if len(ids) > 5 else ''}) among the calibration sessions"
+            )
+            raise ExportError(msg)
+    return CalibrationSets(train, held, held_kind)
+
+
+def calibrate(
+    window_graph_path: Path, sets: CalibrationSets, request: Calibration, threads: int = 1
+) -> OodStats:
+    """Fit the OOD statistics of an exported window graph; one ``ExportError`` line on misfit."""
+    graph = ScottiRuntime(window_graph_path, threads)
+    train_pooled, train_flags = _measure(graph, sets.train, request.max_windows)
+    held_pooled, held_flags = _measure(graph, sets.held_out, request.max_windows)
+    if len(train_pooled) < 2 or len(held_pooled) < 1:
+        msg = "too few usable windows in the calibration sessions"
+        raise ExportError(msg)
+    stats = fit(train_pooled, held_pooled, request.percentile)
+    summary = {
+        **stats.summary,
+        "train_subjects": sorted({a.subject for a in sets.train}),
+        "held_out_subjects": sorted({a.subject for a in sets.held_out}),
+        "held_out_split": sets.held_kind,
+        "input_checks_on_held_out": held_flags,
+        "input_checks_on_train": train_flags,
+    }
+    return OodStats(stats.mean, stats.whitening, stats.threshold, summary)

@@ -1,0 +1,223 @@
+"""What the input itself says before the model is asked: nobody there, or not a pressure map.
+
+Two flags from simple statistics of the raw counts, each explainable to a
+user and each measured on the simulated corpus (``python
+experiments/ood_inputs.py``, figures in docs/ood.md):
+
+- ``unloaded``: both feet together carry less than ``UNLOADED_FORCE_N``
+  (nominal newtons, the counts turned back into kPa by the contract's
+  transfer curve, models/insole.py, times a nominal taxel area) on every one
+  of the newest ``UNLOADED_FRAMES`` frames. Nobody on the insoles, sitting,
+  shoes off. A run that long rules out a jump's flight (a few tenths of a
+  second).
+- ``out_of_range``: at least ``OUT_OF_RANGE_FRAMES`` frames of the window are
+  implausible as a plantar pressure map: load outside the insole's outline
+  (no taxel there: the contract's input is zero), a quarter of a foot's
+  taxels at the amplifier's rail, one taxel holding most of a foot's load,
+  or more force than any landing. Saturated, noise-like and single-hot-taxel
+  input trip one of these; one bad line (a corrupt row) does not. And one
+  insole under ``FOOT_EMPTY_N`` for the whole window while the other carries
+  the person: a dead insole, or a long one-legged stance, neither of which
+  the model learnt (walking lifts a foot for well under a second).
+
+Per-frame statistics are computed once per frame (``FrameCheck``, a few
+microseconds) so the streaming window keeps the last T of them instead of
+the frames. Numpy only (ARCHITECTURE.md, room ``models/``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, MAX_COUNT, WINDOW
+from scotti.models.insole import DEFAULT_TRANSFER, Transfer, insole_mask
+
+UNLOADED: Final = "unloaded"
+OUT_OF_RANGE: Final = "out_of_range"
+
+# A taxel is about 4 x 8 mm (sim/insole.py); the force of a frame is its pressures
+# times this nominal area. Nominal: a real insole's taxels scale with its size.
+TAXEL_AREA_M2: Final = 32e-6
+# Both feet below this together: nobody stands on the insoles. About 10 kg; the
+# lightest frame of the simulated corpus carries 257 N (docs/ood.md).
+UNLOADED_FORCE_N: Final = 100.0
+# ... for this many newest frames in a row (1 s): a jump's flight is shorter.
+UNLOADED_FRAMES: Final = 16
+# Share of a frame's counts on taxels outside the insole outline (corpus: 0; no
+# taxel is there, so the contract's input is 0: simulator and importers mask it).
+OUTSIDE_SHARE_MAX: Final = 0.01
+# A taxel at the rail reads at least this (the realistic insole rails at 3800 counts).
+RAIL_COUNTS: Final = 0.95 * DEFAULT_TRANSFER.saturation_counts
+# Share of a foot's outline taxels at the rail (corpus: 0).
+RAIL_SHARE_MAX: Final = 0.25
+# Share of a foot's counts in its largest taxel (corpus: at most 0.47).
+PEAK_SHARE_MAX: Final = 0.75
+# Total nominal force of a frame (corpus: at most 3120 N, jump landings).
+FORCE_MAX_N: Final = 8000.0
+# Implausible frames in a window before it is flagged out_of_range (0.25 s).
+OUT_OF_RANGE_FRAMES: Final = 4
+# One foot under this on every frame of a full window (corpus: a foot carries >= 117 N).
+FOOT_EMPTY_N: Final = 20.0
+
+
+def input_check_thresholds() -> dict[str, float]:
+    """The rules' thresholds by name, for model cards and ``info``."""
+    return {
+        "unloaded_force_n": UNLOADED_FORCE_N,
+        "unloaded_frames": UNLOADED_FRAMES,
+        "outside_share_max": OUTSIDE_SHARE_MAX,
+        "rail_counts": RAIL_COUNTS,
+        "rail_share_max": RAIL_SHARE_MAX,
+        "peak_share_max": PEAK_SHARE_MAX,
+        "force_max_n": FORCE_MAX_N,
+        "out_of_range_frames": OUT_OF_RANGE_FRAMES,
+        "foot_empty_n": FOOT_EMPTY_N,
+        "taxel_area_m2": TAXEL_AREA_M2,
+    }
+
+
+_MASK: Final = insole_mask()  # (H, W) True where the insole has a taxel
+_OUTSIDE: Final = np.concatenate([~_MASK, ~_MASK], axis=1)  # (H, 2W), left | right
+
+
+def kpa_from_counts(
+    counts: npt.ArrayLike, transfer: Transfer = DEFAULT_TRANSFER
+) -> npt.NDArray[np.float64]:
+    """The transfer curve turned round: counts -> kPa (0 for 0; the rail reads its pressure).
+
+    ``counts = 4095 q^n / (q^n + p_half^n)`` gives ``q = p_half (c / (4095 - c))^(1/n)``
+    and ``p = q + threshold``; counts above the rail are taken as the rail.
+    """
+    c = np.minimum(np.asarray(counts, dtype=np.float64), transfer.saturation_counts)
+    c = np.clip(c, 0.0, MAX_COUNT - 1.0)
+    pressed = c > 0.0
+    q = transfer.p_half_kpa * (c / (MAX_COUNT - c)) ** (1.0 / transfer.exponent)
+    return np.where(pressed, q + transfer.threshold_kpa, 0.0)
+
+
+@dataclass(frozen=True)
+class FrameCheck:
+    """The statistics of one frame (H, 2W) the rules read, and the frame's verdict."""
+
+    force_n: tuple[float, float]  # nominal force of the left and the right foot
+    outside_share: float  # share of the counts outside the insole outline
+    rail_share: float  # the larger of the two feet's share of outline taxels at the rail
+    peak_share: float  # the larger of the two feet's share of counts in one taxel
+
+    @property
+    def loaded(self) -> bool:
+        return sum(self.force_n) >= UNLOADED_FORCE_N
+
+    @property
+    def implausible(self) -> list[str]:
+        """The rules this frame breaks, by name (empty: a plausible pressure map)."""
+        broken = []
+        if self.outside_share > OUTSIDE_SHARE_MAX:
+            broken.append("load outside the insole outline")
+        if self.rail_share > RAIL_SHARE_MAX:
+            broken.append("taxels at the rail")
+        if self.peak_share > PEAK_SHARE_MAX:
+            broken.append("one taxel holds the load")
+        if sum(self.force_n) > FORCE_MAX_N:
+            broken.append("more force than a landing")
+        return broken
+
+
+def check_frame(counts: npt.ArrayLike) -> FrameCheck:
+    """Statistics of one model input frame (H, 2W) of raw counts, left foot then right."""
+    return check_frames(np.asarray(counts)[None])[0]
+
+
+# kPa of every whole count (the curve turned round once, not per taxel and frame).
+_KPA_OF_COUNT: Final = kpa_from_counts(np.arange(MAX_COUNT + 1))
+_N_PER_KPA: Final = 1e3 * TAXEL_AREA_M2  # one kPa on one taxel, in newtons
+
+
+def check_frames(frames: npt.ArrayLike) -> list[FrameCheck]:
+    """``check_frame`` of N frames (N, H, 2W) at once (counts rounded to whole counts)."""
+    x = np.asarray(frames, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1:] != (FRAME_ROWS, 2 * FRAME_COLS):
+        msg = f"frames are (N, {FRAME_ROWS}, {2 * FRAME_COLS}), got {x.shape}"
+        raise ValueError(msg)
+    x = np.clip(np.nan_to_num(x, nan=0.0), 0.0, MAX_COUNT)
+    n = x.shape[0]
+    feet = x.reshape(n, FRAME_ROWS, 2, FRAME_COLS)  # (N, H, foot, W)
+    kpa = _KPA_OF_COUNT[np.rint(feet).astype(np.intp)]
+    force = kpa.sum(axis=(1, 3)) * _N_PER_KPA  # (N, 2)
+    total = x.sum(axis=(1, 2))
+    outside = np.where(total > 0, (x * _OUTSIDE).sum(axis=(1, 2)) / np.maximum(total, 1), 0.0)
+    at_rail = (feet >= RAIL_COUNTS) & _MASK[None, :, None, :]
+    rail = at_rail.sum(axis=(1, 3)) / _MASK.sum()  # (N, 2)
+    sums = feet.sum(axis=(1, 3))
+    peak = np.where(sums > 0, feet.max(axis=(1, 3)) / np.maximum(sums, 1), 0.0)  # (N, 2)
+    return [
+        FrameCheck(
+            (float(force[i, 0]), float(force[i, 1])),
+            float(outside[i]),
+            float(rail[i].max()),
+            float(peak[i].max()),
+        )
+        for i in range(n)
+    ]
+
+
+@dataclass(frozen=True)
+class WindowVerdict:
+    """What the rules say about a window: flags and one reason line per flag."""
+
+    flags: tuple[str, ...]  # UNLOADED and/or OUT_OF_RANGE, in that order
+    reasons: tuple[str, ...]
+
+
+def verdict(checks: Sequence[FrameCheck], window: int = WINDOW) -> WindowVerdict:
+    """The rules over the frames of a window, oldest first (``window``: a full one's length)."""
+    flags, reasons = [], []
+    newest = list(checks)[-UNLOADED_FRAMES:]
+    unloaded = len(newest) == UNLOADED_FRAMES and not any(c.loaded for c in newest)
+    if unloaded:
+        flags.append(UNLOADED)
+        reasons.append(
+            f"unloaded: both insoles under {UNLOADED_FORCE_N:.0f} N "
+            f"for {UNLOADED_FRAMES / FRAME_RATE_HZ:g} s (nobody on them?)"
+        )
+    bad = [broken for broken in (c.implausible for c in checks) if broken]
+    what = (
+        sorted({name for broken in bad for name in broken})
+        if len(bad) >= OUT_OF_RANGE_FRAMES
+        else []
+    )
+    if len(checks) >= window and not unloaded:
+        for side, foot in enumerate(("left", "right")):
+            if all(c.force_n[side] < FOOT_EMPTY_N for c in checks):
+                what.append(f"{foot} insole empty for the whole window")
+    if what:
+        # No counts in the text: status is republished whenever its reasons change.
+        flags.append(OUT_OF_RANGE)
+        reasons.append(f"out_of_range: not a plantar pressure map ({', '.join(what)})")
+    return WindowVerdict(tuple(flags), tuple(reasons))
+
+
+def check_window(frames: npt.ArrayLike) -> WindowVerdict:
+    """The rules over a whole window (T, H, 2W) of raw counts (the window graph's input)."""
+    checks = check_frames(frames)
+    return verdict(checks, window=len(checks))
+
+
+class FrameChecks:
+    """The checks of the last ``size`` frames, for a streaming window."""
+
+    def __init__(self, size: int) -> None:
+        self._size = size
+        self._checks: deque[FrameCheck] = deque(maxlen=size)
+
+    def push(self, counts: npt.ArrayLike) -> WindowVerdict:
+        self._checks.append(check_frame(counts))
+        return verdict(self._checks, self._size)
+
+    def reset(self) -> None:
+        self._checks.clear()

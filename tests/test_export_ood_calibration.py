@@ -1,0 +1,135 @@
+"""``scotti export --calibrate``: the unfamiliar score's statistics in the graphs and the card."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from scotti.cli.main import main as scotti_main
+from scotti.export.errors import ExportError
+from scotti.export.make_tiny import build_tiny
+from scotti.export.onnx_export import Checkpoint, export_model
+from scotti.export.ood_calibration import Calibration, split_subjects
+from scotti.models.contract import META_OOD, OUTPUT_POOLED
+from scotti.models.runtime import ScottiRuntime, load_pair
+from scotti.models.streaming import StreamingWindow
+
+from tests.support.export_sessions import write_session
+from tests.support.fixtures_models import TINY_CHECKPOINT, TINY_STEP
+
+pytestmark = pytest.mark.torch
+
+SPLIT = {
+    "split": {
+        "kind": "subject",
+        "train_subjects": ["a", "b"],
+        "test_subjects": ["c"],
+    }
+}
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A tiny model exported with calibration on three small subjects' sessions."""
+    tmp = tmp_path_factory.mktemp("calibrated")
+    sessions = tmp / "sessions"
+    sessions.mkdir()
+    for subject in ("a", "b", "c"):
+        write_session(sessions / f"{subject}.ses", 160, subject=subject)
+    ckpt = Checkpoint(model=build_tiny().eval(), training_data=SPLIT)
+    out = tmp / "models" / "cal.onnx"
+    request = Calibration((sessions,), percentile=95.0, max_windows=60)
+    export_model(ckpt, out, calibration=request)
+    return out, sessions
+
+
+@pytest.mark.slow
+def test_the_graphs_carry_pooled_and_the_statistics_and_the_card_says_so(
+    calibrated: tuple[Path, Path],
+) -> None:
+    out, _ = calibrated
+    step, window = load_pair(out)
+    for runtime in (step, window):
+        proto = onnx.load(str(runtime.path), load_external_data=False)
+        assert [o.name for o in proto.graph.output][-1] == OUTPUT_POOLED
+        assert META_OOD in {p.key for p in proto.metadata_props}
+        assert runtime.ood is not None
+        assert runtime.ood_info()["calibrated"] is True
+    ood = step.card["ood"]
+    assert ood["calibrated"] is True
+    assert ood["train_subjects"] == ["a", "b"]
+    assert ood["held_out_subjects"] == ["c"]
+    assert ood["held_out_split"] == "test"
+    assert ood["threshold_percentile"] == 95.0
+    assert 0 < ood["train_windows"] <= 60
+    assert 0 < ood["held_out_windows"] <= 60
+    assert ood["input_checks"]["unloaded_force_n"] == 100.0
+    card = json.loads(out.with_suffix(".card.json").read_text())
+    assert card["ood"]["threshold"] == pytest.approx(step.ood.threshold)  # type: ignore[union-attr]
+    assert "unfamiliar" in out.with_suffix(".card.md").read_text()
+
+
+@pytest.mark.slow
+def test_step_and_window_graph_score_the_same_window_alike(calibrated: tuple[Path, Path]) -> None:
+    out, _ = calibrated
+    step, window = load_pair(out)
+    rng = np.random.default_rng(0)
+    frames = rng.uniform(0, 1500, (step.window, *step.frame_shape)).astype(np.float32)
+    streaming = StreamingWindow(step)
+    result = None
+    for f in frames:
+        result = streaming.push(f)
+    assert result is not None
+    assert result.unfamiliar_score is not None
+    batch = window.run_windows(frames[None])
+    assert batch.unfamiliar_score is not None
+    assert result.unfamiliar_score == pytest.approx(float(batch.unfamiliar_score[0]), rel=1e-4)
+
+
+def test_an_uncalibrated_export_still_runs_and_says_why() -> None:
+    runtime = ScottiRuntime(TINY_STEP)
+    assert runtime.ood is None
+    info = runtime.ood_info()
+    assert info["calibrated"] is False
+    assert info["reason"].startswith("not calibrated")
+    frames = np.full((runtime.window, *runtime.frame_shape), 300.0, np.float32)
+    window = StreamingWindow(runtime)
+    results = [window.push(f) for f in frames]
+    assert results[-1] is not None
+    assert results[-1].unfamiliar_score is None
+    assert results[-1].pooled is not None
+
+
+def test_a_checkpoint_without_its_split_cannot_be_calibrated(tmp_path: Path) -> None:
+    with pytest.raises(ExportError, match="does not name its training subjects"):
+        split_subjects({"files": []})
+    with pytest.raises(ExportError, match="no held-out subjects"):
+        split_subjects({"split": {"train_subjects": ["a"]}})
+    assert split_subjects({"split": {"train_subjects": ["a"], "val_subjects": ["v"]}})[1:] == (
+        ["v"],
+        "val",
+    )
+
+
+def test_cli_calibrate_without_the_subjects_sessions_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    write_session(tmp_path / "x.ses", 80, subject="x")
+    code = scotti_main(
+        [
+            "export",
+            str(TINY_CHECKPOINT),
+            "-o",
+            str(tmp_path / "m.onnx"),
+            "--calibrate",
+            str(tmp_path),
+        ]
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err.startswith("scotti export: ")
+    assert "\n" not in err
+    assert not (tmp_path / "m.onnx").exists()
