@@ -169,10 +169,18 @@ def test_missing_replay_file_and_missing_model(tmp_path: Path) -> None:
 
 def test_example_config_loads_and_shows_every_setting() -> None:
     from scotti.daemon.outputs.settings import OutputSettings
-    from scotti.daemon.settings import ModelSettings, MqttSettings, Settings, SourceSettings
+    from scotti.daemon.settings import (
+        DeviceSettings,
+        InferenceSettings,
+        ModelSettings,
+        MqttSettings,
+        Settings,
+        SourceSettings,
+    )
 
     example = Path(__file__).parent.parent / "systemd" / "scotti-daemon.toml"
     s = load_settings({}, example)
+    assert s.source is not None
     assert s.source.port == "/dev/scotti-receiver"
     text = example.read_text()
     sections: dict[str, type[BaseModel]] = {
@@ -181,6 +189,8 @@ def test_example_config_loads_and_shows_every_setting() -> None:
         "model": ModelSettings,
         "mqtt": MqttSettings,
         "outputs": OutputSettings,
+        "inference": InferenceSettings,
+        "devices": DeviceSettings,  # a commented [[devices]] example
     }
     for section, model in sections.items():
         for name in model.model_fields:
