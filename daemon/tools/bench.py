@@ -1,11 +1,17 @@
-"""Benchmark: the daemon against the board emulator at 16 Hz and a real mosquitto.
+"""Benchmark: one daemon serving N insole pairs at 16 Hz against a real mosquitto.
 
-Prints per-frame latency percentiles (the daemon's own ``latency_ms``: the
-frame's last byte read from the pty to the publish; and last byte to a
-subscriber's receipt, from ``predicted_for_mono_ns`` on the same host clock)
-and the daemon's CPU % and RSS. A measurement, never a test.
+For each N in ``--pairs``, N emulated receiver boards (random frames, both
+feet, row blocks as the radio sends them) play into N pseudo-terminals from
+a helper process, and one ``scotti-daemon`` subprocess reads them all through
+a ``[[devices]]`` config. A subscriber in this process takes every pose and
+measures what a consumer sees: receipt time minus the frame's last byte
+(``predicted_for_mono_ns`` - 1/16 s, the same host clock). The daemon's own
+``latency_ms`` (last byte -> publish) comes from the payload. The daemon's
+CPU (100 % = one core) and peak RSS are sampled with psutil. Each N runs with
+the batched engine (``inference.batch = true``) and, with ``--modes``, one
+model call per pair (``false``). A measurement, never a test.
 
-    python -m scotti.daemon.tools.bench [--seconds 30] [--model PATH] [--threads 1]
+    python -m scotti.daemon.tools.bench --pairs 1 2 4 8 16 32 64 [--seconds 20]
 """
 
 from __future__ import annotations
@@ -14,11 +20,13 @@ import argparse
 import asyncio
 import contextlib
 import json
+import multiprocessing
 import os
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import aiomqtt
@@ -34,28 +42,44 @@ from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, MAX_CO
 
 PERIOD_NS = round(1e9 / FRAME_RATE_HZ)
 ROWS_PER_PACKET = 8  # as the radio sends them: 4 packets per foot frame
+GOAL_P99_MS = 1e3 / FRAME_RATE_HZ  # a subscriber should have each pose within one frame
 
 
-def board_records(seconds: float, seed: int = 0) -> list[tuple[int, bytes]]:
-    """What a receiver sends in ``seconds``: random frames, both feet, row blocks."""
+def board_records(
+    seconds: float, seed: int = 0, *, per_write: bool = False
+) -> list[tuple[int, bytes]]:
+    """What a receiver sends in ``seconds``: random frames, both feet, row blocks.
+
+    ``per_write``: a foot frame's packets in one record (one write), as a USB
+    receiver hands them over in one transfer; else one record per packet, 1 ms apart.
+    """
     rng = np.random.default_rng(seed)
     records: list[tuple[int, bytes]] = []
     for i in range(round(seconds * FRAME_RATE_HZ)):
         t = i * PERIOD_NS
         for foot in (Foot.LEFT, Foot.RIGHT):
             counts = rng.integers(0, MAX_COUNT // 3, (FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
-            for start in range(0, FRAME_ROWS, ROWS_PER_PACKET):
-                packet = FrameRows(
-                    foot=foot,
-                    seq=i % 65536,
-                    board_clock_us=(i * PERIOD_NS // 1000) % (1 << 32),
-                    rows=FRAME_ROWS,
-                    cols=FRAME_COLS,
-                    sample_bits=SAMPLE_BITS,
-                    row_start=start,
-                    samples=counts[start : start + ROWS_PER_PACKET],
+            packets = [
+                encode_packet(
+                    FrameRows(
+                        foot=foot,
+                        seq=i % 65536,
+                        board_clock_us=(i * PERIOD_NS // 1000) % (1 << 32),
+                        rows=FRAME_ROWS,
+                        cols=FRAME_COLS,
+                        sample_bits=SAMPLE_BITS,
+                        row_start=start,
+                        samples=counts[start : start + ROWS_PER_PACKET],
+                    )
                 )
-                records.append((t, encode_packet(packet)))
+                for start in range(0, FRAME_ROWS, ROWS_PER_PACKET)
+            ]
+            if per_write:
+                records.append((t, b"".join(packets)))
+                t += 1_000_000
+                continue
+            for packet in packets:
+                records.append((t, packet))
                 t += 1_000_000
     return records
 
@@ -67,13 +91,15 @@ def percentiles(values: list[float]) -> str:
     return f"p50 {s['p50']:6.2f}  p90 {s['p90']:6.2f}  p99 {s['p99']:6.2f}  max {s['max']:6.2f} ms"
 
 
-async def collect(broker: Mosquitto, seconds: float, warmup: float) -> list[dict[str, float]]:
+async def collect(
+    broker: Mosquitto, seconds: float, warmup: float, topic: str = "scotti/+/pose"
+) -> list[dict[str, float]]:
     """Per pose message: the daemon's latency and last byte -> receipt, after ``warmup``."""
     out: list[dict[str, float]] = []
     async with aiomqtt.Client(
         broker.host, broker.port, protocol=aiomqtt.ProtocolVersion.V5
     ) as client:
-        await client.subscribe("scotti/bench/pose")
+        await client.subscribe(topic)
         start = time.monotonic()
 
         async def read() -> None:
@@ -105,34 +131,85 @@ def sample_process(pid: int, seconds: float, warmup: float) -> tuple[float, floa
     return proc.cpu_percent(None), rss / 2**20
 
 
-def run(args: argparse.Namespace, model: Path) -> int:
-    warmup = 4.0  # the window fills in 2.5 s; onnxruntime settles
-    records = board_records(args.seconds + warmup + 5)
-    link = Path(tempfile.mkdtemp(prefix="scotti-bench-")) / "ttyBENCH"
-    with Mosquitto() as broker:
-        board = BoardEmulator(records, link, speed=1.0, loop=True)
+def _play_boards(links: list[str], seconds: float, ready: object, stop: object) -> None:
+    """The helper process: one emulated board per link, looping, until ``stop``."""
+    records = board_records(seconds, per_write=True)
+    boards = [BoardEmulator(records, Path(link), speed=1.0, loop=True) for link in links]
+    for board in boards:
         board.start()
-        cmd = [sys.executable, "-m", "scotti.daemon.main", "--port", str(link)]
-        cmd += ["--model", str(model), "--broker", broker.url, "--device-id", "bench"]
-        cmd += ["--threads", str(args.threads), "--log-level", "warning"]
-        env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
-        daemon = subprocess.Popen(cmd, env=env)
-        try:
-            loop_task = asyncio.run(_measure(broker, daemon.pid, args.seconds, warmup))
-        finally:
-            daemon.terminate()
-            daemon.wait(15)
-            board.stop()
-    samples, (cpu, rss) = loop_task
-    frames = len(samples)
-    print(
-        f"scotti-daemon bench: {args.seconds:.0f} s at {FRAME_RATE_HZ:.0f} Hz, model {model.name}"
+    ready.set()  # type: ignore[attr-defined]
+    stop.wait()  # type: ignore[attr-defined]
+    for board in boards:
+        board.stop()
+
+
+@dataclass(frozen=True)
+class Row:
+    pairs: int
+    batch: bool
+    published: int  # poses the subscriber got in the measured seconds
+    seconds: float
+    publish: dict[str, float | int]  # the daemon's latency_ms
+    receipt: dict[str, float | int]  # last byte -> subscriber
+    cpu: float  # % of one core
+    rss: float  # MiB
+    load: float  # 1-minute load average at the end
+
+    @property
+    def rate(self) -> float:
+        """Poses per second per pair (16 = every frame)."""
+        return self.published / self.seconds / self.pairs
+
+
+def config_text(links: list[Path], broker: Mosquitto, batch: bool) -> str:
+    tables = "".join(
+        f'\n[[devices]]\nid = "pair{i:02d}"\nport = "{link}"\n' for i, link in enumerate(links)
     )
-    print(f"  threads {args.threads}; frames published {frames}")
-    print(f"  last byte -> publish:          {percentiles([s['publish'] for s in samples])}")
-    print(f"  last byte -> subscriber got:   {percentiles([s['receipt'] for s in samples])}")
-    print(f"  daemon CPU {cpu:.1f} % of one core, RSS {rss:.0f} MiB")
-    return 0 if frames else 1
+    return (
+        f'log_level = "warning"\n[inference]\nbatch = {str(batch).lower()}\n'
+        f'[mqtt]\nbroker = "{broker.url}"\n{tables}'
+    )
+
+
+def run_one(
+    broker: Mosquitto, model: Path, pairs: int, batch: bool, seconds: float, warmup: float
+) -> Row:
+    folder = Path(tempfile.mkdtemp(prefix="scotti-bench-"))
+    links = [folder / f"tty{i:02d}" for i in range(pairs)]
+    config = folder / "devices.toml"
+    config.write_text(config_text(links, broker, batch))
+    ctx = multiprocessing.get_context("spawn")
+    ready, stop = ctx.Event(), ctx.Event()
+    boards = ctx.Process(
+        target=_play_boards, args=([str(p) for p in links], 20.0, ready, stop), daemon=True
+    )
+    boards.start()
+    if not ready.wait(60):
+        boards.kill()
+        msg = "the emulated boards did not start"
+        raise RuntimeError(msg)
+    cmd = [sys.executable, "-m", "scotti.daemon.main", "--config", str(config)]
+    cmd += ["--model", str(model)]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
+    daemon = subprocess.Popen(cmd, env=env)
+    try:
+        samples, (cpu, rss) = asyncio.run(_measure(broker, daemon.pid, seconds, warmup))
+    finally:
+        daemon.terminate()
+        daemon.wait(30)
+        stop.set()
+        boards.join(15)
+    return Row(
+        pairs=pairs,
+        batch=batch,
+        published=len(samples),
+        seconds=seconds,
+        publish=latency_summary([s["publish"] for s in samples]),
+        receipt=latency_summary([s["receipt"] for s in samples]),
+        cpu=cpu,
+        rss=rss,
+        load=os.getloadavg()[0],
+    )
 
 
 async def _measure(
@@ -143,12 +220,55 @@ async def _measure(
     return samples, usage
 
 
+HEADER = (
+    "| pairs | inference | poses/s per pair | publish p50 / p99 ms "
+    "| subscriber p50 / p99 ms | CPU % of a core | RSS MiB | load avg |"
+)
+
+
+def table_row(r: Row) -> str:
+    mode = "batched" if r.batch else "per pair"
+    p, s = r.publish, r.receipt
+    return (
+        f"| {r.pairs} | {mode} | {r.rate:.1f} | {p['p50']:.1f} / {p['p99']:.1f} "
+        f"| {s['p50']:.1f} / {s['p99']:.1f} | {r.cpu:.0f} | {r.rss:.0f} | {r.load:.1f} |"
+    )
+
+
+def run(args: argparse.Namespace, model: Path) -> int:
+    modes = [m == "batch" for m in args.modes]
+    print(
+        f"scotti-daemon bench: {args.seconds:.0f} s measured after {args.warmup:.0f} s warm-up, "
+        f"{FRAME_RATE_HZ:.0f} Hz per pair, model {model.name}, {os.cpu_count()} CPUs, "
+        f"load average {os.getloadavg()[0]:.1f} at start",
+        flush=True,
+    )
+    print(HEADER)
+    print("|" + "---|" * 8, flush=True)
+    rows = []
+    with Mosquitto() as broker:
+        for pairs in args.pairs:
+            for batch in modes:
+                row = run_one(broker, model, pairs, batch, args.seconds, args.warmup)
+                rows.append(row)
+                print(table_row(row), flush=True)
+    return 0 if all(r.published for r in rows) else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.bench")
-    p.add_argument("--seconds", type=float, default=30.0, help="measured seconds")
+    p.add_argument("--pairs", type=int, nargs="+", default=[1], help="insole pairs, e.g. 1 8 32")
+    p.add_argument("--seconds", type=float, default=20.0, help="measured seconds per run")
+    p.add_argument("--warmup", type=float, default=6.0, help="seconds before measuring")
+    p.add_argument(
+        "--modes", nargs="+", choices=("batch", "single"), default=["batch", "single"],
+        help="batched engine (batch) and/or one model call per pair (single)",
+    )  # fmt: skip
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
-    p.add_argument("--threads", type=int, default=1)
     args = p.parse_args(argv)
+    if min(args.pairs) < 1 or args.seconds <= 0 or args.warmup < 0:
+        print("bench: --pairs must be >= 1, --seconds > 0, --warmup >= 0", file=sys.stderr)
+        return 2
     try:
         model = args.model or default_model_path()
     except ConfigError as exc:
