@@ -126,13 +126,6 @@ class InferenceLane:
         self._restart_pending = False
         return job, restart
 
-    def _send(self, result: InferenceResult) -> None:
-        """Hand a result to the lane's loop (engine thread)."""
-        if self._loop is None:
-            return
-        with contextlib.suppress(RuntimeError):  # a closed loop: nobody listens any more
-            self._loop.call_soon_threadsafe(self._deliver, result)
-
     def _deliver(self, result: InferenceResult) -> None:
         self._in_flight -= 1
         self._changed.set()
@@ -251,8 +244,25 @@ class InferenceEngine:
             log.debug("inference failed on frame %d", taken[0][1].seq, exc_info=True)
             outputs, errors = [None], [f"{type(exc).__name__}: {exc}"]
         ms = (time.perf_counter() - start) * 1e3
+        # One wake-up of each loop per turn, not one per device: the devices of a daemon
+        # share its loop, and each call_soon_threadsafe writes to the loop's self-pipe.
+        by_loop: dict[asyncio.AbstractEventLoop, list[tuple[InferenceLane, InferenceResult]]] = {}
         for (lane, job, restart), output, error in zip(taken, outputs, errors, strict=True):
-            lane._send(InferenceResult(job, output, ms, restart, error, len(taken)))
+            if lane._loop is not None:
+                result = InferenceResult(job, output, ms, restart, error, len(taken))
+                by_loop.setdefault(lane._loop, []).append((lane, result))
+        for loop, results in by_loop.items():
+            with contextlib.suppress(RuntimeError):  # a closed loop: nobody listens any more
+                loop.call_soon_threadsafe(_deliver_all, results)
+
+
+def _deliver_all(results: list[tuple[InferenceLane, InferenceResult]]) -> None:
+    """On a loop: each result to its lane, in the order the engine ran them."""
+    for lane, result in results:
+        try:
+            lane._deliver(result)
+        except Exception:  # one device's consumer failing must not cost the others theirs
+            log.exception("delivering an inference result failed")
 
 
 class InferenceWorker(InferenceLane):

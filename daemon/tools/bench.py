@@ -119,16 +119,21 @@ async def collect(
     return out
 
 
-def sample_process(pid: int, seconds: float, warmup: float) -> tuple[float, float]:
-    """Mean CPU % (100 = one core) and peak RSS in MiB over ``seconds`` after ``warmup``."""
+def sample_process(
+    pid: int, seconds: float, warmup: float, others: tuple[int, ...] = ()
+) -> tuple[float, float, float]:
+    """Mean CPU % (100 = one core) and peak RSS in MiB of ``pid`` over ``seconds`` after
+    ``warmup``, and the CPU % of ``others`` together (the bench's own load on the host)."""
     proc = psutil.Process(pid)
+    rest = [psutil.Process(p) for p in others]
     time.sleep(warmup)
-    proc.cpu_percent(None)
+    for p in (proc, *rest):
+        p.cpu_percent(None)
     rss, end = 0, time.monotonic() + seconds
     while time.monotonic() < end:
         time.sleep(0.5)
         rss = max(rss, proc.memory_info().rss)
-    return proc.cpu_percent(None), rss / 2**20
+    return proc.cpu_percent(None), rss / 2**20, sum(p.cpu_percent(None) for p in rest)
 
 
 def _play_boards(links: list[str], seconds: float, ready: object, stop: object) -> None:
@@ -151,8 +156,9 @@ class Row:
     seconds: float
     publish: dict[str, float | int]  # the daemon's latency_ms
     receipt: dict[str, float | int]  # last byte -> subscriber
-    cpu: float  # % of one core
-    rss: float  # MiB
+    cpu: float  # the daemon, % of one core
+    rss: float  # the daemon, MiB
+    bench_cpu: float  # the emulated boards, the subscriber and mosquitto, % of one core
     load: float  # 1-minute load average at the end
 
     @property
@@ -193,7 +199,10 @@ def run_one(
     env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
     daemon = subprocess.Popen(cmd, env=env)
     try:
-        samples, (cpu, rss) = asyncio.run(_measure(broker, daemon.pid, seconds, warmup))
+        others = (boards.pid or 0, os.getpid(), *_broker_pid(broker))
+        samples, (cpu, rss, bench_cpu) = asyncio.run(
+            _measure(broker, daemon.pid, seconds, warmup, others)
+        )
     finally:
         daemon.terminate()
         daemon.wait(30)
@@ -208,21 +217,28 @@ def run_one(
         receipt=latency_summary([s["receipt"] for s in samples]),
         cpu=cpu,
         rss=rss,
+        bench_cpu=bench_cpu,
         load=os.getloadavg()[0],
     )
 
 
+def _broker_pid(broker: Mosquitto) -> tuple[int, ...]:
+    proc = getattr(broker, "_proc", None)  # the local broker keeps its Popen private
+    return (proc.pid,) if isinstance(proc, subprocess.Popen) else ()
+
+
 async def _measure(
-    broker: Mosquitto, pid: int, seconds: float, warmup: float
-) -> tuple[list[dict[str, float]], tuple[float, float]]:
-    sampler = asyncio.to_thread(sample_process, pid, seconds, warmup)
+    broker: Mosquitto, pid: int, seconds: float, warmup: float, others: tuple[int, ...]
+) -> tuple[list[dict[str, float]], tuple[float, float, float]]:
+    sampler = asyncio.to_thread(sample_process, pid, seconds, warmup, others)
     samples, usage = await asyncio.gather(collect(broker, seconds, warmup), sampler)
     return samples, usage
 
 
 HEADER = (
     "| pairs | inference | poses/s per pair | publish p50 / p99 ms "
-    "| subscriber p50 / p99 ms | CPU % of a core | RSS MiB | load avg |"
+    "| subscriber p50 / p99 ms | daemon CPU % of a core | RSS MiB | bench's own CPU % "
+    "| load avg |"
 )
 
 
@@ -231,7 +247,8 @@ def table_row(r: Row) -> str:
     p, s = r.publish, r.receipt
     return (
         f"| {r.pairs} | {mode} | {r.rate:.1f} | {p['p50']:.1f} / {p['p99']:.1f} "
-        f"| {s['p50']:.1f} / {s['p99']:.1f} | {r.cpu:.0f} | {r.rss:.0f} | {r.load:.1f} |"
+        f"| {s['p50']:.1f} / {s['p99']:.1f} | {r.cpu:.0f} | {r.rss:.0f} | {r.bench_cpu:.0f} "
+        f"| {r.load:.1f} |"
     )
 
 
@@ -244,7 +261,7 @@ def run(args: argparse.Namespace, model: Path) -> int:
         flush=True,
     )
     print(HEADER)
-    print("|" + "---|" * 8, flush=True)
+    print("|" + "---|" * 9, flush=True)
     rows = []
     with Mosquitto() as broker:
         for pairs in args.pairs:
