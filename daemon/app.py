@@ -47,7 +47,9 @@ class Daemon:
         self.settings = settings
         self.runtime = runtime
         self.notifier = notifier or Notifier()
-        self.engine = InferenceEngine(batch=settings.inference.batch)
+        self.engine = InferenceEngine(
+            batch=settings.inference.batch, max_batch=settings.inference.max_batch
+        )
         self.devices: list[Device] = []
         self.started_mono = time.monotonic()
         self._ready = False

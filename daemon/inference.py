@@ -3,8 +3,10 @@
 Each device (one insole pair) has a lane: the loop ``submit``s its paired
 frames there. One dedicated thread, the engine's, takes the oldest frame of
 every lane that has one and runs them all in ONE call of the model's step
-graph (its batch axis), then hands each result back to the lane's loop with
-``loop.call_soon_threadsafe``. A lane gives at most one frame per turn: a
+graph (its batch axis; more than ``max_batch`` ready frames go in several calls
+of at most that many: per frame, the step costs least at a few frames per call,
+``bench --step-batches``), then hands the results back to the lanes' loop with
+one ``loop.call_soon_threadsafe``. A lane gives at most one frame per turn: a
 window's next step needs the embedding its previous step made. The engine
 never waits for a lane: a device whose foot is silent or whose receiver is
 unplugged simply has nothing ready, and the others go without it. With
@@ -139,8 +141,9 @@ class InferenceEngine:
     own engine); a shared engine is started and stopped by the daemon.
     """
 
-    def __init__(self, *, batch: bool = True, owned: bool = False) -> None:
+    def __init__(self, *, batch: bool = True, max_batch: int = 8, owned: bool = False) -> None:
         self.batch = batch
+        self.max_batch = max_batch if batch else 1
         self.owned = owned
         self.cond = threading.Condition()
         self._lanes: list[InferenceLane] = []
@@ -206,11 +209,8 @@ class InferenceEngine:
             for lane, _job, restart in taken:
                 if restart:
                     lane.window.restart()
-            if self.batch and len(taken) > 1:
-                self._run_batch(taken)
-            else:
-                for one in taken:
-                    self._run_batch([one])
+            for first in range(0, len(taken), self.max_batch):
+                self._run_batch(taken[first : first + self.max_batch])
             self.turns += 1
             self.frames += len(taken)
 

@@ -164,6 +164,9 @@ class InferenceSettings(BaseModel):
     # One model call for every device with a frame ready (the step graph's batch axis);
     # false: one call per device, the same thread (kept to measure the difference).
     batch: bool = True
+    # More ready frames than this go in several calls (the step's cost per frame is
+    # lowest at a few frames per call: python -m scotti.daemon.tools.bench --step-batches).
+    max_batch: Annotated[int, Field(ge=1, le=1024)] = 8
     queue_size: Annotated[int, Field(ge=1, le=256)] = 16  # frames per device waiting
 
 

@@ -255,20 +255,26 @@ def test_a_bad_frame_in_a_batch_fails_only_its_own_device(runtime: ScottiRuntime
     assert bad[1].output is not None  # and that device goes on
 
 
-def test_an_unbatched_engine_runs_one_call_per_device(runtime: ScottiRuntime) -> None:
+@pytest.mark.parametrize(
+    ("batch", "max_batch", "sizes"),
+    [(False, 8, [1, 1, 1, 1, 1]), (True, 2, [1, 2, 2, 2, 2]), (True, 8, [5] * 5)],
+)
+def test_frames_per_model_call_follow_batch_and_max_batch(
+    runtime: ScottiRuntime, batch: bool, max_batch: int, sizes: list[int]
+) -> None:
     got: list[InferenceResult] = []
 
-    async def body() -> None:
-        engine = InferenceEngine(batch=False)
-        lanes = [engine.lane(Window(runtime), got.append) for _ in range(3)]
+    async def body() -> int:
+        engine = InferenceEngine(batch=batch, max_batch=max_batch)
+        lanes = [engine.lane(Window(runtime), got.append) for _ in range(5)]
         for i, lane in enumerate(lanes):
             lane.start()
             lane.submit(InferenceJob(0, paired(i)))
-        engine.start()
+        engine.start()  # all five ready at its first turn
         for lane in lanes:
             await asyncio.wait_for(lane.wait_below(1), 10)
         await engine.stop()
+        return engine.turns
 
-    asyncio.run(body())
-    assert len(got) == 3
-    assert all(r.batch_size == 1 for r in got)
+    assert asyncio.run(body()) == 1
+    assert sorted(r.batch_size for r in got) == sizes

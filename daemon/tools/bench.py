@@ -12,6 +12,7 @@ the batched engine (``inference.batch = true``) and, with ``--modes``, one
 model call per pair (``false``). A measurement, never a test.
 
     python -m scotti.daemon.tools.bench --pairs 1 2 4 8 16 32 64 [--seconds 20]
+    python -m scotti.daemon.tools.bench --step-batches 1 2 4 8 16 32 64   # the model alone
 """
 
 from __future__ import annotations
@@ -167,23 +168,30 @@ class Row:
         return self.published / self.seconds / self.pairs
 
 
-def config_text(links: list[Path], broker: Mosquitto, batch: bool) -> str:
+def config_text(links: list[Path], broker: Mosquitto, batch: bool, max_batch: int = 8) -> str:
     tables = "".join(
         f'\n[[devices]]\nid = "pair{i:02d}"\nport = "{link}"\n' for i, link in enumerate(links)
     )
     return (
         f'log_level = "warning"\n[inference]\nbatch = {str(batch).lower()}\n'
+        f"max_batch = {max_batch}\n"
         f'[mqtt]\nbroker = "{broker.url}"\n{tables}'
     )
 
 
 def run_one(
-    broker: Mosquitto, model: Path, pairs: int, batch: bool, seconds: float, warmup: float
+    broker: Mosquitto,
+    model: Path,
+    pairs: int,
+    batch: bool,
+    seconds: float,
+    warmup: float,
+    max_batch: int = 8,
 ) -> Row:
     folder = Path(tempfile.mkdtemp(prefix="scotti-bench-"))
     links = [folder / f"tty{i:02d}" for i in range(pairs)]
     config = folder / "devices.toml"
-    config.write_text(config_text(links, broker, batch))
+    config.write_text(config_text(links, broker, batch, max_batch))
     ctx = multiprocessing.get_context("spawn")
     ready, stop = ctx.Event(), ctx.Event()
     boards = ctx.Process(
@@ -256,8 +264,9 @@ def run(args: argparse.Namespace, model: Path) -> int:
     modes = [m == "batch" for m in args.modes]
     print(
         f"scotti-daemon bench: {args.seconds:.0f} s measured after {args.warmup:.0f} s warm-up, "
-        f"{FRAME_RATE_HZ:.0f} Hz per pair, model {model.name}, {os.cpu_count()} CPUs, "
-        f"load average {os.getloadavg()[0]:.1f} at start",
+        f"{FRAME_RATE_HZ:.0f} Hz per pair, model {model.name}, max_batch {args.max_batch}, "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at start, "
+        f"nice {os.nice(0)}",
         flush=True,
     )
     print(HEADER)
@@ -266,10 +275,45 @@ def run(args: argparse.Namespace, model: Path) -> int:
     with Mosquitto() as broker:
         for pairs in args.pairs:
             for batch in modes:
-                row = run_one(broker, model, pairs, batch, args.seconds, args.warmup)
+                row = run_one(
+                    broker, model, pairs, batch, args.seconds, args.warmup, args.max_batch
+                )
                 rows.append(row)
                 print(table_row(row), flush=True)
     return 0 if all(r.published for r in rows) else 1
+
+
+def step_costs(model: Path, sizes: list[int], repeats: int = 15) -> int:
+    """The model's step alone: ms per frame at each batch size, sizes interleaved so
+    that a busy host weighs on all of them alike."""
+    from scotti.models.runtime import ScottiRuntime
+
+    runtime = ScottiRuntime(model)
+    rng = np.random.default_rng(0)
+    inputs = {
+        b: (
+            rng.integers(0, MAX_COUNT // 3, (b, *runtime.frame_shape)).astype(np.float32),
+            rng.normal(size=(b, runtime.window - 1, runtime.embed_dim)).astype(np.float32),
+        )
+        for b in sizes
+    }
+    for frames, past in inputs.values():  # onnxruntime plans each new shape once
+        runtime.step_batch(frames, past)
+    per_frame: dict[int, list[float]] = {b: [] for b in sizes}
+    for _ in range(repeats):
+        for b, (frames, past) in inputs.items():
+            start = time.perf_counter()
+            runtime.step_batch(frames, past)
+            per_frame[b].append((time.perf_counter() - start) * 1e3 / b)
+    print(
+        f"model step {model.name}, 1 thread, {repeats} rounds, "
+        f"load average {os.getloadavg()[0]:.1f}"
+    )
+    print("| frames per call | ms per frame, min | median |")
+    print("|---|---|---|")
+    for b, values in per_frame.items():
+        print(f"| {b} | {min(values):.2f} | {float(np.median(values)):.2f} |")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -281,16 +325,29 @@ def main(argv: list[str] | None = None) -> int:
         "--modes", nargs="+", choices=("batch", "single"), default=["batch", "single"],
         help="batched engine (batch) and/or one model call per pair (single)",
     )  # fmt: skip
+    p.add_argument("--max-batch", type=int, default=8, help="inference.max_batch (default 8)")
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
+    p.add_argument(
+        "--step-batches", type=int, nargs="+", metavar="B",
+        help="instead: time the model's step alone at these batch sizes (no daemon, no broker)",
+    )  # fmt: skip
     args = p.parse_args(argv)
-    if min(args.pairs) < 1 or args.seconds <= 0 or args.warmup < 0:
-        print("bench: --pairs must be >= 1, --seconds > 0, --warmup >= 0", file=sys.stderr)
+    if min(args.pairs) < 1 or args.seconds <= 0 or args.warmup < 0 or args.max_batch < 1:
+        print(
+            "bench: --pairs and --max-batch must be >= 1, --seconds > 0, --warmup >= 0",
+            file=sys.stderr,
+        )
         return 2
     try:
         model = args.model or default_model_path()
     except ConfigError as exc:
         print(f"bench: {exc}", file=sys.stderr)
         return 78
+    if args.step_batches:
+        if min(args.step_batches) < 1:
+            print("bench: --step-batches must be >= 1", file=sys.stderr)
+            return 2
+        return step_costs(model, args.step_batches)
     return run(args, model)
 
 
