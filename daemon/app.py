@@ -71,16 +71,14 @@ class Daemon:
         # First, before anything has started: a scene or recording that cannot be
         # used is a one-line error (SourceError, RecordingError).
         try:
-            for wanted in self.settings.device_list():
-                recorder = self._make_recorder(wanted)
-                try:
-                    source = self._make_source(wanted)
-                except BaseException:
-                    if recorder is not None:
-                        recorder.close()
-                    raise
+            wanted = self.settings.device_list()
+            # Every source first: a bad scene must not leave empty recordings behind (a
+            # source holds nothing until it streams).
+            sources = [self._make_source(one) for one in wanted]
+            for one, source in zip(wanted, sources, strict=True):
+                recorder = self._make_recorder(one)
                 self.devices.append(
-                    Device(self.settings, wanted, self.runtime, self.engine, source, recorder)
+                    Device(self.settings, one, self.runtime, self.engine, source, recorder)
                 )
             # MCAP, Foxglove, LSL, web (one device only): a port in use is a one-line error
             self._outputs = await Outputs.open(self.settings.outputs, title=self.devices[0].id)

@@ -65,7 +65,7 @@ def test_the_bench_runs_two_pairs_in_one_daemon_and_prints_their_row(
 ) -> None:
     from scotti.daemon.tools.bench import main
 
-    code = main(["--pairs", "2", "--seconds", "1.5", "--warmup", "4", "--modes", "batch"])
+    code = main(["--pairs", "2", "--seconds", "1.5", "--warmup", "0.5", "--modes", "batch"])
     out = capsys.readouterr().out
     assert code == 0, out
     rows = [line for line in out.splitlines() if line.startswith("| 2 | batched |")]

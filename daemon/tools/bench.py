@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
 import multiprocessing
 import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,42 +92,88 @@ def percentiles(values: list[float]) -> str:
     return f"p50 {s['p50']:6.2f}  p90 {s['p90']:6.2f}  p99 {s['p99']:6.2f}  max {s['max']:6.2f} ms"
 
 
+READY_TIMEOUT_S = 120.0  # longest wait for every pair's first pose (a loaded host is slow)
+
+
 async def collect(
-    broker: Mosquitto, seconds: float, warmup: float, topic: str = "scotti/+/pose"
+    broker: Mosquitto,
+    seconds: float,
+    warmup: float,
+    topic: str = "scotti/+/pose",
+    *,
+    pairs: int = 0,
+    measuring: threading.Event | None = None,
 ) -> list[dict[str, float]]:
-    """Per pose message: the daemon's latency and last byte -> receipt, after ``warmup``."""
+    """Per pose message: the daemon's latency and last byte -> receipt, for ``seconds``.
+
+    The measured seconds start ``warmup`` seconds after the subscription or, with
+    ``pairs``, after every one of that many devices has published its first pose
+    (the daemon started, each window filled); ``measuring`` is set then.
+    """
     out: list[dict[str, float]] = []
     async with aiomqtt.Client(
         broker.host, broker.port, protocol=aiomqtt.ProtocolVersion.V5
     ) as client:
         await client.subscribe(topic)
-        start = time.monotonic()
+        seen: set[str] = set()
+        begin = time.monotonic() + (READY_TIMEOUT_S if pairs else warmup)
+        end = begin + seconds
 
         async def read() -> None:
+            nonlocal begin, end
             async for m in client.messages:
                 received = time.monotonic_ns()
-                if time.monotonic() - start < warmup:
+                now = time.monotonic()
+                if pairs and len(seen) < pairs:
+                    seen.add(str(m.topic))
+                    if len(seen) == pairs:  # all ready: measure after the warm-up
+                        begin, end = now + warmup, now + warmup + seconds
+                if now >= end:
+                    return
+                if now < begin:
                     continue
+                if measuring is not None:
+                    measuring.set()
                 pose = json.loads(bytes(m.payload))
                 last_byte = pose["predicted_for_mono_ns"] - PERIOD_NS
                 out.append({"publish": pose["latency_ms"], "receipt": (received - last_byte) / 1e6})
 
-        # asyncio.timeout, not wait_for: on 3.11 wait_for can swallow its own cancel when
-        # a message arrives at that moment, and the read loop would then never end.
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(seconds + warmup):
-                await read()
+        async def until_end() -> None:
+            while True:  # ``end`` moves once every pair is ready
+                left = end - time.monotonic()
+                if left <= 0:
+                    return
+                await asyncio.sleep(min(0.2, left))
+
+        # Ends at ``end`` even while no pose comes (a daemon that fell silent).
+        reader = asyncio.create_task(read())
+        timer = asyncio.create_task(until_end())
+        try:
+            await asyncio.wait({reader, timer}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (reader, timer):
+                task.cancel()
+            await asyncio.gather(reader, timer, return_exceptions=True)
+    if measuring is not None:
+        measuring.set()  # never ready: the sampler must not wait forever
     return out
 
 
 def sample_process(
-    pid: int, seconds: float, warmup: float, others: tuple[int, ...] = ()
+    pid: int,
+    seconds: float,
+    warmup: float | threading.Event,
+    others: tuple[int, ...] = (),
 ) -> tuple[float, float, float]:
     """Mean CPU % (100 = one core) and peak RSS in MiB of ``pid`` over ``seconds`` after
-    ``warmup``, and the CPU % of ``others`` together (the bench's own load on the host)."""
+    ``warmup`` (seconds, or an event: once it is set), and the CPU % of ``others``
+    together (the bench's own load on the host)."""
     proc = psutil.Process(pid)
     rest = [psutil.Process(p) for p in others]
-    time.sleep(warmup)
+    if isinstance(warmup, threading.Event):
+        warmup.wait(READY_TIMEOUT_S + seconds)
+    else:
+        time.sleep(warmup)
     for p in (proc, *rest):
         p.cpu_percent(None)
     rss, end = 0, time.monotonic() + seconds
@@ -139,7 +185,7 @@ def sample_process(
 
 def _play_boards(links: list[str], seconds: float, ready: object, stop: object) -> None:
     """The helper process: one emulated board per link, looping, until ``stop``."""
-    records = board_records(seconds, per_write=True)
+    records = board_records(seconds, per_write=True)  # looped
     boards = [BoardEmulator(records, Path(link), speed=1.0, loop=True) for link in links]
     for board in boards:
         board.start()
@@ -195,7 +241,7 @@ def run_one(
     ctx = multiprocessing.get_context("spawn")
     ready, stop = ctx.Event(), ctx.Event()
     boards = ctx.Process(
-        target=_play_boards, args=([str(p) for p in links], 20.0, ready, stop), daemon=True
+        target=_play_boards, args=([str(p) for p in links], 8.0, ready, stop), daemon=True
     )
     boards.start()
     if not ready.wait(60):
@@ -209,7 +255,7 @@ def run_one(
     try:
         others = (boards.pid or 0, os.getpid(), *_broker_pid(broker))
         samples, (cpu, rss, bench_cpu) = asyncio.run(
-            _measure(broker, daemon.pid, seconds, warmup, others)
+            _measure(broker, daemon.pid, pairs, seconds, warmup, others)
         )
     finally:
         daemon.terminate()
@@ -236,10 +282,17 @@ def _broker_pid(broker: Mosquitto) -> tuple[int, ...]:
 
 
 async def _measure(
-    broker: Mosquitto, pid: int, seconds: float, warmup: float, others: tuple[int, ...]
+    broker: Mosquitto,
+    pid: int,
+    pairs: int,
+    seconds: float,
+    warmup: float,
+    others: tuple[int, ...],
 ) -> tuple[list[dict[str, float]], tuple[float, float, float]]:
-    sampler = asyncio.to_thread(sample_process, pid, seconds, warmup, others)
-    samples, usage = await asyncio.gather(collect(broker, seconds, warmup), sampler)
+    measuring = threading.Event()
+    sampler = asyncio.to_thread(sample_process, pid, seconds, measuring, others)
+    reader = collect(broker, seconds, warmup, pairs=pairs, measuring=measuring)
+    samples, usage = await asyncio.gather(reader, sampler)
     return samples, usage
 
 
@@ -263,7 +316,8 @@ def table_row(r: Row) -> str:
 def run(args: argparse.Namespace, model: Path) -> int:
     modes = [m == "batch" for m in args.modes]
     print(
-        f"scotti-daemon bench: {args.seconds:.0f} s measured after {args.warmup:.0f} s warm-up, "
+        f"scotti-daemon bench: {args.seconds:.0f} s measured {args.warmup:.0f} s after every "
+        f"pair's first pose, "
         f"{FRAME_RATE_HZ:.0f} Hz per pair, model {model.name}, max_batch {args.max_batch}, "
         f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at start, "
         f"nice {os.nice(0)}",
@@ -320,7 +374,10 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.bench")
     p.add_argument("--pairs", type=int, nargs="+", default=[1], help="insole pairs, e.g. 1 8 32")
     p.add_argument("--seconds", type=float, default=20.0, help="measured seconds per run")
-    p.add_argument("--warmup", type=float, default=6.0, help="seconds before measuring")
+    p.add_argument(
+        "--warmup", type=float, default=3.0,
+        help="seconds from every pair's first pose to the measurement",
+    )  # fmt: skip
     p.add_argument(
         "--modes", nargs="+", choices=("batch", "single"), default=["batch", "single"],
         help="batched engine (batch) and/or one model call per pair (single)",
