@@ -27,7 +27,9 @@ def build_parser() -> argparse.ArgumentParser:
         "also be set in the --config TOML file or as SCOTTI_* environment variables "
         "(command line > environment > file > defaults).",
     )
-    src = p.add_argument_group("source (exactly one)")
+    src = p.add_argument_group(
+        "source: one insole pair (several: a [[devices]] table in the --config file)"
+    )
     src.add_argument("--port", help="receiver serial device, e.g. /dev/ttyACM0")
     src.add_argument("--replay", type=Path, metavar="FILE", help="replay a session file")
     src.add_argument("--simulate", metavar="SCENE", help="simulated board playing a scene")
@@ -38,7 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tls-ca-file", type=Path, metavar="PEM", help="CA the broker must chain to")
     p.add_argument("--tls-cert-file", type=Path, metavar="PEM", help="client certificate")
     p.add_argument("--tls-key-file", type=Path, metavar="PEM", help="client certificate's key")
-    p.add_argument("--device-id", metavar="ID", help="topic level for this device (host name)")
+    p.add_argument(
+        "--device-id", "--device", dest="device_id", metavar="ID",
+        help="topic level for this device (default: the host name)",
+    )  # fmt: skip
     p.add_argument("--topic-prefix", metavar="PREFIX", help="topic prefix (default scotti)")
     p.add_argument("--format", metavar="json|msgpack", help="payload encoding (default json)")
     p.add_argument("--pressure", action="store_true", default=None, help="publish pressure")

@@ -21,7 +21,13 @@ from typing import Final, Literal, TypeVar
 import numpy as np
 import numpy.typing as npt
 from scotti.daemon.counters import Counters
-from scotti.daemon.inference import InferenceJob, InferenceResult, InferenceWorker
+from scotti.daemon.inference import (
+    InferenceEngine,
+    InferenceJob,
+    InferenceLane,
+    InferenceResult,
+    InferenceWorker,
+)
 from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.daemon.recording import Recorder
 from scotti.daemon.repetitions import RepetitionCounter
@@ -89,6 +95,7 @@ class Pipeline:
         *,
         pairing: PairingConfig | None = None,
         max_queue: int = 16,
+        engine: InferenceEngine | None = None,
     ) -> None:
         self.source = source
         self.counters = counters
@@ -98,7 +105,13 @@ class Pipeline:
         self.pairing = Pairing(pairing)
         counters.pairing = self.pairing.counters
         self.window = Window(runtime)
-        self.worker = InferenceWorker(self.window, self._on_result, max_queue=max_queue)
+        # Many devices share one engine (one model call for all of them); alone, a
+        # pipeline runs its own.
+        self.worker: InferenceLane = (
+            engine.lane(self.window, self._on_result, max_queue=max_queue)
+            if engine is not None
+            else InferenceWorker(self.window, self._on_result, max_queue=max_queue)
+        )
         self.repetitions = RepetitionCounter()
         self._seq = 0
         self._connected = False

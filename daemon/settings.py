@@ -87,6 +87,15 @@ def _check_topic_level(value: str, what: str) -> str:
     return value
 
 
+def check_device_id(v: str) -> str:
+    """A device id usable as one MQTT topic level, a client id and a file name."""
+    _check_topic_level(v, "device id")
+    if len(v) > DEVICE_ID_MAX or not _DEVICE_ID.fullmatch(v):
+        msg = f"device id {_shown(v)}: at most {DEVICE_ID_MAX} characters of A-Z a-z 0-9 _ . -"
+        raise ValueError(msg)
+    return v
+
+
 class SourceSettings(BaseModel):
     """Where the bytes come from: exactly one of port, replay, simulate."""
 
@@ -106,7 +115,7 @@ class SourceSettings(BaseModel):
     def _exactly_one(self) -> SourceSettings:
         given = [n for n in ("port", "replay", "simulate") if getattr(self, n) is not None]
         if not given:
-            msg = "no source: set --port (source.port), --replay or --simulate"
+            msg = "no source: set --port (source.port), --replay, --simulate or [[devices]]"
             raise ValueError(msg)
         if len(given) > 1:
             msg = f"give only one source, got {' and '.join(given)}"
@@ -119,6 +128,46 @@ class SourceSettings(BaseModel):
     @property
     def kind(self) -> Literal["port", "replay", "simulate"]:
         return "port" if self.port else "replay" if self.replay else "simulate"
+
+
+class DeviceSettings(SourceSettings):
+    """One insole pair in ``[[devices]]``: its id (the topic level) and its source.
+
+    A receiver is best named by its ``/dev/serial/by-id/...`` path: it stays the
+    same across reboots and replugging, whichever USB port it is in.
+    """
+
+    id: str  # scotti/<id>/...: unique in the daemon, a valid MQTT topic level
+    record: Path | None = None  # this device's recording (default: the top-level record)
+
+    @field_validator("id")
+    @classmethod
+    def _id(cls, v: str) -> str:
+        return check_device_id(v)
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> DeviceSettings:
+        given = [n for n in ("port", "replay", "simulate") if getattr(self, n) is not None]
+        if len(given) != 1:
+            what = f"got {' and '.join(given)}" if given else "got none"
+            msg = f"device {self.id!r}: give exactly one of port, replay, simulate ({what})"
+            raise ValueError(msg)
+        if self.replay is not None and not _is_file(self.replay):
+            msg = f"device {self.id!r}: replay file not found: {self.replay}"
+            raise ValueError(msg)
+        return self
+
+
+class InferenceSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # One model call for every device with a frame ready (the step graph's batch axis);
+    # false: one call per device, the same thread (kept to measure the difference).
+    batch: bool = True
+    # More ready frames than this go in several calls (the step's cost per frame is
+    # lowest at a few frames per call: python -m scotti.daemon.tools.bench --step-batches).
+    max_batch: Annotated[int, Field(ge=1, le=1024)] = 8
+    queue_size: Annotated[int, Field(ge=1, le=256)] = 16  # frames per device waiting
 
 
 class ModelSettings(BaseModel):
@@ -163,11 +212,7 @@ class MqttSettings(BaseModel):
     @field_validator("device_id")
     @classmethod
     def _device_id(cls, v: str) -> str:
-        _check_topic_level(v, "device id")
-        if len(v) > DEVICE_ID_MAX or not _DEVICE_ID.fullmatch(v):
-            msg = f"device id {_shown(v)}: at most {DEVICE_ID_MAX} characters of A-Z a-z 0-9 _ . -"
-            raise ValueError(msg)
-        return v
+        return check_device_id(v)
 
     @field_validator("topic_prefix")
     @classmethod
@@ -301,7 +346,10 @@ class Settings(BaseSettings):
 
     config_file: ClassVar[Path | None] = None  # set on a subclass by load_settings
 
-    source: SourceSettings
+    # One pair: [source] (or --port/--replay/--simulate, --device-id); several: [[devices]].
+    source: SourceSettings | None = None
+    devices: tuple[DeviceSettings, ...] = ()
+    inference: InferenceSettings = InferenceSettings()
     model: ModelSettings = ModelSettings()
     mqtt: MqttSettings = MqttSettings()
     record: Path | None = None  # append the raw byte stream to this session file
@@ -313,6 +361,71 @@ class Settings(BaseSettings):
     @classmethod
     def _lower(cls, v: object) -> object:
         return v.lower() if isinstance(v, str) else v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _source_or_devices(cls, data: Any) -> Any:
+        """``[source]`` or ``[[devices]]``: a lone ``speed`` (``--speed max``) is not a source
+        and becomes the speed of every device that sets none."""
+        if not isinstance(data, dict):
+            return data
+        if not data.get("devices"):  # so a missing source reads "no source", not "None"
+            return {**data, "source": data.get("source") or {}}
+        source = data.get("source") or {}
+        if not isinstance(source, dict):
+            return data
+        given = [k for k in ("port", "replay", "simulate") if source.get(k) is not None]
+        if given:
+            msg = f"give either [source] ({given[0]}) or [[devices]], not both"
+            raise ValueError(msg)
+        speed = source.get("speed")
+        devices = data["devices"]
+        if speed is not None and isinstance(devices, list | tuple):
+            devices = [{"speed": speed, **d} if isinstance(d, dict) else d for d in devices]
+        return {**{k: v for k, v in data.items() if k != "source"}, "devices": devices}
+
+    @model_validator(mode="after")
+    def _devices(self) -> Settings:
+        if self.source is None and not self.devices:
+            msg = "no source: set --port (source.port), --replay, --simulate or [[devices]]"
+            raise ValueError(msg)
+        ids = [d.id for d in self.devices]
+        twice = sorted({i for i in ids if ids.count(i) > 1})
+        if twice:
+            msg = f"devices: id {twice[0]!r} given twice; each device needs its own id"
+            raise ValueError(msg)
+        if len(self.devices) > 1:
+            if self.outputs.any:
+                msg = "outputs (MCAP, Foxglove, LSL, web) serve one device; not with [[devices]]"
+                raise ValueError(msg)
+            unnamed = [d.id for d in self.devices if d.record is None]
+            if self.record is not None and unnamed and not self.record.is_dir():
+                msg = f"record: with several devices give a directory, {self.record} is not one"
+                raise ValueError(msg)
+        return self
+
+    def device_list(self) -> tuple[DeviceSettings, ...]:
+        """Every device the daemon serves; ``[source]`` is the one-pair shorthand, its id
+        ``mqtt.device_id``."""
+        if self.devices:
+            return self.devices
+        assert self.source is not None
+        return (
+            DeviceSettings(
+                id=self.mqtt.device_id,
+                port=self.source.port,
+                replay=self.source.replay,
+                simulate=self.source.simulate,
+                speed=self.source.speed,
+            ),
+        )
+
+    def mqtt_for(self, device: DeviceSettings) -> MqttSettings:
+        """The MQTT settings of one device: its topics and its own client (own last will)."""
+        if device.id == self.mqtt.device_id and len(self.device_list()) == 1:
+            return self.mqtt
+        client_id = f"{self.mqtt.client_id}-{device.id}" if self.mqtt.client_id else None
+        return self.mqtt.model_copy(update={"device_id": device.id, "client_id": client_id})
 
     @classmethod
     def settings_customise_sources(
@@ -367,7 +480,8 @@ def load_settings(cli: dict[str, Any], config_file: Path | None = None) -> Setti
         # A source given on the command line replaces the one from env or file.
         for k in ("port", "replay", "simulate"):
             cli["source"].setdefault(k, None)
-    cli.setdefault("source", {})  # so a missing source reads "no source", not "Field required"
+    if cli.get("source", {}).keys() & {"port", "replay", "simulate"}:
+        cli["devices"] = ()  # the one-pair shorthand on the command line wins over a file's
     cls: type[Settings] = Settings
     if config_file is not None:
         cls = type("Settings", (Settings,), {"config_file": config_file})

@@ -8,12 +8,13 @@ prediction and the window reports that it is warming.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 from scotti.models.runtime import ScottiRuntime, StepResult
-from scotti.models.streaming import StreamingWindow
+from scotti.models.streaming import StreamingWindow, push_many
 
 
 @dataclass(frozen=True)
@@ -55,3 +56,15 @@ class Window:
         if self._streaming.frames_seen:
             self.restarts += 1
         self._streaming.reset()
+
+
+def push_batch(
+    windows: Sequence[Window], counts: Sequence[npt.NDArray[np.uint16]]
+) -> list[WindowOutput]:
+    """One paired frame into each window, in one call of the shared model (see
+    ``models.streaming.push_many``); a bad frame raises and leaves every window as it was."""
+    streams = [w._streaming for w in windows]
+    results = push_many(streams, [c.astype(np.float32) for c in counts])
+    return [
+        WindowOutput(r, s.frames_in_window, s.needed) for r, s in zip(results, streams, strict=True)
+    ]

@@ -194,6 +194,50 @@ class ScottiRuntime:
             flags=(UNFAMILIAR,) if unfamiliar else (),
         )
 
+    def step_batch(self, frames: npt.ArrayLike, past: npt.ArrayLike) -> list[StepResult]:
+        """B new frames (B, H, 2W) + each one's previous T-1 embeddings (B, T-1, E) in one
+        onnxruntime call (the step graph's batch axis): one result per row, in order.
+
+        Many insole pairs share one model this way: the graph's fixed cost (weights
+        walked once, one kernel launch per operator) is paid once per turn, not per pair.
+        """
+        if self._graph != "step":
+            msg = f"{self._path.name} is a window graph; step_batch() needs the step graph"
+            raise ModelError(msg)
+        f = np.ascontiguousarray(frames, dtype=np.float32)
+        p = np.ascontiguousarray(past, dtype=np.float32)
+        if f.ndim != 3 or f.shape[1:] != self._frame_shape or len(f) < 1:
+            msg = f"frames must be (B, {', '.join(map(str, self._frame_shape))}), got {f.shape}"
+            raise ModelInputError(msg)
+        want_past = (len(f), self._window - 1, self._embed_dim)
+        if p.shape != want_past:
+            msg = f"past embeddings must be {want_past}, got {p.shape}"
+            raise ModelInputError(msg)
+        pose, logits, progress, embedding, *rest = self._session.run(
+            self._outputs, {c.STEP_INPUT_FRAME: f, c.STEP_INPUT_PAST: p}
+        )
+        probs = softmax(logits)
+        results = []
+        for i in range(len(f)):
+            pooled = rest[0][i] if rest else None
+            score = None
+            if pooled is not None and self._ood is not None:
+                score = float(self._ood.score(pooled))
+            unfamiliar = score is not None and self._ood is not None and score > self._ood.threshold
+            results.append(
+                StepResult(
+                    pose=pose[i],
+                    action_logits=logits[i],
+                    action_probs=probs[i],
+                    progress=float(progress[i]),
+                    embedding=embedding[i],
+                    pooled=pooled,
+                    unfamiliar_score=score,
+                    flags=(UNFAMILIAR,) if unfamiliar else (),
+                )
+            )
+        return results
+
     def run_windows(self, frames: npt.ArrayLike, batch_size: int = 32) -> WindowResult:
         """B windows (B, T, H, 2W) of raw counts -> the heads for each; window graph only."""
         if self._graph != "window":

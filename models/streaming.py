@@ -14,6 +14,7 @@ Beside the embeddings it keeps the input checks of the last T frames
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -136,3 +137,46 @@ class StreamingWindow:
         self._checks.reset()
         self._seen = 0
         self.reasons = ()
+
+    def _accept(self, frame: npt.ArrayLike, result: StepResult) -> StepResult | None:
+        """Take one step's result computed elsewhere (``push_many``) as ``push`` would."""
+        self._cache.push(result.embedding)
+        verdict = self._checks.push(frame)
+        self._seen += 1
+        if self.warming:
+            return None
+        self.reasons = verdict.reasons
+        if UNFAMILIAR in result.flags:
+            self.reasons += (UNFAMILIAR_REASON,)
+        if not verdict.flags:
+            return result
+        return dataclasses.replace(result, flags=(*verdict.flags, *result.flags))
+
+
+def push_many(
+    windows: Sequence[StreamingWindow], frames: Sequence[npt.ArrayLike]
+) -> list[StepResult | None]:
+    """One frame into each of several windows, all of them in ONE step-graph call.
+
+    The windows must share one runtime (one model). Same results as ``push`` on each
+    window in turn, within float tolerance: the batch rows do not interact. A frame
+    of the wrong shape raises ModelInputError and leaves every window as it was.
+    """
+    if len(windows) != len(frames):
+        msg = f"{len(windows)} windows but {len(frames)} frames"
+        raise ModelInputError(msg)
+    if not windows:
+        return []
+    runtime = windows[0].runtime
+    if any(w.runtime is not runtime for w in windows):
+        msg = "push_many needs windows on one runtime"
+        raise ModelError(msg)
+    arrays = [np.asarray(f, dtype=np.float32) for f in frames]
+    wrong = [a.shape for a in arrays if a.shape != runtime.frame_shape]
+    if wrong:
+        msg = f"frame must be {runtime.frame_shape}, got {wrong[0]}"
+        raise ModelInputError(msg)
+    stacked = np.stack(arrays)  # (B, H, 2W)
+    past = np.stack([w._cache.past() for w in windows])  # (B, T-1, E)
+    results = runtime.step_batch(stacked, past)
+    return [w._accept(f, r) for w, f, r in zip(windows, arrays, results, strict=True)]

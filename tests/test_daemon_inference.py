@@ -11,7 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scotti.daemon.counters import Counters, LatencyRing
-from scotti.daemon.inference import InferenceJob, InferenceResult, InferenceWorker
+from scotti.daemon.inference import (
+    InferenceEngine,
+    InferenceJob,
+    InferenceResult,
+    InferenceWorker,
+)
 from scotti.daemon.pairing import PairedFrame
 from scotti.daemon.repetitions import RepetitionCounter
 from scotti.daemon.window import Window
@@ -178,3 +183,98 @@ def test_counters_snapshot_is_plain_json() -> None:
     assert snap["latency_ms"]["inference"]["p50"] == 1.5
     assert snap["frames_in"] == {"left": 0, "right": 0}
     assert snap["uptime_s"] >= 0
+
+
+def test_one_engine_runs_ready_devices_in_one_call_with_the_results_of_separate_windows(
+    runtime: ScottiRuntime,
+) -> None:
+    devices = 4
+    frames_each = Window(runtime).needed + 2
+    results: dict[int, list[InferenceResult]] = {d: [] for d in range(devices)}
+
+    async def body() -> tuple[int, int]:
+        engine = InferenceEngine(batch=True)
+        lanes = [
+            engine.lane(Window(runtime), results[d].append, max_queue=64) for d in range(devices)
+        ]
+        for lane in lanes:
+            lane.start()
+        # Everything queued before the engine runs: each turn finds all four ready.
+        for i in range(frames_each):
+            for d, lane in enumerate(lanes):
+                lane.submit(InferenceJob(i, paired(100 * d + i)))
+        engine.start()
+        for lane in lanes:
+            await asyncio.wait_for(lane.wait_below(1), 20)
+        for lane in lanes:
+            await lane.stop()
+        await engine.stop()
+        return engine.turns, engine.frames
+
+    turns, ran = asyncio.run(body())
+    assert ran == devices * frames_each
+    assert turns == frames_each  # one model call per turn, four devices in each
+    assert all(r.batch_size == devices for rs in results.values() for r in rs)
+    for d in range(devices):  # the same as that device's frames through a window of its own
+        alone = Window(runtime)
+        expected = [alone.push(paired(100 * d + i).counts) for i in range(frames_each)]
+        got = [r.output for r in results[d]]
+        assert [r.job.seq for r in results[d]] == list(range(frames_each))
+        for want, have in zip(expected, got, strict=True):
+            assert have is not None
+            assert want.warming == have.warming
+            if want.result is not None and have.result is not None:
+                np.testing.assert_allclose(have.result.pose, want.result.pose, atol=1e-5)
+
+
+def test_a_bad_frame_in_a_batch_fails_only_its_own_device(runtime: ScottiRuntime) -> None:
+    good: list[InferenceResult] = []
+    bad: list[InferenceResult] = []
+    broken = PairedFrame(np.zeros((3, 3), dtype=np.uint16), (0, 0), (0, 0), 0)
+
+    async def body() -> None:
+        engine = InferenceEngine(batch=True)
+        ok_lane = engine.lane(Window(runtime), good.append)
+        bad_lane = engine.lane(Window(runtime), bad.append)
+        ok_lane.start()
+        bad_lane.start()
+        ok_lane.submit(InferenceJob(0, paired(0)))
+        bad_lane.submit(InferenceJob(0, broken))
+        bad_lane.submit(InferenceJob(1, paired(1)))
+        engine.start()
+        await asyncio.wait_for(ok_lane.wait_below(1), 10)
+        await asyncio.wait_for(bad_lane.wait_below(1), 10)
+        await engine.stop()
+
+    asyncio.run(body())
+    assert good[0].output is not None
+    assert good[0].error is None
+    assert bad[0].output is None
+    assert bad[0].error is not None
+    assert "must be" in bad[0].error
+    assert bad[1].output is not None  # and that device goes on
+
+
+@pytest.mark.parametrize(
+    ("batch", "max_batch", "sizes"),
+    [(False, 8, [1, 1, 1, 1, 1]), (True, 2, [1, 2, 2, 2, 2]), (True, 8, [5] * 5)],
+)
+def test_frames_per_model_call_follow_batch_and_max_batch(
+    runtime: ScottiRuntime, batch: bool, max_batch: int, sizes: list[int]
+) -> None:
+    got: list[InferenceResult] = []
+
+    async def body() -> int:
+        engine = InferenceEngine(batch=batch, max_batch=max_batch)
+        lanes = [engine.lane(Window(runtime), got.append) for _ in range(5)]
+        for i, lane in enumerate(lanes):
+            lane.start()
+            lane.submit(InferenceJob(0, paired(i)))
+        engine.start()  # all five ready at its first turn
+        for lane in lanes:
+            await asyncio.wait_for(lane.wait_below(1), 10)
+        await engine.stop()
+        return engine.turns
+
+    assert asyncio.run(body()) == 1
+    assert sorted(r.batch_size for r in got) == sizes

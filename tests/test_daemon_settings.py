@@ -169,10 +169,18 @@ def test_missing_replay_file_and_missing_model(tmp_path: Path) -> None:
 
 def test_example_config_loads_and_shows_every_setting() -> None:
     from scotti.daemon.outputs.settings import OutputSettings
-    from scotti.daemon.settings import ModelSettings, MqttSettings, Settings, SourceSettings
+    from scotti.daemon.settings import (
+        DeviceSettings,
+        InferenceSettings,
+        ModelSettings,
+        MqttSettings,
+        Settings,
+        SourceSettings,
+    )
 
     example = Path(__file__).parent.parent / "systemd" / "scotti-daemon.toml"
     s = load_settings({}, example)
+    assert s.source is not None
     assert s.source.port == "/dev/scotti-receiver"
     text = example.read_text()
     sections: dict[str, type[BaseModel]] = {
@@ -181,6 +189,8 @@ def test_example_config_loads_and_shows_every_setting() -> None:
         "model": ModelSettings,
         "mqtt": MqttSettings,
         "outputs": OutputSettings,
+        "inference": InferenceSettings,
+        "devices": DeviceSettings,  # a commented [[devices]] example
     }
     for section, model in sections.items():
         for name in model.model_fields:
@@ -224,3 +234,72 @@ def test_a_misspelt_key_gets_a_did_you_mean(tmp_path: Path, text: str, message: 
     assert message in str(info.value)
     if "zzz" in text:
         assert "did you mean" not in str(info.value)  # nothing close: no guess
+
+
+DEVICES = '[[devices]]\nid = "lab1"\nport = "/dev/serial/by-id/usb-A"\n[[devices]]\nid = "lab2"\n'
+
+
+def test_a_devices_table_gives_one_device_each_with_its_own_topics(tmp_path: Path) -> None:
+    session = tmp_path / "s.scotti"
+    session.write_bytes(b"")
+    cfg = write(tmp_path, DEVICES + f'replay = "{session}"\nspeed = "max"\n')
+    s = load_settings({}, cfg)
+    assert s.source is None
+    assert [(d.id, d.kind) for d in s.device_list()] == [("lab1", "port"), ("lab2", "replay")]
+    lab1, lab2 = s.device_list()
+    assert lab1.port == "/dev/serial/by-id/usb-A"
+    assert lab2.speed == "max"
+    assert s.mqtt_for(lab2).topic("pose") == "scotti/lab2/pose"
+    assert s.mqtt_for(lab1).device_id == "lab1"
+    assert s.inference.batch  # batched unless asked otherwise
+
+
+def test_the_one_pair_shorthand_is_a_device_named_by_device_id() -> None:
+    s = load_settings({**PORT, "mqtt": {"device_id": "wearer"}})
+    (only,) = s.device_list()
+    assert (only.id, only.port) == ("wearer", "/dev/ttyACM0")
+    assert s.mqtt_for(only) is s.mqtt  # its client id and topics exactly as before
+
+
+def test_a_port_on_the_command_line_replaces_the_files_devices(tmp_path: Path) -> None:
+    cfg = write(tmp_path, DEVICES + 'port = "/dev/serial/by-id/usb-B"\n')
+    s = load_settings({"source": {"port": "/dev/ttyUSB9"}, "mqtt": {"device_id": "x"}}, cfg)
+    assert [(d.id, d.port) for d in s.device_list()] == [("x", "/dev/ttyUSB9")]
+
+
+def test_speed_alone_applies_to_devices_that_set_none(tmp_path: Path) -> None:
+    cfg = write(tmp_path, DEVICES + 'simulate = "demo"\nspeed = 2\n')
+    s = load_settings({"source": {"speed": "max"}}, cfg)
+    assert [d.speed for d in s.device_list()] == ["max", 2.0]
+
+
+@pytest.mark.parametrize(
+    ("toml", "message"),
+    [
+        (DEVICES + 'port = "/dev/b"\n[[devices]]\nid = "lab1"\nport = "/dev/c"\n', "given twice"),
+        ('[[devices]]\nid = "a/b"\nport = "/dev/a"\n', "must not contain '+', '#', '/'"),
+        ('[[devices]]\nid = "a+"\nport = "/dev/a"\n', "must not contain"),
+        ('[[devices]]\nid = ""\nport = "/dev/a"\n', "must not be empty"),
+        ('[[devices]]\nid = "a"\n', "give exactly one of port, replay, simulate (got none)"),
+        ('[[devices]]\nid = "a"\nport = "/dev/a"\nsimulate = "demo"\n', "port and simulate"),
+        ('[[devices]]\nid = "a"\nreplay = "/no/such.scotti"\n', "replay file not found"),
+        ('[[devices]]\nid = "a"\nprot = "/dev/a"\n', "unknown setting"),
+        ('[[devices]]\nport = "/dev/a"\n', "devices.0.id: Field required"),
+        ('[source]\nport = "/dev/x"\n' + DEVICES + 'port = "/dev/b"\n', "not both"),
+        (DEVICES + 'port = "/dev/b"\n[outputs]\nlsl = true\n', "serve one device"),
+    ],
+)
+def test_a_bad_devices_table_is_one_line(tmp_path: Path, toml: str, message: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_settings({}, write(tmp_path, toml))
+    text = str(info.value)
+    assert message in text
+    assert "\n" not in text
+
+
+def test_several_devices_record_into_a_directory(tmp_path: Path) -> None:
+    toml = DEVICES + 'port = "/dev/b"\n'
+    with pytest.raises(ConfigError, match="record: with several devices give a directory"):
+        load_settings({"record": tmp_path / "one.scotti"}, write(tmp_path, toml))
+    s = load_settings({"record": tmp_path}, write(tmp_path, toml))
+    assert s.record == tmp_path

@@ -57,3 +57,34 @@ def test_bench_percentiles_and_the_health_ring_summarise_alike() -> None:
     assert percentiles(values) == "p50   2.50  p90   7.90  p99   9.79  max  10.00 ms"
     assert percentiles([]) == "no samples"
     assert LatencyRing().summary()["n"] == 0
+
+
+@pytest.mark.mosquitto
+def test_the_bench_runs_two_pairs_in_one_daemon_and_prints_their_row(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from scotti.daemon.tools.bench import main
+
+    code = main(["--pairs", "2", "--seconds", "1.5", "--warmup", "0.5", "--modes", "batch"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    rows = [line for line in out.splitlines() if line.startswith("| 2 | batched |")]
+    assert len(rows) == 1, out
+    cells = [c.strip() for c in rows[0].strip("|").split("|")]
+    assert float(cells[2]) > 0  # poses per second per pair: both devices published
+    assert float(cells[6]) > 0  # the daemon's RSS was sampled
+
+
+def test_the_old_bench_command_still_answers() -> None:
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "scotti.daemon.bench", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0
+    assert "--pairs" in done.stdout

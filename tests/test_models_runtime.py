@@ -319,3 +319,24 @@ def test_missing_garbage_and_truncated_files(tiny_model_path: Path, tmp_path: Pa
             ScottiRuntime(bad)
         assert "\n" not in str(caught.value)
         assert str(bad) in str(caught.value)
+
+
+def test_step_batch_gives_each_row_what_step_gives_it(
+    step_rt: ScottiRuntime, window_rt: ScottiRuntime
+) -> None:
+    rng = np.random.default_rng(5)
+    x = frames(3, seed=5)
+    past = rng.normal(size=(3, step_rt.window - 1, step_rt.embed_dim)).astype(np.float32)
+    rows = step_rt.step_batch(x, past)
+    assert len(rows) == 3
+    for i, row in enumerate(rows):
+        alone = step_rt.step(x[i], past[i])
+        np.testing.assert_allclose(row.pose, alone.pose, atol=1e-5)
+        np.testing.assert_allclose(row.embedding, alone.embedding, atol=1e-5)
+        np.testing.assert_allclose(row.action_probs, alone.action_probs, atol=1e-5)
+    with pytest.raises(ModelInputError, match="past embeddings must be"):
+        step_rt.step_batch(x, past[:2])
+    with pytest.raises(ModelInputError, match="frames must be"):
+        step_rt.step_batch(x[:, :3], past)
+    with pytest.raises(ModelError, match="needs the step graph"):
+        window_rt.step_batch(x, past)

@@ -10,7 +10,7 @@ import pytest
 from scotti.models import contract as c
 from scotti.models.errors import ModelError, ModelInputError
 from scotti.models.runtime import ScottiRuntime, load_pair
-from scotti.models.streaming import EmbeddingCache, StreamingWindow
+from scotti.models.streaming import EmbeddingCache, StreamingWindow, push_many
 
 FRAME = (c.FRAME_ROWS, 2 * c.FRAME_COLS)
 TOL = 1e-4
@@ -109,3 +109,35 @@ def test_bad_frame_leaves_the_window_as_it_was(pair: tuple[ScottiRuntime, Scotti
 def test_streaming_needs_the_step_graph(pair: tuple[ScottiRuntime, ScottiRuntime]) -> None:
     with pytest.raises(ModelError, match="streaming needs the step graph"):
         StreamingWindow(pair[1])
+
+
+def test_push_many_equals_each_window_pushed_on_its_own(
+    pair: tuple[ScottiRuntime, ScottiRuntime],
+) -> None:
+    step = pair[0]
+    streams = [frames(c.WINDOW + 3, seed=10 + k) for k in range(3)]
+    alone = [StreamingWindow(step) for _ in streams]
+    together = [StreamingWindow(step) for _ in streams]
+    together[2].push(streams[2][0])  # windows at different points of their life: not aligned
+    alone[2].push(streams[2][0])
+    for i in range(1, c.WINDOW + 3):
+        expected = [w.push(s[i]) for w, s in zip(alone, streams, strict=True)]
+        got = push_many(together, [s[i] for s in streams])
+        for want, have in zip(expected, got, strict=True):
+            assert (want is None) == (have is None)
+            if want is not None and have is not None:
+                np.testing.assert_allclose(have.pose, want.pose, atol=1e-5)
+                np.testing.assert_allclose(have.action_probs, want.action_probs, atol=1e-5)
+                assert have.progress == pytest.approx(want.progress, abs=1e-5)
+    assert [w.frames_seen for w in together] == [w.frames_seen for w in alone]
+
+
+def test_push_many_refuses_a_bad_frame_and_leaves_every_window_as_it_was(
+    pair: tuple[ScottiRuntime, ScottiRuntime],
+) -> None:
+    windows = [StreamingWindow(pair[0]) for _ in range(2)]
+    good = frames(1)[0]
+    with pytest.raises(ModelInputError, match="frame must be"):
+        push_many(windows, [good, np.zeros((3, 3), np.float32)])
+    assert [w.frames_seen for w in windows] == [0, 0]
+    assert push_many([], []) == []

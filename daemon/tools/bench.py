@@ -1,24 +1,33 @@
-"""Benchmark: the daemon against the board emulator at 16 Hz and a real mosquitto.
+"""Benchmark: one daemon serving N insole pairs at 16 Hz against a real mosquitto.
 
-Prints per-frame latency percentiles (the daemon's own ``latency_ms``: the
-frame's last byte read from the pty to the publish; and last byte to a
-subscriber's receipt, from ``predicted_for_mono_ns`` on the same host clock)
-and the daemon's CPU % and RSS. A measurement, never a test.
+For each N in ``--pairs``, N emulated receiver boards (random frames, both
+feet, row blocks as the radio sends them) play into N pseudo-terminals from
+a helper process, and one ``scotti-daemon`` subprocess reads them all through
+a ``[[devices]]`` config. A subscriber in this process takes every pose and
+measures what a consumer sees: receipt time minus the frame's last byte
+(``predicted_for_mono_ns`` - 1/16 s, the same host clock). The daemon's own
+``latency_ms`` (last byte -> publish) comes from the payload. The daemon's
+CPU (100 % = one core) and peak RSS are sampled with psutil. Each N runs with
+the batched engine (``inference.batch = true``) and, with ``--modes``, one
+model call per pair (``false``). A measurement, never a test.
 
-    python -m scotti.daemon.tools.bench [--seconds 30] [--model PATH] [--threads 1]
+    python -m scotti.daemon.tools.bench --pairs 1 2 4 8 16 32 64 [--seconds 20]
+    python -m scotti.daemon.tools.bench --step-batches 1 2 4 8 16 32 64   # the model alone
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
+import multiprocessing
 import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import aiomqtt
@@ -34,28 +43,44 @@ from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, MAX_CO
 
 PERIOD_NS = round(1e9 / FRAME_RATE_HZ)
 ROWS_PER_PACKET = 8  # as the radio sends them: 4 packets per foot frame
+GOAL_P99_MS = 1e3 / FRAME_RATE_HZ  # a subscriber should have each pose within one frame
 
 
-def board_records(seconds: float, seed: int = 0) -> list[tuple[int, bytes]]:
-    """What a receiver sends in ``seconds``: random frames, both feet, row blocks."""
+def board_records(
+    seconds: float, seed: int = 0, *, per_write: bool = False
+) -> list[tuple[int, bytes]]:
+    """What a receiver sends in ``seconds``: random frames, both feet, row blocks.
+
+    ``per_write``: a foot frame's packets in one record (one write), as a USB
+    receiver hands them over in one transfer; else one record per packet, 1 ms apart.
+    """
     rng = np.random.default_rng(seed)
     records: list[tuple[int, bytes]] = []
     for i in range(round(seconds * FRAME_RATE_HZ)):
         t = i * PERIOD_NS
         for foot in (Foot.LEFT, Foot.RIGHT):
             counts = rng.integers(0, MAX_COUNT // 3, (FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
-            for start in range(0, FRAME_ROWS, ROWS_PER_PACKET):
-                packet = FrameRows(
-                    foot=foot,
-                    seq=i % 65536,
-                    board_clock_us=(i * PERIOD_NS // 1000) % (1 << 32),
-                    rows=FRAME_ROWS,
-                    cols=FRAME_COLS,
-                    sample_bits=SAMPLE_BITS,
-                    row_start=start,
-                    samples=counts[start : start + ROWS_PER_PACKET],
+            packets = [
+                encode_packet(
+                    FrameRows(
+                        foot=foot,
+                        seq=i % 65536,
+                        board_clock_us=(i * PERIOD_NS // 1000) % (1 << 32),
+                        rows=FRAME_ROWS,
+                        cols=FRAME_COLS,
+                        sample_bits=SAMPLE_BITS,
+                        row_start=start,
+                        samples=counts[start : start + ROWS_PER_PACKET],
+                    )
                 )
-                records.append((t, encode_packet(packet)))
+                for start in range(0, FRAME_ROWS, ROWS_PER_PACKET)
+            ]
+            if per_write:
+                records.append((t, b"".join(packets)))
+                t += 1_000_000
+                continue
+            for packet in packets:
+                records.append((t, packet))
                 t += 1_000_000
     return records
 
@@ -67,93 +92,319 @@ def percentiles(values: list[float]) -> str:
     return f"p50 {s['p50']:6.2f}  p90 {s['p90']:6.2f}  p99 {s['p99']:6.2f}  max {s['max']:6.2f} ms"
 
 
-async def collect(broker: Mosquitto, seconds: float, warmup: float) -> list[dict[str, float]]:
-    """Per pose message: the daemon's latency and last byte -> receipt, after ``warmup``."""
+READY_TIMEOUT_S = 120.0  # longest wait for every pair's first pose (a loaded host is slow)
+
+
+async def collect(
+    broker: Mosquitto,
+    seconds: float,
+    warmup: float,
+    topic: str = "scotti/+/pose",
+    *,
+    pairs: int = 0,
+    measuring: threading.Event | None = None,
+) -> list[dict[str, float]]:
+    """Per pose message: the daemon's latency and last byte -> receipt, for ``seconds``.
+
+    The measured seconds start ``warmup`` seconds after the subscription or, with
+    ``pairs``, after every one of that many devices has published its first pose
+    (the daemon started, each window filled); ``measuring`` is set then.
+    """
     out: list[dict[str, float]] = []
     async with aiomqtt.Client(
         broker.host, broker.port, protocol=aiomqtt.ProtocolVersion.V5
     ) as client:
-        await client.subscribe("scotti/bench/pose")
-        start = time.monotonic()
+        await client.subscribe(topic)
+        seen: set[str] = set()
+        begin = time.monotonic() + (READY_TIMEOUT_S if pairs else warmup)
+        end = begin + seconds
 
         async def read() -> None:
+            nonlocal begin, end
             async for m in client.messages:
                 received = time.monotonic_ns()
-                if time.monotonic() - start < warmup:
+                now = time.monotonic()
+                if pairs and len(seen) < pairs:
+                    seen.add(str(m.topic))
+                    if len(seen) == pairs:  # all ready: measure after the warm-up
+                        begin, end = now + warmup, now + warmup + seconds
+                if now >= end:
+                    return
+                if now < begin:
                     continue
+                if measuring is not None:
+                    measuring.set()
                 pose = json.loads(bytes(m.payload))
                 last_byte = pose["predicted_for_mono_ns"] - PERIOD_NS
                 out.append({"publish": pose["latency_ms"], "receipt": (received - last_byte) / 1e6})
 
-        # asyncio.timeout, not wait_for: on 3.11 wait_for can swallow its own cancel when
-        # a message arrives at that moment, and the read loop would then never end.
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(seconds + warmup):
-                await read()
+        async def until_end() -> None:
+            while True:  # ``end`` moves once every pair is ready
+                left = end - time.monotonic()
+                if left <= 0:
+                    return
+                await asyncio.sleep(min(0.2, left))
+
+        # Ends at ``end`` even while no pose comes (a daemon that fell silent).
+        reader = asyncio.create_task(read())
+        timer = asyncio.create_task(until_end())
+        try:
+            await asyncio.wait({reader, timer}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (reader, timer):
+                task.cancel()
+            await asyncio.gather(reader, timer, return_exceptions=True)
+    if measuring is not None:
+        measuring.set()  # never ready: the sampler must not wait forever
     return out
 
 
-def sample_process(pid: int, seconds: float, warmup: float) -> tuple[float, float]:
-    """Mean CPU % (100 = one core) and peak RSS in MiB over ``seconds`` after ``warmup``."""
+def sample_process(
+    pid: int,
+    seconds: float,
+    warmup: float | threading.Event,
+    others: tuple[int, ...] = (),
+) -> tuple[float, float, float]:
+    """Mean CPU % (100 = one core) and peak RSS in MiB of ``pid`` over ``seconds`` after
+    ``warmup`` (seconds, or an event: once it is set), and the CPU % of ``others``
+    together (the bench's own load on the host)."""
     proc = psutil.Process(pid)
-    time.sleep(warmup)
-    proc.cpu_percent(None)
+    rest = [psutil.Process(p) for p in others]
+    if isinstance(warmup, threading.Event):
+        warmup.wait(READY_TIMEOUT_S + seconds)
+    else:
+        time.sleep(warmup)
+    for p in (proc, *rest):
+        p.cpu_percent(None)
     rss, end = 0, time.monotonic() + seconds
     while time.monotonic() < end:
         time.sleep(0.5)
         rss = max(rss, proc.memory_info().rss)
-    return proc.cpu_percent(None), rss / 2**20
+    return proc.cpu_percent(None), rss / 2**20, sum(p.cpu_percent(None) for p in rest)
 
 
-def run(args: argparse.Namespace, model: Path) -> int:
-    warmup = 4.0  # the window fills in 2.5 s; onnxruntime settles
-    records = board_records(args.seconds + warmup + 5)
-    link = Path(tempfile.mkdtemp(prefix="scotti-bench-")) / "ttyBENCH"
-    with Mosquitto() as broker:
-        board = BoardEmulator(records, link, speed=1.0, loop=True)
+def _play_boards(links: list[str], seconds: float, ready: object, stop: object) -> None:
+    """The helper process: one emulated board per link, looping, until ``stop``."""
+    records = board_records(seconds, per_write=True)  # looped
+    boards = [BoardEmulator(records, Path(link), speed=1.0, loop=True) for link in links]
+    for board in boards:
         board.start()
-        cmd = [sys.executable, "-m", "scotti.daemon.main", "--port", str(link)]
-        cmd += ["--model", str(model), "--broker", broker.url, "--device-id", "bench"]
-        cmd += ["--threads", str(args.threads), "--log-level", "warning"]
-        env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
-        daemon = subprocess.Popen(cmd, env=env)
-        try:
-            loop_task = asyncio.run(_measure(broker, daemon.pid, args.seconds, warmup))
-        finally:
-            daemon.terminate()
-            daemon.wait(15)
-            board.stop()
-    samples, (cpu, rss) = loop_task
-    frames = len(samples)
-    print(
-        f"scotti-daemon bench: {args.seconds:.0f} s at {FRAME_RATE_HZ:.0f} Hz, model {model.name}"
+    ready.set()  # type: ignore[attr-defined]
+    stop.wait()  # type: ignore[attr-defined]
+    for board in boards:
+        board.stop()
+
+
+@dataclass(frozen=True)
+class Row:
+    pairs: int
+    batch: bool
+    published: int  # poses the subscriber got in the measured seconds
+    seconds: float
+    publish: dict[str, float | int]  # the daemon's latency_ms
+    receipt: dict[str, float | int]  # last byte -> subscriber
+    cpu: float  # the daemon, % of one core
+    rss: float  # the daemon, MiB
+    bench_cpu: float  # the emulated boards, the subscriber and mosquitto, % of one core
+    load: float  # 1-minute load average at the end
+
+    @property
+    def rate(self) -> float:
+        """Poses per second per pair (16 = every frame)."""
+        return self.published / self.seconds / self.pairs
+
+
+def config_text(links: list[Path], broker: Mosquitto, batch: bool, max_batch: int = 8) -> str:
+    tables = "".join(
+        f'\n[[devices]]\nid = "pair{i:02d}"\nport = "{link}"\n' for i, link in enumerate(links)
     )
-    print(f"  threads {args.threads}; frames published {frames}")
-    print(f"  last byte -> publish:          {percentiles([s['publish'] for s in samples])}")
-    print(f"  last byte -> subscriber got:   {percentiles([s['receipt'] for s in samples])}")
-    print(f"  daemon CPU {cpu:.1f} % of one core, RSS {rss:.0f} MiB")
-    return 0 if frames else 1
+    return (
+        f'log_level = "warning"\n[inference]\nbatch = {str(batch).lower()}\n'
+        f"max_batch = {max_batch}\n"
+        f'[mqtt]\nbroker = "{broker.url}"\n{tables}'
+    )
+
+
+def run_one(
+    broker: Mosquitto,
+    model: Path,
+    pairs: int,
+    batch: bool,
+    seconds: float,
+    warmup: float,
+    max_batch: int = 8,
+) -> Row:
+    folder = Path(tempfile.mkdtemp(prefix="scotti-bench-"))
+    links = [folder / f"tty{i:02d}" for i in range(pairs)]
+    config = folder / "devices.toml"
+    config.write_text(config_text(links, broker, batch, max_batch))
+    ctx = multiprocessing.get_context("spawn")
+    ready, stop = ctx.Event(), ctx.Event()
+    boards = ctx.Process(
+        target=_play_boards, args=([str(p) for p in links], 8.0, ready, stop), daemon=True
+    )
+    boards.start()
+    if not ready.wait(60):
+        boards.kill()
+        msg = "the emulated boards did not start"
+        raise RuntimeError(msg)
+    cmd = [sys.executable, "-m", "scotti.daemon.main", "--config", str(config)]
+    cmd += ["--model", str(model)]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
+    daemon = subprocess.Popen(cmd, env=env)
+    try:
+        others = (boards.pid or 0, os.getpid(), *_broker_pid(broker))
+        samples, (cpu, rss, bench_cpu) = asyncio.run(
+            _measure(broker, daemon.pid, pairs, seconds, warmup, others)
+        )
+    finally:
+        daemon.terminate()
+        daemon.wait(30)
+        stop.set()
+        boards.join(15)
+    return Row(
+        pairs=pairs,
+        batch=batch,
+        published=len(samples),
+        seconds=seconds,
+        publish=latency_summary([s["publish"] for s in samples]),
+        receipt=latency_summary([s["receipt"] for s in samples]),
+        cpu=cpu,
+        rss=rss,
+        bench_cpu=bench_cpu,
+        load=os.getloadavg()[0],
+    )
+
+
+def _broker_pid(broker: Mosquitto) -> tuple[int, ...]:
+    proc = getattr(broker, "_proc", None)  # the local broker keeps its Popen private
+    return (proc.pid,) if isinstance(proc, subprocess.Popen) else ()
 
 
 async def _measure(
-    broker: Mosquitto, pid: int, seconds: float, warmup: float
-) -> tuple[list[dict[str, float]], tuple[float, float]]:
-    sampler = asyncio.to_thread(sample_process, pid, seconds, warmup)
-    samples, usage = await asyncio.gather(collect(broker, seconds, warmup), sampler)
+    broker: Mosquitto,
+    pid: int,
+    pairs: int,
+    seconds: float,
+    warmup: float,
+    others: tuple[int, ...],
+) -> tuple[list[dict[str, float]], tuple[float, float, float]]:
+    measuring = threading.Event()
+    sampler = asyncio.to_thread(sample_process, pid, seconds, measuring, others)
+    reader = collect(broker, seconds, warmup, pairs=pairs, measuring=measuring)
+    samples, usage = await asyncio.gather(reader, sampler)
     return samples, usage
+
+
+HEADER = (
+    "| pairs | inference | poses/s per pair | publish p50 / p99 ms "
+    "| subscriber p50 / p99 ms | daemon CPU % of a core | RSS MiB | bench's own CPU % "
+    "| load avg |"
+)
+
+
+def table_row(r: Row) -> str:
+    mode = "batched" if r.batch else "per pair"
+    p, s = r.publish, r.receipt
+    return (
+        f"| {r.pairs} | {mode} | {r.rate:.1f} | {p['p50']:.1f} / {p['p99']:.1f} "
+        f"| {s['p50']:.1f} / {s['p99']:.1f} | {r.cpu:.0f} | {r.rss:.0f} | {r.bench_cpu:.0f} "
+        f"| {r.load:.1f} |"
+    )
+
+
+def run(args: argparse.Namespace, model: Path) -> int:
+    modes = [m == "batch" for m in args.modes]
+    print(
+        f"scotti-daemon bench: {args.seconds:.0f} s measured {args.warmup:.0f} s after every "
+        f"pair's first pose, "
+        f"{FRAME_RATE_HZ:.0f} Hz per pair, model {model.name}, max_batch {args.max_batch}, "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at start, "
+        f"nice {os.nice(0)}",
+        flush=True,
+    )
+    print(HEADER)
+    print("|" + "---|" * 9, flush=True)
+    rows = []
+    with Mosquitto() as broker:
+        for pairs in args.pairs:
+            for batch in modes:
+                row = run_one(
+                    broker, model, pairs, batch, args.seconds, args.warmup, args.max_batch
+                )
+                rows.append(row)
+                print(table_row(row), flush=True)
+    return 0 if all(r.published for r in rows) else 1
+
+
+def step_costs(model: Path, sizes: list[int], repeats: int = 15) -> int:
+    """The model's step alone: ms per frame at each batch size, sizes interleaved so
+    that a busy host weighs on all of them alike."""
+    from scotti.models.runtime import ScottiRuntime
+
+    runtime = ScottiRuntime(model)
+    rng = np.random.default_rng(0)
+    inputs = {
+        b: (
+            rng.integers(0, MAX_COUNT // 3, (b, *runtime.frame_shape)).astype(np.float32),
+            rng.normal(size=(b, runtime.window - 1, runtime.embed_dim)).astype(np.float32),
+        )
+        for b in sizes
+    }
+    for frames, past in inputs.values():  # onnxruntime plans each new shape once
+        runtime.step_batch(frames, past)
+    per_frame: dict[int, list[float]] = {b: [] for b in sizes}
+    for _ in range(repeats):
+        for b, (frames, past) in inputs.items():
+            start = time.perf_counter()
+            runtime.step_batch(frames, past)
+            per_frame[b].append((time.perf_counter() - start) * 1e3 / b)
+    print(
+        f"model step {model.name}, 1 thread, {repeats} rounds, "
+        f"load average {os.getloadavg()[0]:.1f}"
+    )
+    print("| frames per call | ms per frame, min | median |")
+    print("|---|---|---|")
+    for b, values in per_frame.items():
+        print(f"| {b} | {min(values):.2f} | {float(np.median(values)):.2f} |")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.bench")
-    p.add_argument("--seconds", type=float, default=30.0, help="measured seconds")
+    p.add_argument("--pairs", type=int, nargs="+", default=[1], help="insole pairs, e.g. 1 8 32")
+    p.add_argument("--seconds", type=float, default=20.0, help="measured seconds per run")
+    p.add_argument(
+        "--warmup", type=float, default=3.0,
+        help="seconds from every pair's first pose to the measurement",
+    )  # fmt: skip
+    p.add_argument(
+        "--modes", nargs="+", choices=("batch", "single"), default=["batch", "single"],
+        help="batched engine (batch) and/or one model call per pair (single)",
+    )  # fmt: skip
+    p.add_argument("--max-batch", type=int, default=8, help="inference.max_batch (default 8)")
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
-    p.add_argument("--threads", type=int, default=1)
+    p.add_argument(
+        "--step-batches", type=int, nargs="+", metavar="B",
+        help="instead: time the model's step alone at these batch sizes (no daemon, no broker)",
+    )  # fmt: skip
     args = p.parse_args(argv)
+    if min(args.pairs) < 1 or args.seconds <= 0 or args.warmup < 0 or args.max_batch < 1:
+        print(
+            "bench: --pairs and --max-batch must be >= 1, --seconds > 0, --warmup >= 0",
+            file=sys.stderr,
+        )
+        return 2
     try:
         model = args.model or default_model_path()
     except ConfigError as exc:
         print(f"bench: {exc}", file=sys.stderr)
         return 78
+    if args.step_batches:
+        if min(args.step_batches) < 1:
+            print("bench: --step-batches must be >= 1", file=sys.stderr)
+            return 2
+        return step_costs(model, args.step_batches)
     return run(args, model)
 
 

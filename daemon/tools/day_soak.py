@@ -26,7 +26,13 @@ from pathlib import Path
 from typing import Final
 
 from scotti.daemon.app import Daemon
-from scotti.daemon.settings import ConfigError, Settings, default_model_path, load_settings
+from scotti.daemon.settings import (
+    ConfigError,
+    DeviceSettings,
+    Settings,
+    default_model_path,
+    load_settings,
+)
 from scotti.daemon.sources import Source, SourceEvent, SourceItem
 from scotti.daemon.tools.generated import GeneratedBoard
 from scotti.daemon.tools.local_broker import BrokerError, Mosquitto
@@ -116,7 +122,7 @@ class SoakDaemon(Daemon):
         super().__init__(settings, runtime)
         self._day = source
 
-    def _make_source(self) -> Source:
+    def _make_source(self, device: DeviceSettings) -> Source:
         return self._day
 
 

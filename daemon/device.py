@@ -1,0 +1,215 @@
+"""One insole pair in the daemon: its source, recording, pipeline, MQTT client, status
+and health, all its own.
+
+A device shares only two things with the others: the model (its frames go
+through the daemon's one inference engine, batched with theirs) and the
+event loop. Everything that can fail (its receiver unplugged, garbage on its
+line, a foot silent, its replay ending) fails here, is reported on its own
+``scotti/<id>/status``, and never holds up another device: the engine takes
+whatever frames are ready, and each device publishes through its own client,
+so each has its own last will (``offline``) and its own retained ``info``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import AsyncGenerator, Callable
+from typing import Any, Literal
+
+from pydantic import BaseModel
+from scotti.daemon import messages
+from scotti.daemon.counters import Counters
+from scotti.daemon.inference import InferenceEngine
+from scotti.daemon.outputs import Outputs
+from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
+from scotti.daemon.publisher import BrokerState, FrameBatch, Publisher
+from scotti.daemon.recording import Recorder
+from scotti.daemon.schemas import Info, Status
+from scotti.daemon.settings import DeviceSettings, Settings
+from scotti.daemon.sources import Source, SourceItem
+from scotti.daemon.waiting import wait_event
+from scotti.models.runtime import ScottiRuntime
+
+log = logging.getLogger(__name__)
+
+
+class Device:
+    """One pair's service; ``await device.run(stop)`` until its source ends or ``stop``."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        device: DeviceSettings,
+        runtime: ScottiRuntime,
+        engine: InferenceEngine,
+        source: Source,
+        recorder: Recorder | None,
+    ) -> None:
+        self.id = device.id
+        self.settings = settings
+        self.device = device
+        self.mqtt = settings.mqtt_for(device)
+        self.runtime = runtime
+        self.engine = engine
+        self.source = source
+        self.recorder = recorder
+        self.counters = Counters()
+        self.started_mono = time.monotonic()
+        self.outputs = Outputs()  # MCAP, Foxglove, LSL, web: only a lone device has them
+        self.publisher: Publisher | None = None
+        self.state: PipelineState | None = None
+        self.on_change: Callable[[Device], None] = lambda _d: None  # state or broker changed
+        self._status_key: tuple[object, ...] | None = None
+
+    @property
+    def connected_once(self) -> bool:
+        return self.counters.connects > 0
+
+    async def run(self, stop: asyncio.Event, info: Info) -> int:
+        """0 when the source ended or ``stop`` was set and the stop was clean, else 1."""
+        settings = self.settings
+        publisher = Publisher(
+            self.mqtt,
+            info=info,
+            will=messages.status("offline", ["connection lost (last will)"], None),
+        )
+        self.publisher = publisher
+        publisher.on_state_change = self._on_broker_state
+        publisher.set_status(messages.status("degraded", ["starting"], None))
+        source = self.source
+        if not source.live:  # a replay waits for the broker rather than lose predictions
+            # Room for the engine's backlog of this device too, and a frame or two more.
+            source = _PacedByPublisher(source, publisher, settings.inference.queue_size + 2)
+        pipeline = Pipeline(
+            source,
+            self.runtime,
+            self.counters,
+            self.recorder,
+            max_queue=settings.inference.queue_size,
+            engine=self.engine,
+        )
+        publish_stop = asyncio.Event()
+        pub_task = asyncio.create_task(publisher.run(publish_stop), name=f"publisher-{self.id}")
+        pipe_task = asyncio.create_task(
+            pipeline.run(self._on_prediction, self._on_state, stop), name=f"pipeline-{self.id}"
+        )
+        health = asyncio.create_task(self._health_loop(stop), name=f"health-{self.id}")
+        exit_code = 0
+        try:  # the pipeline ends on ``stop`` or when its source does (a replay's end)
+            await pipe_task
+        except Exception:
+            log.exception("device %s: pipeline failed", self.id)
+            exit_code = 1
+        finally:
+            if self.recorder is not None:
+                self.recorder.close()
+        deadline = time.monotonic() + settings.stop_timeout_s
+        publisher.on_drained = self._publish_final_state
+        publish_stop.set()
+        try:
+            await asyncio.wait_for(pub_task, _left(deadline))
+        except TimeoutError:
+            log.warning("device %s: publisher did not drain within the stop timeout", self.id)
+        health.cancel()
+        await asyncio.gather(health, return_exceptions=True)
+        log.info("device %s: stopped (%s published)", self.id, publisher.stats.published)
+        return exit_code
+
+    # --- callbacks from the pipeline and the publisher ------------------------------
+    def _on_prediction(self, prediction: Prediction) -> None:
+        assert self.publisher is not None
+        self.outputs.prediction(prediction)
+        pressure = self.mqtt.pressure_downsample if self.mqtt.pressure else 0
+
+        def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
+            return messages.frame_payloads(prediction, latency_ms, pressure)
+
+        self.publisher.submit(
+            FrameBatch(
+                seq=prediction.seq,
+                last_byte_mono_ns=prediction.last_byte_mono_ns,
+                made_mono_ns=prediction.host_mono_ns,
+                render=render,
+            )
+        )
+
+    def _on_state(self, state: PipelineState) -> None:
+        self.state = state
+        self._publish_status()
+        self.on_change(self)
+
+    def _on_broker_state(self, state: BrokerState, detail: str) -> None:
+        self.on_change(self)
+
+    def _publish_status(self) -> None:
+        state = self.state
+        if state is None or self.publisher is None:
+            return
+        reasons = list(state.reasons)
+        frames, needed = state.warming
+        if frames < needed and state.source == "connected":
+            reasons.append("warming up")  # how far: Status.warming (not a new status per frame)
+        key = (state.source, tuple(sorted(state.feet.items())), tuple(reasons))
+        if key == self._status_key:
+            return  # unchanged: no retained republish at 16 Hz
+        self._status_key = key
+        st: Literal["online", "degraded"] = "degraded" if reasons else "online"
+        status: Status = messages.status(st, reasons, state)
+        self.publisher.set_status(status)
+        self.outputs.status(status)
+        shown = f": {', '.join(reasons)}" if reasons else ""
+        log.info("%sstatus %s%s", self._log_prefix, st, shown)
+
+    @property
+    def _log_prefix(self) -> str:
+        return "" if self.settings.source is not None else f"device {self.id}: "
+
+    def _publish_final_state(self) -> None:
+        assert self.publisher is not None
+        self.publisher.set_health(self.health())
+        final = messages.status("offline", ["stopped"], self.state)
+        self.publisher.set_status(final)
+        self.outputs.status(final)
+
+    # --- health -------------------------------------------------------------------------
+    async def _health_loop(self, stop: asyncio.Event) -> None:
+        interval = self.mqtt.health_interval_s
+        while not stop.is_set():
+            await wait_event(stop, interval)
+            if self.publisher is not None and not stop.is_set():
+                self.publisher.set_health(self.health())
+
+    def health(self) -> Any:
+        assert self.publisher is not None
+        return messages.health(
+            self.counters.snapshot(),
+            self.publisher,
+            uptime_s=time.monotonic() - self.started_mono,
+        )
+
+
+class _PacedByPublisher:
+    """A source that can wait (replay), held back while the publish queue is nearly full.
+
+    Each chunk may complete a frame whose prediction lands in the queue only after
+    the inference worker's backlog, so room is kept for that backlog too."""
+
+    def __init__(self, source: Source, publisher: Publisher, backlog: int) -> None:
+        self.source = source
+        self.publisher = publisher
+        self.backlog = backlog
+        self.name = source.name
+        self.live = source.live
+
+    async def stream(self) -> AsyncGenerator[SourceItem, None]:
+        async with contextlib.aclosing(self.source.stream()) as items:
+            async for item in items:
+                await self.publisher.wait_room(self.backlog)
+                yield item
+
+
+def _left(deadline: float) -> float:
+    return max(0.05, deadline - time.monotonic())
