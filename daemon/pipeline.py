@@ -90,6 +90,7 @@ class Pipeline:
         self.assembler = FrameAssembler()
         self.pairing = Pairing(pairing)
         counters.pairing = self.pairing.counters
+        counters.decoder, counters.assembly = self.decoder.counters, self.assembler.counters
         self.window = Window(runtime)
         self.worker = InferenceWorker(self.window, self._on_result, max_queue=max_queue)
         self.repetitions = RepetitionCounter()
@@ -151,8 +152,6 @@ class Pipeline:
                 counters.board_status += 1
             elif isinstance(packet, DecodeError):
                 log.debug("bad packet: %s", packet)
-        counters.bad_packets = self.decoder.counters.as_dict()
-        counters.assembler = self.assembler.counters.as_dict()
 
     async def _on_source_event(self, event: SourceEvent) -> None:
         counters = self.counters
