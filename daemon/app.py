@@ -133,7 +133,15 @@ class Daemon:
         self.notifier.close()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
-        log.info("stopped (%s predictions published)", publisher.stats.published)
+        seconds = time.monotonic() - self.started_mono
+        pairs = self.counters.pairing.pairs_out
+        log.info(
+            "stopped: %d paired frames in %.1f s (%.0f frames/s), %d predictions published",
+            pairs,
+            seconds,
+            pairs / seconds if seconds > 0 else 0.0,
+            publisher.stats.published,
+        )
         return exit_code
 
     # --- construction -----------------------------------------------------------
