@@ -44,8 +44,10 @@ def test_replay_at_max_speed_publishes_every_prediction(
         [m for m in msgs if m.topic.endswith("/health")][-1].payload
     )
     assert health.predictions == health.published == len(expected)
-    assert health.dropped == 0 and health.dropped_frames == 0
+    assert health.dropped == 0
+    assert health.dropped_frames == 0
     # The replay says how fast it went.
     rate = re.search(r"(\d+) paired frames in [\d.]+ s \((\d+) frames/s\)", daemon.log)
     assert rate is not None, daemon.log
-    assert int(rate.group(1)) == FRAMES and int(rate.group(2)) > 0
+    assert int(rate.group(1)) == FRAMES
+    assert int(rate.group(2)) > 0
