@@ -23,7 +23,7 @@ from scotti.daemon.pairing import PairedFrame
 from scotti.models.runtime import ScottiRuntime
 
 if TYPE_CHECKING:  # evaluation imports this module
-    from scotti.evaluation.evaluation import SessionReplay
+    from scotti.evaluation.replay import SessionReplay
 
 F32 = npt.NDArray[np.float32]
 U16 = npt.NDArray[np.uint16]
