@@ -72,12 +72,21 @@ def run(args: argparse.Namespace) -> int:
     except (EvaluationError, ModelError, SessionError, ConfigError, OSError) as exc:
         print(f"scotti eval: {exc}", file=sys.stderr)
         return 2
+    print(rate_line(reports[0]["rate"]), file=sys.stderr)  # stdout stays the report
     if args.json:
         value = reports[0] if len(reports) == 1 else reports
         print(json.dumps(_finite(value), indent=2))
     else:
         print("\n\n".join("\n".join(format_report(r)) for r in reports))
     return 0
+
+
+def rate_line(rate: dict[str, Any]) -> str:
+    """``scotti eval: N paired frames in S s, R frames/s (model M s of it)``."""
+    return (
+        f"scotti eval: {rate['paired_frames']} paired frames in {rate['seconds']:.2f} s, "
+        f"{rate['frames_per_s'] or 0:.0f} frames/s (model {rate['model_seconds']:.2f} s of it)"
+    )
 
 
 def _progress(done: int, total: int, path: Path, seconds: float) -> None:

@@ -68,6 +68,7 @@ def evaluate_models(
         raise EvaluationError(msg)
     windows = window_graphs(runtimes) if every > 1 else None
     per_session = []
+    began = time.perf_counter()
     for i, p in enumerate(paths):
         started = time.perf_counter()
         per_session.append(
@@ -75,6 +76,7 @@ def evaluate_models(
         )
         if on_session is not None:
             on_session(i + 1, len(paths), Path(p), time.perf_counter() - started)
+    seconds = time.perf_counter() - began
     return [
         _report(
             runtime,
@@ -82,8 +84,25 @@ def evaluate_models(
             every,
             windows[i] if windows else None,
         )
+        | {"rate": rate(per_session, i, seconds)}
         for i, runtime in enumerate(runtimes)
     ]
+
+
+def rate(per_session: list[list[SessionReplay]], model: int, seconds: float) -> dict[str, Any]:
+    """How fast the replay went: paired frames per second of wall time (every model's
+    replay of a session is one pass, so they share the figure), and the share of it
+    spent in this model's graph."""
+    replays = [replays[model] for replays in per_session]
+    pairs = sum(r.pairs for r in replays)
+    model_ms = sum(sum(r.step_ms) for r in replays)
+    model_ms += sum(ms for r in replays for ms, _ in r.window_batches)
+    return {
+        "paired_frames": pairs,
+        "seconds": round(seconds, 3),
+        "frames_per_s": round(pairs / seconds, 1) if seconds > 0 else None,
+        "model_seconds": round(model_ms / 1e3, 3),
+    }
 
 
 def _report(

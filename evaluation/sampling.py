@@ -27,7 +27,10 @@ if TYPE_CHECKING:  # evaluation imports this module
 
 F32 = npt.NDArray[np.float32]
 U16 = npt.NDArray[np.uint16]
-BATCH_SIZE = 64  # windows per run of the window graph (E=512: ~60 MB of activations)
+# Windows per run of the window graph. Its activations (T frames through the CNN per
+# window) stay in onnxruntime's arena at their peak: 64 windows held ~900 MB
+# (scotti-default, T=40), 8 hold under 200 MB and run as fast (docs/performance.md).
+BATCH_SIZE = 8
 
 
 @dataclass(frozen=True)
