@@ -82,10 +82,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def rate_line(rate: dict[str, Any]) -> str:
-    """``scotti eval: N paired frames in S s, R frames/s (model M s of it)``."""
+    """How fast it went, one line on stderr."""
     return (
-        f"scotti eval: {rate['paired_frames']} paired frames in {rate['seconds']:.2f} s, "
-        f"{rate['frames_per_s'] or 0:.0f} frames/s (model {rate['model_seconds']:.2f} s of it)"
+        f"scotti eval: {rate['paired_frames']} paired frames in {rate['seconds']:.2f} s "
+        f"({rate['frames_per_s'] or 0:.0f} frames/s; CPU {rate['cpu_seconds']:.2f} s, "
+        f"{rate['frames_per_cpu_s'] or 0:.0f} frames/s); "
+        f"model {rate['model_cpu_seconds']:.2f} CPU s of it, "
+        f"without the model {rate['without_model_frames_per_cpu_s'] or 0:.0f} frames per CPU s"
     )
 
 

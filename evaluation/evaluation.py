@@ -68,7 +68,7 @@ def evaluate_models(
         raise EvaluationError(msg)
     windows = window_graphs(runtimes) if every > 1 else None
     per_session = []
-    began = time.perf_counter()
+    began, began_cpu = time.perf_counter(), time.process_time()
     for i, p in enumerate(paths):
         started = time.perf_counter()
         per_session.append(
@@ -77,6 +77,7 @@ def evaluate_models(
         if on_session is not None:
             on_session(i + 1, len(paths), Path(p), time.perf_counter() - started)
     seconds = time.perf_counter() - began
+    cpu_seconds = time.process_time() - began_cpu
     return [
         _report(
             runtime,
@@ -84,24 +85,31 @@ def evaluate_models(
             every,
             windows[i] if windows else None,
         )
-        | {"rate": rate(per_session, i, seconds)}
+        | {"rate": rate(per_session, i, seconds, cpu_seconds)}
         for i, runtime in enumerate(runtimes)
     ]
 
 
-def rate(per_session: list[list[SessionReplay]], model: int, seconds: float) -> dict[str, Any]:
-    """How fast the replay went: paired frames per second of wall time (every model's
-    replay of a session is one pass, so they share the figure), and the share of it
-    spent in this model's graph."""
+def rate(
+    per_session: list[list[SessionReplay]], model: int, seconds: float, cpu_seconds: float
+) -> dict[str, Any]:
+    """How fast the replay went: paired frames per second of wall time and of this
+    process's CPU time (on a shared host the CPU figure is the one-core rate), the
+    time spent in this model's graph, and the rate of everything else (reading,
+    decoding, assembly, pairing, scoring). Every model's replay of a session is
+    one pass, so the models share the wall and CPU figures."""
     replays = [replays[model] for replays in per_session]
     pairs = sum(r.pairs for r in replays)
-    model_ms = sum(sum(r.step_ms) for r in replays)
-    model_ms += sum(ms for r in replays for ms, _ in r.window_batches)
+    model_s = sum(r.model_cpu_s for r in replays)  # onnxruntime, 1 thread: this thread
+    rest_s = cpu_seconds - sum(r.model_cpu_s for per in per_session for r in per)
     return {
         "paired_frames": pairs,
         "seconds": round(seconds, 3),
+        "cpu_seconds": round(cpu_seconds, 3),
         "frames_per_s": round(pairs / seconds, 1) if seconds > 0 else None,
-        "model_seconds": round(model_ms / 1e3, 3),
+        "frames_per_cpu_s": round(pairs / cpu_seconds, 1) if cpu_seconds > 0 else None,
+        "model_cpu_seconds": round(model_s, 3),
+        "without_model_frames_per_cpu_s": round(pairs / rest_s, 1) if rest_s > 0 else None,
     }
 
 

@@ -53,6 +53,7 @@ class SessionReplay:
     degraded_pairs: int = 0  # pairs with a held, filled or patched foot
     step_ms: list[float] = field(default_factory=list, repr=False)  # step graph only
     window_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)
+    model_cpu_s: float = 0.0  # CPU time in the model's graph (this thread), for the rate
     frames: FrameSet = field(default_factory=FrameSet.empty, repr=False)
     made: list[Prediction] = field(default_factory=list, repr=False)  # in time order
 
@@ -159,9 +160,10 @@ class _Track:
     def take(self, pair: PairedFrame, ext: int | None) -> None:
         if pair.restart:
             self.window.restart()
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         result = self.window.push(pair.counts).result
         self.out.step_ms.append((time.perf_counter() - start) * 1e3)
+        self.out.model_cpu_s += time.thread_time() - start_cpu
         self.out.pairs += 1
         self.out.degraded_pairs += bool(pair.flags)
         if result is not None and ext is not None:

@@ -90,9 +90,10 @@ class SampledTrack:
         if not self._queue:
             return
         frames = np.stack([w for _, w in self._queue])
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         result = self.runtime.run_windows(frames, batch_size=len(frames))
         self.out.window_batches.append(((time.perf_counter() - start) * 1e3, len(frames)))
+        self.out.model_cpu_s += time.thread_time() - start_cpu
         for i, (ext, _) in enumerate(self._queue):
             self.made.append(
                 Prediction(ext, result.pose[i], result.action_probs[i], float(result.progress[i]))
