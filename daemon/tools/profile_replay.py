@@ -8,7 +8,7 @@ functions. cProfile sees the event loop thread only: the model runs on the
 inference worker's thread and is not in these figures (the rate includes it).
 A measurement, never a test.
 
-    python -m scotti.daemon.tools.profile_replay SESSION [--top 20] [--model PATH]
+    python -m scotti.daemon.tools.profile_replay SESSION [--top 20] [--numpy-cobs]
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from typing import Final
 
 from scotti.daemon.main import main as daemon_main
 from scotti.daemon.tools.local_broker import BrokerError, Mosquitto
+from scotti.firmware_protocol import cobs
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.session_summary import summarize
 
@@ -60,7 +61,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, help="step graph (default: the shipped one)")
     parser.add_argument("--format", default="json", help="json or msgpack")
     parser.add_argument("--top", type=int, default=15, help="functions to list")
+    parser.add_argument(
+        "--numpy-cobs",
+        action="store_true",
+        help="decode COBS with the numpy decoder even if the compiled one is installed "
+        "(what a host without the [fast] extra runs)",
+    )
     args = parser.parse_args(argv)
+    compiled = cobs._compiled
+    if args.numpy_cobs:
+        cobs._compiled = None  # a measurement of the fallback (put back at the end)
+    try:
+        return _run(args)
+    finally:
+        cobs._compiled = compiled
+
+
+def _run(args: argparse.Namespace) -> int:
+    print(f"COBS decoder: {'compiled (cobs package)' if cobs._compiled else 'numpy'}")
     if not args.session.is_file():
         print(f"profile_replay: no such session file: {args.session}", file=sys.stderr)
         return 2
