@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from scotti.firmware_protocol.errors import BadCobsError
 
-try:  # optional, compiled (the [fast] extra); ``decode_numpy`` stands in without it
+try:  # optional, compiled (the [fast] extra); ``decode_fallback`` stands in without it
     _compiled: Any = importlib.import_module("cobs.cobs")
 except ImportError:
     _compiled = None
@@ -117,11 +117,12 @@ def decode_many(frames: Sequence[bytes]) -> list[bytes | BadCobsError]:
 
     With the compiled ``cobs`` package installed (``pip install 'scotti[fast]'``,
     it builds from source: a C compiler is needed) each frame takes about half
-    a microsecond; without it, ``decode_numpy`` (tens of microseconds). Both give
-    the same bytes and, for an invalid frame, the same error as ``_decode_one``.
+    a microsecond; without it, ``decode_fallback`` (tens of microseconds). Both
+    give the same bytes and, for an invalid frame, the same error as
+    ``_decode_one``.
     """
     if _compiled is None:
-        return decode_numpy(frames)
+        return decode_fallback(frames)
     return decode_compiled(frames)
 
 
@@ -138,34 +139,58 @@ def decode_compiled(frames: Sequence[bytes]) -> list[bytes | BadCobsError]:
     return out
 
 
-def decode_numpy(frames: Sequence[bytes]) -> list[bytes | BadCobsError]:
-    """``decode_many`` without a compiler: numpy does all but finding the code bytes.
+def decode_fallback(frames: Sequence[bytes]) -> list[bytes | BadCobsError]:
+    """``decode_many`` without the compiled package.
 
     Pressure rows are mostly zeros, so a frame is mostly one- and two-byte
-    blocks and a loop that copies block by block costs a Python iteration
-    per zero. Here only the code bytes are found one by one (``i += code``,
-    or, for many frames, one numpy step for all frames at a time); the
-    output is then made in one numpy pass: every code byte but the first
-    becomes the zero it stands for, unless the block before it was full
-    (0xFF). Invalid frames (rare: line noise) are decoded again by
+    blocks: any decoder in Python pays per block. A few frames (what one
+    serial read completes) go through ``_decode_joined``, which only slices
+    blocks and joins them with zeros; many frames at once (a session read in
+    bulk) go through ``_decode_lockstep``, one numpy step per block for all
+    frames together. Invalid frames (rare: line noise) are decoded again by
     ``_decode_one`` so their error names the offset, as it always did.
     """
-    if not frames:
-        return []
+    if len(frames) < _LOCKSTEP_MIN:
+        return [_decode_joined(frame) for frame in frames]
+    return _decode_lockstep(frames)
+
+
+_LOCKSTEP_MIN: Final = 16  # frames from which one numpy step for all beats a loop per frame
+
+
+def _decode_joined(frame: bytes) -> bytes | BadCobsError:
+    """One frame: the blocks sliced out and joined with the zeros they stand for."""
+    if 0 in frame:  # memchr: a zero code byte or a zero inside a block
+        return _decode_one(frame)
+    blocks: list[bytes] = []
+    append, size, i = blocks.append, len(frame), 0
+    while i < size:
+        end = i + frame[i]
+        append(frame[i + 1 : end])
+        i = end
+    # Past the end (invalid), or a full block (254 data bytes: code 0xFF, no zero after
+    # it; only in frames that long): the block-by-block decoder does those.
+    if i > size or (size > MAX_BLOCK and MAX_BLOCK in map(len, blocks)):
+        return _decode_one(frame)
+    return b"\x00".join(blocks)
+
+
+def _decode_lockstep(frames: Sequence[bytes]) -> list[bytes | BadCobsError]:
+    """Many frames: their code bytes found by numpy steps, then one pass over all.
+
+    Every code byte but the first of its frame becomes the zero it stands for,
+    unless the block before it was full (0xFF); the data bytes stay.
+    """
     count = len(frames)
     lengths = np.fromiter((len(f) for f in frames), dtype=np.int64, count=count)
     ends = np.cumsum(lengths + 1) - 1  # each frame is followed by one end slot
     starts = ends - lengths
     buf = np.frombuffer(b"\x00".join(frames) + b"\x00", dtype=np.uint8)
     bad = np.fromiter((0 in f for f in frames), dtype=bool, count=count)  # memchr speed
-    if count >= _LOCKSTEP_MIN:
-        codes = _codes_lockstep(buf, starts, ends, bad)
-    else:
-        codes = _codes_walk(frames, starts, bad)
+    codes = _codes_lockstep(buf, starts, ends, bad)
     frame_of = np.repeat(np.arange(count), lengths + 1)
     is_end = np.zeros(buf.size, dtype=bool)
     is_end[ends] = True
-    # A code byte stands for a zero unless it starts its frame or follows a full block.
     after_full = np.zeros(codes.size, dtype=bool)
     after_full[1:] = buf[codes[:-1]] == _FULL_CODE
     first = np.zeros(buf.size, dtype=bool)
@@ -181,25 +206,6 @@ def decode_numpy(frames: Sequence[bytes]) -> list[bytes | BadCobsError]:
         _decode_one(frames[i]) if bad[i] else data[offsets[i] : offsets[i + 1]]
         for i in range(count)
     ]
-
-
-_LOCKSTEP_MIN: Final = 16  # frames from which one numpy step for all beats a loop per frame
-
-
-def _codes_walk(
-    frames: Sequence[bytes], starts: np.ndarray, bad: np.ndarray
-) -> npt.NDArray[np.int64]:
-    """Positions of the code bytes (in the joined buffer), one frame at a time."""
-    found: list[int] = []
-    for k, frame in enumerate(frames):
-        if bad[k]:
-            continue
-        size, offset, i = len(frame), int(starts[k]), 0
-        while i < size:
-            found.append(offset + i)
-            i += frame[i]  # no zero in the frame (checked): always moves on
-        bad[k] = i > size  # the last block needs bytes the frame does not have
-    return np.array(found, dtype=np.int64)
 
 
 def _codes_lockstep(

@@ -120,9 +120,9 @@ def test_row_encoding_equals_encode(length: int, rows: int, zero_share: float, s
     assert cobs.encode_rows(a) == [cobs.encode(row.tobytes()) for row in a]
 
 
-# --- many frames at once: the compiled package and the numpy decoder -------------------
+# --- many frames at once: the compiled package and the fallback -------------------
 
-_DECODERS = [cobs.decode_numpy]
+_DECODERS = [cobs.decode_fallback]
 if cobs._compiled is not None:  # the [fast] extra is installed
     _DECODERS.append(cobs.decode_compiled)
 
@@ -150,7 +150,7 @@ def test_many_frames_decode_as_one_at_a_time(
     decode_many: object, data: list[bytes], garbage: list[bytes]
 ) -> None:
     # Valid encodings (full blocks, mostly-zero rows) mixed with garbage runs; 16 or
-    # more frames take the numpy decoder's lockstep path, fewer its walk.
+    # more frames take the fallback's numpy lockstep, fewer its block-joining loop.
     frames = [cobs.encode(d) for d in data] + garbage
     frames = frames[::2] + frames[1::2]
     assert callable(decode_many)

@@ -8,7 +8,7 @@ functions. cProfile sees the event loop thread only: the model runs on the
 inference worker's thread and is not in these figures (the rate includes it).
 A measurement, never a test.
 
-    python -m scotti.daemon.tools.profile_replay SESSION [--top 20] [--numpy-cobs]
+    python -m scotti.daemon.tools.profile_replay SESSION [--top 20] [--fallback-cobs]
 """
 
 from __future__ import annotations
@@ -62,14 +62,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--format", default="json", help="json or msgpack")
     parser.add_argument("--top", type=int, default=15, help="functions to list")
     parser.add_argument(
-        "--numpy-cobs",
+        "--fallback-cobs",
         action="store_true",
-        help="decode COBS with the numpy decoder even if the compiled one is installed "
+        help="decode COBS with the fallback decoder even if the compiled one is installed "
         "(what a host without the [fast] extra runs)",
     )
     args = parser.parse_args(argv)
     compiled = cobs._compiled
-    if args.numpy_cobs:
+    if args.fallback_cobs:
         cobs._compiled = None  # a measurement of the fallback (put back at the end)
     try:
         return _run(args)
@@ -78,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    print(f"COBS decoder: {'compiled (cobs package)' if cobs._compiled else 'numpy'}")
+    which = "compiled (cobs package)" if cobs._compiled else "fallback (Python and numpy)"
+    print(f"COBS decoder: {which}")
     if not args.session.is_file():
         print(f"profile_replay: no such session file: {args.session}", file=sys.stderr)
         return 2
