@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from scotti.daemon.pairing import FOOT_NAMES, PairingCounters
+from scotti.firmware_protocol.assembly import AssemblerCounters
+from scotti.firmware_protocol.framing import DecoderCounters
 
 
 class LatencyRing:
@@ -55,8 +57,10 @@ class Counters:
     started_mono_ns: int = field(default_factory=time.monotonic_ns)
     bytes_in: int = 0
     chunks_in: int = 0
-    bad_packets: dict[str, int] = field(default_factory=dict)  # decoder counters by reason
-    assembler: dict[str, int] = field(default_factory=dict)  # frame assembly counters
+    # The decoder's and the assembler's own counters, shared (the pipeline hands them
+    # over once): read when a snapshot is taken, never copied per chunk.
+    decoder: DecoderCounters = field(default_factory=DecoderCounters)
+    assembly: AssemblerCounters = field(default_factory=AssemblerCounters)
     pairing: PairingCounters = field(default_factory=PairingCounters)
     board_status: int = 0  # BOARD_STATUS packets seen
     window_restarts: int = 0  # long gaps, reconnects and dropped frames start the window over
@@ -82,8 +86,8 @@ class Counters:
             "uptime_s": round((time.monotonic_ns() - self.started_mono_ns) / 1e9, 3),
             "bytes_in": self.bytes_in,
             "chunks_in": self.chunks_in,
-            "bad_packets": dict(self.bad_packets),
-            "assembler": dict(self.assembler),
+            "bad_packets": self.decoder.as_dict(),  # decoder counters by reason
+            "assembler": self.assembly.as_dict(),
             "board_status_packets": self.board_status,
             "frames_in": {FOOT_NAMES[f]: p.frames_in[f] for f in (0, 1)},
             "held_frames": {FOOT_NAMES[f]: p.held[f] for f in (0, 1)},

@@ -104,6 +104,7 @@ class Pipeline:
         self.assembler = FrameAssembler()
         self.pairing = Pairing(pairing)
         counters.pairing = self.pairing.counters
+        counters.decoder, counters.assembly = self.decoder.counters, self.assembler.counters
         self.window = Window(runtime)
         # Many devices share one engine (one model call for all of them); alone, a
         # pipeline runs its own.
@@ -172,8 +173,6 @@ class Pipeline:
                 counters.board_status += 1
             elif isinstance(packet, DecodeError):
                 log.debug("bad packet: %s", packet)
-        counters.bad_packets = self.decoder.counters.as_dict()
-        counters.assembler = self.assembler.counters.as_dict()
 
     async def _on_source_event(self, event: SourceEvent) -> None:
         counters = self.counters

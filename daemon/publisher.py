@@ -33,6 +33,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from pydantic import BaseModel
 from scotti.daemon.counters import LatencyRing
+from scotti.daemon.latency_slot import LatencySlot
 from scotti.daemon.schemas import CONTENT_TYPES, Health, Info, Status, encode
 from scotti.daemon.settings import MqttSettings
 from scotti.daemon.waiting import Backoff, wait_event
@@ -44,16 +45,20 @@ RETAINED_QOS: Final = 1  # status/info/health: must arrive, late is fine
 NUDGE_AFTER_S: Final = 0.5  # a publish not written by then: write paho's queue directly
 MAX_PENDING_STATUSES: Final = 16  # status changes kept while the broker is slow or away
 FRAME_QOS: Final = 0  # pose/action/progress: a newer one is 62 ms away
+DROP_LOG_EVERY_S: Final = 10.0  # a full queue is logged at most this often (and counted)
 
 
 @dataclass(frozen=True)
 class FrameBatch:
-    """What one prediction publishes; rendered at publish time so latency is true."""
+    """What one prediction publishes; rendered at publish time (a prediction dropped
+    from the queue costs no encoding)."""
 
     seq: int
     last_byte_mono_ns: int  # 0 when unknown: latency is then measured from inference
     made_mono_ns: int  # when the prediction was made
-    render: Callable[[float], list[tuple[str, BaseModel]]]  # latency_ms -> (topic, payload)
+    # latency_ms -> (topic, payload); called once, with 0.0: the publisher writes the
+    # true latency into the encoded bytes as they leave (``LatencySlot``).
+    render: Callable[[float], list[tuple[str, BaseModel]]]
 
 
 @dataclass
@@ -99,6 +104,7 @@ class Publisher:
         self._health_dirty = False
         self._queue: collections.deque[FrameBatch] = collections.deque()
         self._submitted = 0  # batches ever submitted
+        self._drop_logged_at = -DROP_LOG_EVERY_S  # the first drop is logged at once
         self._wake = asyncio.Event()
         self._room = asyncio.Event()  # set whenever a batch leaves the queue
         v5 = settings.protocol == "5"  # MQTT 3.1.1 has no properties: none are sent
@@ -135,9 +141,24 @@ class Publisher:
         if len(self._queue) >= self.settings.queue_size:
             self._queue.popleft()
             self.stats.dropped_full += 1
+            self._log_drop()
         self._queue.append(batch)
         self._submitted += 1
         self._wake.set()
+
+    def _log_drop(self) -> None:
+        """A live source never waits: the oldest prediction goes, counted in health
+        (publish.dropped_queue_full) and said here, at most once per DROP_LOG_EVERY_S."""
+        now = time.monotonic()
+        if now - self._drop_logged_at < DROP_LOG_EVERY_S:
+            return
+        self._drop_logged_at = now
+        log.warning(
+            "publish queue full (%d): dropped the oldest prediction (%d so far); "
+            "the broker or this host is slower than the insoles",
+            self.settings.queue_size,
+            self.stats.dropped_full,
+        )
 
     async def wait_room(self, margin: int) -> None:
         """Wait until the queue has room for ``margin`` more batches (a replay waits
@@ -226,13 +247,17 @@ class Publisher:
             self.stats.dropped_stale += 1
             return
         origin = batch.last_byte_mono_ns or batch.made_mono_ns
-        latency_ms = (now - origin) / 1e6
-        # All of a prediction's messages are handed to paho at once and go out in one
-        # write: one at a time, each would wait for its own turn of the loop, and on a
-        # loaded host those turns, not the broker, bound how many predictions go out.
+        # Each payload is encoded once, its latency_ms left open and written in just
+        # before the bytes go to the client (``LatencySlot``): the payload's age when
+        # it leaves, encoding included. All of a prediction's messages are handed to
+        # paho at once and go out in one write: one at a time, each would wait for its
+        # own turn of the loop, and on a loaded host those turns, not the broker,
+        # bound how many predictions go out.
         publishes = [
-            self._publish(self.settings.topic(name), payload, False, self._frame_props)
-            for name, payload in batch.render(latency_ms)
+            self._publish_frame(
+                self.settings.topic(name), LatencySlot.encode(payload, self._fmt), origin
+            )
+            for name, payload in batch.render(0.0)
         ]
         try:
             await self._unless_lost(asyncio.gather(*publishes))
@@ -241,7 +266,15 @@ class Publisher:
             raise
         self.stats.published += 1
         self.stats.last_seq = batch.seq
-        self.stats.latency_ms.add(latency_ms)
+        # health's end_to_end: up to the write to the socket (aiomqtt returns from a
+        # QoS 0 publish once paho has written it).
+        self.stats.latency_ms.add((time.monotonic_ns() - origin) / 1e6)
+
+    async def _publish_frame(self, topic: str, slot: LatencySlot, origin_ns: int) -> None:
+        latency_ms = (time.monotonic_ns() - origin_ns) / 1e6
+        await self._client.publish(
+            topic, slot.fill(latency_ms), qos=FRAME_QOS, retain=False, properties=self._frame_props
+        )
 
     async def _publish(
         self, topic: str, payload: BaseModel, retained: bool, props: Properties | None = None
@@ -329,9 +362,21 @@ def explain(exc: aiomqtt.MqttError) -> str:
     return text.removesuffix(".")
 
 
+class _PackedOnce(Properties):
+    """Publish properties that never change, packed once (paho packs them on every
+    publish: about 20 us each, three times per prediction)."""
+
+    def pack(self) -> bytes:
+        packed: bytes | None = getattr(self, "_packed", None)
+        if packed is None:
+            packed = super().pack()  # type: ignore[no-untyped-call]
+            object.__setattr__(self, "_packed", packed)  # paho checks the names it sets
+        return packed
+
+
 def _properties(fmt: Literal["json", "msgpack"], expiry_s: int | None) -> Properties:
     """MQTT v5 publish properties: content type, and expiry for what goes stale."""
-    props = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
+    props = _PackedOnce(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
     props.ContentType = CONTENT_TYPES[fmt]
     if expiry_s is not None:
         props.MessageExpiryInterval = expiry_s

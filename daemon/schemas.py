@@ -81,7 +81,10 @@ class FrameStamp(_Payload):
     host_wall_ns: int = Field(description="Host wall clock (Unix ns) at inference.")
     host_mono_ns: int = Field(description="Host monotonic clock (ns) at inference.")
     predicted_for_mono_ns: int = Field(description="Host monotonic time the output is for.")
-    latency_ms: float = Field(description="From the frame's last byte in to publish.")
+    latency_ms: float = Field(
+        description="From the frame's last byte in to the bytes of this message handed to "
+        "the MQTT client (encoding included; docs/mqtt.md)."
+    )
     flags: list[str] = Field(
         description="Degradations, e.g. left_filled, rows_missing; and what the model does "
         "not know: unloaded (nobody on the insoles), out_of_range (not a plantar pressure "

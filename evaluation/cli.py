@@ -75,12 +75,24 @@ def run(args: argparse.Namespace) -> int:
     except (EvaluationError, ModelError, SessionError, ConfigError, OSError) as exc:
         print(f"scotti eval: {exc}", file=sys.stderr)
         return 2
+    print(rate_line(reports[0]["rate"]), file=sys.stderr)  # stdout stays the report
     if args.json:
         value = reports[0] if len(reports) == 1 else reports
         print(json.dumps(_finite(value), indent=2))
     else:
         print("\n\n".join("\n".join(format_report(r)) for r in reports))
     return 0
+
+
+def rate_line(rate: dict[str, Any]) -> str:
+    """How fast it went, one line on stderr."""
+    return (
+        f"scotti eval: {rate['paired_frames']} paired frames in {rate['seconds']:.2f} s "
+        f"({rate['frames_per_s'] or 0:.0f} frames/s; CPU {rate['cpu_seconds']:.2f} s, "
+        f"{rate['frames_per_cpu_s'] or 0:.0f} frames/s); "
+        f"model {rate['model_cpu_seconds']:.2f} CPU s of it, "
+        f"without the model {rate['without_model_frames_per_cpu_s'] or 0:.0f} frames per CPU s"
+    )
 
 
 def _progress(done: int, total: int, path: Path, seconds: float) -> None:

@@ -25,11 +25,14 @@ from scotti.models.ood import UNFAMILIAR
 from scotti.models.runtime import ScottiRuntime
 
 if TYPE_CHECKING:  # evaluation imports this module
-    from scotti.evaluation.evaluation import SessionReplay
+    from scotti.evaluation.replay import SessionReplay
 
 F32 = npt.NDArray[np.float32]
 U16 = npt.NDArray[np.uint16]
-BATCH_SIZE = 64  # windows per run of the window graph (E=512: ~60 MB of activations)
+# Windows per run of the window graph. Its activations (T frames through the CNN per
+# window) stay in onnxruntime's arena at their peak: 64 windows held ~900 MB
+# (scotti-default, T=40), 8 hold under 200 MB and run as fast (docs/performance.md).
+BATCH_SIZE = 8
 
 
 @dataclass(frozen=True)
@@ -90,9 +93,10 @@ class SampledTrack:
         if not self._queue:
             return
         frames = np.stack([w for _, w in self._queue])
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         result = self.runtime.run_windows(frames, batch_size=len(frames))
         self.out.window_batches.append(((time.perf_counter() - start) * 1e3, len(frames)))
+        self.out.model_cpu_s += time.thread_time() - start_cpu
         unfamiliar = result.unfamiliar
         for i, (ext, window) in enumerate(self._queue):
             flags = (*check_window(window).flags, *((UNFAMILIAR,) if unfamiliar[i] else ()))

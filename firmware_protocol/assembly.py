@@ -96,10 +96,15 @@ class _Partial:
     def add(self, block: FrameRows, t_ns: int) -> int:
         """Copy the block's rows in; returns how many of them were already there."""
         rows = slice(block.row_start, block.row_start + block.row_count)
-        fresh = self.missing[rows].copy()
+        self.last_byte_ns = max(self.last_byte_ns, t_ns)
+        fresh = self.missing[rows]
+        if fresh.all():  # the common case: rows not seen yet, copied whole
+            self.counts[rows] = block.samples
+            self.missing[rows] = False
+            return 0
+        fresh = fresh.copy()
         self.counts[rows][fresh] = block.samples[fresh]
         self.missing[rows] = False
-        self.last_byte_ns = max(self.last_byte_ns, t_ns)
         return int((~fresh).sum())
 
     def finish(self, foot: Foot) -> FootFrame:

@@ -15,7 +15,12 @@ from typing import Final
 
 import numpy as np
 from scotti.firmware_protocol import cobs
-from scotti.firmware_protocol.errors import DecodeError, PacketValueError, TooLongError
+from scotti.firmware_protocol.errors import (
+    BadCobsError,
+    DecodeError,
+    PacketValueError,
+    TooLongError,
+)
 from scotti.firmware_protocol.packets import (
     CLOCK_MODULUS,
     CRC_LEN,
@@ -172,17 +177,21 @@ class StreamDecoder:
         return len(self._buffer)
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Packet | DecodeError]:
-        """Take the next bytes of the stream; return what they completed, in order."""
+        """Take the next bytes of the stream; return what they completed, in order.
+
+        The packets a chunk completes are COBS-decoded together (``cobs.decode_many``):
+        one vectorised pass instead of a Python loop per block.
+        """
         chunk = bytes(data)
         counters = self.counters
         counters.bytes_in += len(chunk)
-        out: list[Packet | DecodeError] = []
+        out: list[Packet | DecodeError | bytes] = []  # bytes: a frame still to decode
         start = 0
         while True:
             end = chunk.find(DELIMITER, start)
             if end < 0:
                 self._keep(chunk[start:], out)
-                return out
+                break
             if self._skipping:
                 counters.bytes_discarded += end - start + 1
                 self._skipping = False
@@ -196,8 +205,13 @@ class StreamDecoder:
                 if len(frame) > self.max_encoded_len:
                     out.append(self._too_long(len(frame) + 1))
                 elif frame:  # an empty run (0x00 0x00) is idle padding, not an error
-                    out.append(self._decode(frame))
+                    out.append(frame)
             start = end + 1
+        frames = [item for item in out if isinstance(item, bytes)]
+        if not frames:
+            return out  # type: ignore[return-value]  # no bytes left in it
+        decoded = iter(zip(frames, cobs.decode_many(frames), strict=True))
+        return [self._parse(*next(decoded)) if isinstance(i, bytes) else i for i in out]
 
     def reset(self) -> None:
         """Forget a partial packet (the port was reopened); its bytes count as discarded."""
@@ -205,7 +219,7 @@ class StreamDecoder:
         self._buffer.clear()
         self._skipping = False
 
-    def _keep(self, tail: bytes, out: list[Packet | DecodeError]) -> None:
+    def _keep(self, tail: bytes, out: list[Packet | DecodeError | bytes]) -> None:
         if self._skipping:
             self.counters.bytes_discarded += len(tail)
             return
@@ -222,13 +236,15 @@ class StreamDecoder:
         msg = f"more than {self.max_encoded_len} bytes without a delimiter"
         return TooLongError(msg)
 
-    def _decode(self, frame: bytes) -> Packet | DecodeError:
+    def _parse(self, frame: bytes, decoded: bytes | BadCobsError) -> Packet | DecodeError:
+        """One decoded frame (or its COBS error) -> the packet, or the error counted."""
         try:
-            packet = cobs.decode(frame)
-            if len(packet) > self.max_packet_len:
-                msg = f"packet of {len(packet)} bytes exceeds {self.max_packet_len}"
+            if isinstance(decoded, BadCobsError):
+                raise decoded
+            if len(decoded) > self.max_packet_len:
+                msg = f"packet of {len(decoded)} bytes exceeds {self.max_packet_len}"
                 raise TooLongError(msg)
-            result = parse_packet(packet)
+            result = parse_packet(decoded)
         except DecodeError as exc:
             counters = self.counters
             setattr(counters, exc.reason, getattr(counters, exc.reason) + 1)

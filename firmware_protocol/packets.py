@@ -66,6 +66,22 @@ class Foot(enum.IntEnum):
     RIGHT = 1
 
 
+_FEET: Final = (Foot.LEFT, Foot.RIGHT)  # by wire value, without an enum lookup
+# For 8..15-bit samples: the high bytes (little endian) a sample may have, to delete.
+_HIGH_BYTES: Final = {bits: bytes(range(1 << (bits - 8))) for bits in range(8, MAX_SAMPLE_BITS)}
+
+
+def _fits(body: bytes, bits: int, samples: np.ndarray) -> bool:
+    """Every sample fits ``bits``. For 8..15 bits, by deleting the high bytes a sample
+    may have from the high bytes there are (C speed, no numpy call per packet)."""
+    if bits == MAX_SAMPLE_BITS:
+        return True
+    allowed = _HIGH_BYTES.get(bits)
+    if allowed is None:
+        return not int(samples.max()) >> bits
+    return not body[_FRAME_ROWS_HEAD.size + 1 :: 2].translate(None, allowed)
+
+
 def crc32(data: bytes) -> int:
     """CRC-32/ISO-HDLC (zlib): reflected poly 0xEDB88320, init and xorout 0xFFFFFFFF."""
     return zlib.crc32(data) & _U32
@@ -170,7 +186,30 @@ class FrameRows:
             raise MalformedError(msg)
         samples = np.frombuffer(body, dtype="<u2", offset=_FRAME_ROWS_HEAD.size)
         samples = samples.reshape(row_count, cols) if cols else samples.reshape(row_count, 0)
-        try:
+        # The common case, checked here without the constructor's general checks (the
+        # header's fields are in range by their width; the samples are a read-only
+        # uint16 view already): a packet costs a few microseconds less, 8 per frame pair.
+        if (
+            rows
+            and cols
+            and 1 <= bits <= MAX_SAMPLE_BITS
+            and row_count
+            and row_start + row_count <= rows
+            and _fits(body, bits, samples)
+        ):
+            block = object.__new__(cls)
+            vars(block).update(
+                foot=_FEET[foot],
+                seq=seq,
+                board_clock_us=clock,
+                rows=rows,
+                cols=cols,
+                sample_bits=bits,
+                row_start=row_start,
+                samples=samples,
+            )
+            return block
+        try:  # something is off: the constructor's checks say what
             return cls(Foot(foot), seq, clock, rows, cols, bits, row_start, samples)
         except PacketValueError as exc:
             raise MalformedError(str(exc)) from None

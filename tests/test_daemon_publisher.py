@@ -190,3 +190,48 @@ def test_starts_with_broker_down_and_recovers_after_restart(mosquitto: Mosquitto
     # After the last reconnect the retained state was published again.
     with collect(mosquitto, "scotti/dev1/#") as got:
         got.wait_for(lambda m: {x.topic.rsplit("/", 1)[1] for x in m} >= {"status", "info"}, 5)
+
+
+def test_latency_ms_counts_the_encoding_up_to_the_hand_off(mosquitto: Mosquitto) -> None:
+    # A prediction whose payloads take 200 ms to build: latency_ms is taken as the
+    # bytes are handed to the client, so those 200 ms are in it.
+    slow_ms = 200
+
+    def slow_batch(seq: int) -> FrameBatch:
+        fast = batch(seq)
+
+        def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
+            time.sleep(slow_ms / 1e3)
+            return fast.render(latency_ms)
+
+        return FrameBatch(fast.seq, fast.last_byte_mono_ns, fast.made_mono_ns, render)
+
+    with collect(mosquitto, "scotti/dev1/progress") as got:
+
+        async def body(pub: Publisher) -> None:
+            await until(lambda: pub.state == "connected")
+            pub.submit(slow_batch(1))
+            await until(lambda: pub.stats.published == 1)
+
+        pub = running(lambda: Publisher(settings(mosquitto), info(), will=status("offline")), body)
+        got.wait_for(lambda m: len(m) == 1, 5)
+    sent = Progress.model_validate_json(got.snapshot()[0].payload).latency_ms
+    assert sent >= slow_ms
+    # health's end_to_end is taken after the publish returned: never earlier.
+    assert pub.stats.latency_ms.summary()["max"] >= sent
+
+
+def test_a_full_queue_is_logged_once_not_per_drop(caplog: pytest.LogCaptureFixture) -> None:
+    async def fill() -> Publisher:  # not run: nothing leaves the queue
+        mqtt = MqttSettings(broker="mqtt://127.0.0.1:1", device_id="d", queue_size=4)
+        pub = Publisher(mqtt, info(), will=status("offline"))
+        for seq in range(40):
+            pub.submit(batch(seq))
+        return pub
+
+    with caplog.at_level("WARNING", logger="scotti.daemon.publisher"):
+        pub = asyncio.run(fill())
+    assert pub.stats.dropped_full == 36
+    lines = [r.getMessage() for r in caplog.records if "queue full" in r.getMessage()]
+    assert len(lines) == 1, lines
+    assert "dropped the oldest prediction" in lines[0]

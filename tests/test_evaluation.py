@@ -6,6 +6,7 @@ import json
 import math
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -301,3 +302,43 @@ def test_eval_reports_the_share_of_predictions_each_flag_withheld(
     out = capsys.readouterr().out
     assert f"flagged (of 41 predictions): unloaded {100 * len(unloaded) / 41:.2f} %" in out
     assert "(unfamiliar: model not calibrated)" in out
+
+
+def _daemon_predictions(path: Path, model: Path) -> list[Any]:
+    """What ``scotti-daemon --replay`` predicts: the daemon's own Pipeline, no MQTT."""
+    import asyncio
+
+    from scotti.daemon.counters import Counters
+    from scotti.daemon.pipeline import Pipeline, Prediction
+    from scotti.daemon.sources import ReplaySource
+
+    out: list[Prediction] = []
+
+    async def go() -> None:
+        pipeline = Pipeline(ReplaySource(path, speed="max"), ScottiRuntime(model), Counters())
+        await pipeline.run(out.append, lambda _: None, asyncio.Event())
+
+    asyncio.run(go())
+    return out
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+def test_eval_predicts_exactly_what_the_daemon_publishes(
+    tmp_path: Path, runtime: ScottiRuntime, tiny_model_path: Path, noisy: bool
+) -> None:
+    # The evaluation's own loop over the session (bulk reading, its decoder, assembler,
+    # pairing and window) against the daemon's pipeline on the same bytes: the same
+    # predictions, value for value, also with line noise between the packets.
+    from tests.support.sessions import write_synthetic_session
+
+    path = write_synthetic_session(
+        tmp_path / "n.scotti", frames=FRAMES, seq_start=65_500, garbage_every=7 if noisy else 0
+    ).path
+    daemon = _daemon_predictions(path, tiny_model_path)
+    made = replay_session(path, runtime).made
+    assert len(made) == len(daemon) == FRAMES - runtime.window + 1
+    for ours, theirs in zip(made, daemon, strict=True):
+        assert (ours.ext - 1) % 65536 == theirs.left_seq
+        np.testing.assert_array_equal(ours.pose, theirs.pose)
+        np.testing.assert_array_equal(ours.probs, theirs.action_probs)
+        assert ours.progress == theirs.progress or (math.isnan(theirs.progress))

@@ -118,3 +118,57 @@ def test_row_encoding_equals_encode(length: int, rows: int, zero_share: float, s
     a = rng.integers(1, 256, (rows, length), dtype=np.uint8)
     a[rng.random((rows, length)) < zero_share] = 0
     assert cobs.encode_rows(a) == [cobs.encode(row.tobytes()) for row in a]
+
+
+# --- many frames at once: the compiled package and the fallback -------------------
+
+_DECODERS = [cobs.decode_fallback]
+if cobs._compiled is not None:  # the [fast] extra is installed
+    _DECODERS.append(cobs.decode_compiled)
+
+
+def _reference(frames: list[bytes]) -> list[bytes | str]:
+    """What the block-by-block decoder says, errors as their message."""
+    out = [cobs._decode_one(f) for f in frames]
+    return [r if isinstance(r, bytes) else str(r) for r in out]
+
+
+def _same(decoded: list[bytes | BadCobsError]) -> list[bytes | str]:
+    return [r if isinstance(r, bytes) else str(r) for r in decoded]
+
+
+_pressure_like = st.lists(st.sampled_from([0, 0, 0, 0, 1, 7, 255]), max_size=700).map(bytes)
+
+
+@pytest.mark.parametrize("decode_many", _DECODERS)
+@settings(max_examples=120, deadline=None)
+@given(
+    st.lists(st.one_of(st.binary(max_size=600), _pressure_like), max_size=40),
+    st.lists(st.binary(min_size=1, max_size=40), max_size=6),
+)
+def test_many_frames_decode_as_one_at_a_time(
+    decode_many: object, data: list[bytes], garbage: list[bytes]
+) -> None:
+    # Valid encodings (full blocks, mostly-zero rows) mixed with garbage runs; 16 or
+    # more frames take the fallback's numpy lockstep, fewer its block-joining loop.
+    frames = [cobs.encode(d) for d in data] + garbage
+    frames = frames[::2] + frames[1::2]
+    assert callable(decode_many)
+    assert _same(decode_many(frames)) == _reference(frames)
+    assert _same(decode_many(frames[:5])) == _reference(frames[:5])
+
+
+@pytest.mark.parametrize("decode_many", _DECODERS)
+def test_many_frames_known_answers_and_rejections(decode_many: object) -> None:
+    bad = [
+        bytes.fromhex("05 11 22"),
+        bytes.fromhex("02 11 00 01"),
+        bytes.fromhex("00"),
+        b"\xff\x01",
+    ]
+    frames = [e for _, e in EXAMPLES] * 2 + bad
+    assert callable(decode_many)
+    got = _same(decode_many(frames))
+    assert got[: 2 * len(EXAMPLES)] == [d for d, _ in EXAMPLES] * 2
+    assert got == _reference(frames)
+    assert all(isinstance(g, str) for g in got[-len(bad) :])

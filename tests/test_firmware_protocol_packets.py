@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scotti.firmware_protocol.errors import (
     BadCrcError,
     BadVersionError,
@@ -15,6 +19,8 @@ from scotti.firmware_protocol.errors import (
 )
 from scotti.firmware_protocol.packets import (
     MAX_PACKET_LEN,
+    TYPE_FRAME_ROWS,
+    VERSION,
     BoardStatus,
     Foot,
     FrameRows,
@@ -22,6 +28,7 @@ from scotti.firmware_protocol.packets import (
     crc32,
     frame_blocks,
     parse_packet,
+    try_parse_packet,
 )
 
 from tests.support.protocol import pattern_frame, status, whole_frame
@@ -197,3 +204,25 @@ def test_from_bytes_refuses_the_other_type() -> None:
 def test_reserved_link_flag_bits_are_ignored() -> None:
     packet = reseal(STATUS_BYTES[:22] + b"\xfe" + STATUS_BYTES[23:])  # left flags: bit 0 clear
     assert BoardStatus.from_bytes(packet).left.link_up is False
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(1, 16), st.integers(1, 4), st.data())
+def test_parser_accepts_samples_exactly_when_they_fit_their_bits(
+    bits: int, row_count: int, data: st.DataObject
+) -> None:
+    # Built by hand: FrameRows itself refuses samples that do not fit.
+    samples = data.draw(
+        st.lists(st.integers(0, 0xFFFF), min_size=3 * row_count, max_size=3 * row_count)
+    )
+    body = struct.pack("<BHIBBBBB", 0, 1, 2, 8, 3, bits, 0, row_count)
+    body += struct.pack(f"<{len(samples)}H", *samples)
+    head_and_body = bytes((VERSION, TYPE_FRAME_ROWS)) + body
+    packet = head_and_body + crc32(head_and_body).to_bytes(4, "little")
+    fits = max(samples) < (1 << bits)
+    result = try_parse_packet(packet)
+    if fits:
+        assert isinstance(result, FrameRows)
+        assert result.samples.tolist() == [samples[i : i + 3] for i in range(0, len(samples), 3)]
+    else:
+        assert isinstance(result, MalformedError)

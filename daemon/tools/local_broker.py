@@ -13,6 +13,7 @@ import socket
 import subprocess
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Self
@@ -20,6 +21,23 @@ from typing import Self
 from scotti.daemon.errors import DaemonError
 
 MOSQUITTO_PATHS = ("mosquitto", "/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto")
+
+
+def bridge_conf(name: str, remote: str, topics: Sequence[str] = ("scotti/#",)) -> list[str]:
+    """mosquitto config lines bridging this broker's ``topics`` out to ``remote``
+    (host:port): what docs/deploy.md shows for a site's broker."""
+    lines = [
+        f"connection {name}",
+        f"address {remote}",
+        *(f"topic {t} out 1" for t in topics),  # QoS up to 1; each message keeps its own
+        "bridge_protocol_version mqttv50",  # properties (content type, expiry) go along
+        "cleansession true",
+        "try_private true",
+        "notifications false",
+        "restart_timeout 1 10",  # reconnect after 1 s, backing off to 10 s
+        "keepalive_interval 10",
+    ]
+    return lines
 
 
 class BrokerError(DaemonError):
@@ -49,6 +67,7 @@ class Mosquitto:
         port: int | None = None,
         password: tuple[str, str] | None = None,
         tls: tuple[Path, Path, Path] | None = None,
+        extra_conf: Sequence[str] = (),
     ) -> None:
         exe = find_mosquitto()
         if exe is None:
@@ -63,6 +82,7 @@ class Mosquitto:
         self._dir = Path(tempfile.mkdtemp(prefix="scotti-mosquitto-"))
         self._dir.chmod(0o755)  # mosquitto started as root reads it as user "mosquitto"
         self.log_path = self._dir / "mosquitto.log"
+        self.extra_conf = list(extra_conf)  # more config lines, e.g. a bridge (docs/deploy.md)
         self.conf = self._write_conf(password)
         self._proc: subprocess.Popen[bytes] | None = None
 
@@ -103,7 +123,7 @@ class Mosquitto:
             pwfile.chmod(0o644)  # a throwaway test password; mosquitto must read it
             lines += ["allow_anonymous false", f"password_file {pwfile}"]
         conf = self._dir / "mosquitto.conf"
-        conf.write_text("\n".join(lines) + "\n")
+        conf.write_text("\n".join([*lines, *self.extra_conf]) + "\n")
         return conf
 
     def start(self, timeout: float = 10.0) -> None:

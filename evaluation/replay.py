@@ -1,0 +1,206 @@
+"""One session file replayed through the daemon's path, predictions aligned with
+its labels (``SessionReplay``).
+
+The path is the daemon's, step by step and as fast as the model allows:
+``StreamDecoder`` -> ``FrameAssembler`` -> ``Pairing`` -> ``Window`` (the
+streaming step graph with its embedding cache). A prediction made from the
+frames t-T..t-1 is for time t, so it is scored against the label record of
+the frame after the newest one in its window. The first T labelled frames of
+a session therefore have no prediction (the window warms up on T frames and
+the first prediction is for frame T).
+
+``every=K`` > 1 scores every K-th prediction time instead, through the window
+graph in batches (``evaluation.sampling``): same decoding, assembly, pairing
+and restarts, a fraction of the model time.
+
+No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
+from scotti.daemon.window import Window
+from scotti.evaluation.errors import EvaluationError
+from scotti.evaluation.frames import FrameSet, align
+from scotti.evaluation.sampling import Prediction, SampledTrack
+from scotti.firmware_protocol.assembly import FrameAssembler
+from scotti.firmware_protocol.framing import StreamDecoder
+from scotti.firmware_protocol.packets import FrameRows
+from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
+from scotti.firmware_protocol.wrap import seq_delta
+from scotti.models.runtime import ScottiRuntime, load_pair
+
+
+@dataclass
+class SessionReplay:
+    """What one session gave: counts along the path and the aligned frames."""
+
+    path: str
+    subject: str  # the header's subject id, else the file's stem (as training names it)
+    labels: int = 0  # label records in the file
+    pairs: int = 0  # paired frames the window took
+    predictions: int = 0  # predictions made (with --every K: the scored ones)
+    evaluated: int = 0  # predictions whose time has a label
+    unlabelled: int = 0  # predictions for a time without a label (the last one, gaps)
+    window_restarts: int = 0
+    decode_errors: int = 0
+    degraded_pairs: int = 0  # pairs with a held, filled or patched foot
+    step_ms: list[float] = field(default_factory=list, repr=False)  # step graph only
+    window_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)
+    model_cpu_s: float = 0.0  # CPU time in the model's graph (this thread), for the rate
+    frames: FrameSet = field(default_factory=FrameSet.empty, repr=False)
+    made: list[Prediction] = field(default_factory=list, repr=False)  # in time order
+
+    def summary(self) -> dict[str, Any]:
+        keys = ("path", "subject", "labels", "pairs", "predictions", "evaluated", "unlabelled")
+        out = {k: getattr(self, k) for k in keys}
+        out |= {
+            "window_restarts": self.window_restarts,
+            "decode_errors": self.decode_errors,
+            "degraded_pairs": self.degraded_pairs,
+        }
+        return out
+
+
+def replay_session(
+    path: str | Path,
+    runtime: ScottiRuntime,
+    pairing: PairingConfig | None = None,
+    *,
+    every: int = 1,
+) -> SessionReplay:
+    """Replay one session file through the daemon's path; score against its labels."""
+    return replay_session_models(path, [runtime], pairing, every=every)[0]
+
+
+def window_graphs(runtimes: Sequence[ScottiRuntime]) -> list[ScottiRuntime]:
+    """The window graph next to each step graph (``--every K``); ``load_pair`` checks that
+    it exists and comes from the same export (a one-line ModelError if not)."""
+    return [load_pair(runtime.path, runtime.threads)[1] for runtime in runtimes]
+
+
+def replay_session_models(
+    path: str | Path,
+    runtimes: Sequence[ScottiRuntime],
+    pairing: PairingConfig | None = None,
+    *,
+    every: int = 1,
+    windows: Sequence[ScottiRuntime] | None = None,
+) -> list[SessionReplay]:
+    """One replay, several models: the bytes are decoded, assembled and paired once,
+    and every paired frame goes into each model's own window (nothing is shared
+    between the models but the pairs). One ``SessionReplay`` per runtime.
+
+    ``every`` > 1: every ``every``-th prediction through the window graphs
+    ``windows`` (default: those next to ``runtimes``) instead of the step graph."""
+    if every < 1:
+        msg = f"--every must be at least 1, got {every}"
+        raise EvaluationError(msg)
+    decoder = StreamDecoder()
+    assembler = FrameAssembler()
+    pairs = Pairing(pairing)
+    labels: list[LabelRecord] = []
+    clock = _SeqClock()
+    with SessionReader(path) as reader:
+        subject = _subject_of(reader.header.subject) or Path(path).stem
+        tracks: list[_Track | SampledTrack]
+        if every == 1:
+            tracks = [_Track(Window(r), SessionReplay(str(path), subject)) for r in runtimes]
+        else:
+            graphs = window_graphs(runtimes) if windows is None else windows
+            tracks = [SampledTrack(w, every, SessionReplay(str(path), subject)) for w in graphs]
+
+        def take(pair: PairedFrame) -> None:
+            ext = clock.unwrap(pair.seqs[0] if pair.seqs[0] >= 0 else pair.seqs[1])
+            for track in tracks:
+                track.take(pair, ext)
+
+        for record in reader:
+            if isinstance(record, LabelRecord):
+                labels.append(record)
+                continue
+            assert isinstance(record, PacketRecord)
+            for packet in decoder.feed(record.data):
+                if isinstance(packet, FrameRows):
+                    for frame in assembler.push(packet, record.t_ns):
+                        for pair in pairs.push(frame):
+                            take(pair)
+        for frame in assembler.flush():
+            for pair in pairs.push(frame):
+                take(pair)
+        for pair in pairs.flush():
+            take(pair)
+    for track in tracks:
+        track.finish()
+        out = track.out
+        out.labels = len(labels)
+        out.made = track.made
+        out.predictions = len(out.made)
+        out.window_restarts = track.restarts
+        out.decode_errors = decoder.counters.errors
+        out.frames, out.unlabelled = align(track.made, labels)
+        out.evaluated = len(out.frames)
+    return [t.out for t in tracks]
+
+
+@dataclass
+class _Track:
+    """One model's window over the shared pairs, and what it predicted."""
+
+    window: Window
+    out: SessionReplay
+    made: list[Prediction] = field(default_factory=list)
+
+    def take(self, pair: PairedFrame, ext: int | None) -> None:
+        if pair.restart:
+            self.window.restart()
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        result = self.window.push(pair.counts).result
+        self.out.step_ms.append((time.perf_counter() - start) * 1e3)
+        self.out.model_cpu_s += time.thread_time() - start_cpu
+        self.out.pairs += 1
+        self.out.degraded_pairs += bool(pair.flags)
+        if result is not None and ext is not None:
+            self.made.append(
+                Prediction(ext + 1, result.pose, result.action_probs, result.progress, result.flags)
+            )
+
+    @property
+    def restarts(self) -> int:
+        return self.window.restarts
+
+    def finish(self) -> None:
+        """Nothing is pending: every step ran as its pair came."""
+
+
+class _SeqClock:
+    """Unwraps the u16 seqs of successive pairs (and labels) onto one axis."""
+
+    def __init__(self) -> None:
+        self._raw: int | None = None
+        self._ext = 0
+
+    def unwrap(self, seq: int) -> int | None:
+        if seq < 0:
+            return None
+        if self._raw is None:
+            self._raw, self._ext = seq, seq
+        else:
+            self._ext += seq_delta(seq, self._raw)
+            self._raw = seq
+        return self._ext
+
+
+def _subject_of(subject: dict[str, Any] | None) -> str | None:
+    if not subject:
+        return None
+    for key in ("id", "name", "subject_id"):  # the rule training uses, then the file stem
+        if key in subject:
+            return str(subject[key])
+    return None
