@@ -66,5 +66,6 @@ def push_batch(
     streams = [w._streaming for w in windows]
     results = push_many(streams, [c.astype(np.float32) for c in counts])
     return [
-        WindowOutput(r, s.frames_in_window, s.needed) for r, s in zip(results, streams, strict=True)
+        WindowOutput(r, s.frames_in_window, s.needed, s.reasons if r is not None else ())
+        for r, s in zip(results, streams, strict=True)
     ]
