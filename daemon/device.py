@@ -115,7 +115,16 @@ class Device:
             log.warning("device %s: publisher did not drain within the stop timeout", self.id)
         health.cancel()
         await asyncio.gather(health, return_exceptions=True)
-        log.info("device %s: stopped (%s published)", self.id, publisher.stats.published)
+        seconds = time.monotonic() - self.started_mono
+        pairs = self.counters.pairing.pairs_out
+        log.info(
+            "device %s: stopped: %d paired frames in %.1f s (%.0f frames/s), %d published",
+            self.id,
+            pairs,
+            seconds,
+            pairs / seconds if seconds > 0 else 0.0,
+            publisher.stats.published,
+        )
         return exit_code
 
     # --- callbacks from the pipeline and the publisher ------------------------------
