@@ -118,18 +118,7 @@ class StreamingWindow:
 
         A frame of the wrong shape raises ModelInputError and leaves the window as it was.
         """
-        result = self._runtime.step(frame, self._cache.past())
-        self._cache.push(result.embedding)
-        verdict = self._checks.push(frame)
-        self._seen += 1
-        if self.warming:
-            return None
-        self.reasons = verdict.reasons
-        if UNFAMILIAR in result.flags:
-            self.reasons += (UNFAMILIAR_REASON,)
-        if not verdict.flags:
-            return result
-        return dataclasses.replace(result, flags=(*verdict.flags, *result.flags))
+        return self._accept(frame, self._runtime.step(frame, self._cache.past()))
 
     def reset(self) -> None:
         """Forget every frame (after a long gap): the window warms up again."""
@@ -139,7 +128,7 @@ class StreamingWindow:
         self.reasons = ()
 
     def _accept(self, frame: npt.ArrayLike, result: StepResult) -> StepResult | None:
-        """Take one step's result computed elsewhere (``push_many``) as ``push`` would."""
+        """Take one step's result for ``frame`` into the cache and the input checks."""
         self._cache.push(result.embedding)
         verdict = self._checks.push(frame)
         self._seen += 1
