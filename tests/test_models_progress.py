@@ -139,6 +139,43 @@ def test_noisy_peaks_still_cut_once_per_repetition() -> None:
     assert np.mean(np.abs(progress - cosine_truth(t))) < 0.05
 
 
+def squats_with_pauses(pause: int) -> tuple[npt.NDArray[np.float64], list[int]]:
+    """Three cosine squats, each followed by ``pause`` frames standing tall (with 1 mm sway)."""
+    rep = 0.9 + 0.2 * np.cos(2 * np.pi * np.arange(PERIOD) / PERIOD)
+    sway = 0.001 * np.sin(np.arange(pause))
+    parts, arrivals, at = [np.full(6, 1.1)], [], 6
+    for _ in range(3):
+        parts += [rep[1:], 1.1 + sway]
+        at += PERIOD - 1
+        arrivals.append(at)  # first frame of the pause: back at the top
+        at += pause
+    return np.concatenate(parts), arrivals
+
+
+def test_a_pause_at_the_top_belongs_to_the_next_repetition() -> None:
+    # Cut where the person arrives at the top, not in the pause's middle: the
+    # pause reads ~0 throughout (nothing in the input tells one half from the other).
+    h, arrivals = squats_with_pauses(pause=20)
+    cuts = repetition_cuts(h)
+    # Within a frame: the last frame of the rise is already within 3 % of the top.
+    assert cuts.size >= 2
+    np.testing.assert_allclose(cuts[:2], arrivals[:2], atol=1)
+    progress, repetition = progress_from_indicator(h)
+    for cut in cuts[:2]:
+        pause = progress[cut : cut + 20]
+        assert pause.max() < 0.02, pause
+        assert progress[cut - 1] > 0.97  # the repetition ran to its end before it
+        assert repetition[cut] == repetition[cut - 1] + 1
+
+
+def test_a_short_smooth_top_is_no_pause() -> None:
+    # Without a rest the cut stays at the peak: the frame before it still ends the repetition.
+    h, _ = squats_with_pauses(pause=0)
+    cuts = repetition_cuts(h)
+    smooth_peaks = find_peaks(h, min_prominence=0.1)
+    np.testing.assert_array_equal(cuts, smooth_peaks)
+
+
 def test_fast_walking_steps_are_separate_repetitions() -> None:
     # Heel distance peaks every 8 frames (two steps per second).
     n = 64
