@@ -30,7 +30,8 @@ from scotti.daemon.notify import Notifier
 from scotti.daemon.outputs import Outputs
 from scotti.daemon.publisher import Publisher
 from scotti.daemon.recording import Recorder
-from scotti.daemon.settings import DeviceSettings, Settings
+from scotti.daemon.settings import Settings
+from scotti.daemon.source_settings import DeviceSettings
 from scotti.daemon.sources import ReplaySource, SerialSource, Source
 from scotti.daemon.sources_sim import SimulatedSource
 from scotti.models.runtime import ScottiRuntime

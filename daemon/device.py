@@ -28,7 +28,8 @@ from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
 from scotti.daemon.publisher import BrokerState, FrameBatch, Publisher
 from scotti.daemon.recording import Recorder
 from scotti.daemon.schemas import Info, Status
-from scotti.daemon.settings import DeviceSettings, Settings
+from scotti.daemon.settings import Settings
+from scotti.daemon.source_settings import DeviceSettings
 from scotti.daemon.sources import Source, SourceItem
 from scotti.daemon.waiting import wait_event
 from scotti.models.runtime import ScottiRuntime

@@ -2,7 +2,7 @@
 
 ``DaemonError`` is what a command line catches to print one line and exit
 non-zero. Each module keeps its own subclass next to the code that raises it
-(``ConfigError`` in settings, ``SourceError`` in sources, ...); foreign errors
+(``ConfigError`` in config_checks, ``SourceError`` in sources, ...); foreign errors
 (pyserial, OS, pydantic) are translated into them at the boundary.
 """
 

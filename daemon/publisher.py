@@ -34,8 +34,8 @@ from paho.mqtt.properties import Properties
 from pydantic import BaseModel
 from scotti.daemon.counters import LatencyRing
 from scotti.daemon.latency_slot import LatencySlot
+from scotti.daemon.mqtt_settings import MqttSettings
 from scotti.daemon.schemas import CONTENT_TYPES, Health, Info, Status, encode
-from scotti.daemon.settings import MqttSettings
 from scotti.daemon.waiting import Backoff, wait_event
 
 log = logging.getLogger(__name__)

@@ -6,33 +6,27 @@ Environment names are ``SCOTTI_<SECTION>_<FIELD>`` (``SCOTTI_MQTT_BROKER``,
 ``SCOTTI_MQTT_PASSWORD``, ``SCOTTI_MODEL_THREADS``) or ``SCOTTI_<FIELD>`` for
 top-level fields (``SCOTTI_LOG_LEVEL``).
 
-The broker connection may use TLS (``mqtts://``) with the system's CAs or
-``mqtt.tls_ca_file``, and a client certificate (``tls_cert_file`` +
-``tls_key_file``); the files are read at start, so a missing or broken one is a
-one-line error then, not a reconnect loop later.
-
-The broker password is a secret: it comes from ``SCOTTI_MQTT_PASSWORD`` or
-``mqtt.password_file``, never from the TOML file, and is held as a
-``SecretStr`` so that neither logs nor the retained ``info`` message show it.
+This module holds the top-level ``Settings``, the small ``[inference]`` and
+``[model]`` sections and the loader. The larger sections live in their own
+modules: ``[source]`` / ``[[devices]]`` in ``source_settings``, ``[mqtt]``
+in ``mqtt_settings`` (TLS, the broker password), ``[outputs]`` in
+``outputs.settings``; the checks they share and ``ConfigError`` in
+``config_checks``. Their public names are re-exported here, so
+``from scotti.daemon.settings import MqttSettings, ConfigError`` keeps working.
 """
 
 from __future__ import annotations
 
 import difflib
-import re
-import socket
-import ssl
 import tomllib
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Final, Literal
-from urllib.parse import urlsplit
 
 from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
-    SecretStr,
     ValidationError,
     field_validator,
     model_validator,
@@ -42,120 +36,38 @@ from pydantic_settings import (
     PydanticBaseSettingsSource,
     SettingsConfigDict,
 )
-from scotti.daemon.errors import DaemonError
+from scotti.daemon.config_checks import (
+    DEVICE_ID_MAX,
+    EX_CONFIG,
+    TOPIC_PREFIX_MAX,
+    ConfigError,
+    check_device_id,
+    is_file,
+    sanitise_device_id,
+)
+from scotti.daemon.mqtt_settings import MqttSettings
 from scotti.daemon.outputs.settings import OutputSettings
-from scotti.daemon.speed import Speed, parse_speed
+from scotti.daemon.source_settings import DeviceSettings, SourceSettings
 
-EX_CONFIG: Final = 78  # sysexits.h: configuration error
+__all__ = [
+    "DEFAULT_MODEL_NAME",
+    "DEVICE_ID_MAX",
+    "EX_CONFIG",
+    "TOPIC_PREFIX_MAX",
+    "ConfigError",
+    "DeviceSettings",
+    "InferenceSettings",
+    "ModelSettings",
+    "MqttSettings",
+    "Settings",
+    "SourceSettings",
+    "check_device_id",
+    "default_model_path",
+    "load_settings",
+    "sanitise_device_id",
+]
+
 DEFAULT_MODEL_NAME: Final = "scotti-default.onnx"  # preferred among the shipped step graphs
-_TOPIC_FORBIDDEN: Final = re.compile(r"[+#/\x00-\x1f\s]")
-DEVICE_ID_MAX: Final = 64  # characters; a topic level, a client id, a file name
-_DEVICE_ID: Final = re.compile(r"[A-Za-z0-9_.-]+")  # safe in topics, client ids and file names
-TOPIC_PREFIX_MAX: Final = 128  # characters, all levels together
-
-
-class ConfigError(DaemonError):
-    """A setting that cannot be used; the message is one line naming it."""
-
-
-def sanitise_device_id(name: str) -> str:
-    """A host name made safe for one MQTT topic level (``pi@lab 2`` -> ``pi-lab-2``)."""
-    cleaned = re.sub(r"[^A-Za-z0-9_.-]+", "-", name.split(".")[0]).strip("-").lower()
-    return cleaned[:DEVICE_ID_MAX].strip("-") or "scotti"
-
-
-def _is_file(path: Path) -> bool:
-    """``path.is_file()``, False (not an exception) for a name the OS cannot even look up."""
-    try:
-        return path.is_file()
-    except (OSError, ValueError):  # ENAMETOOLONG, ELOOP, an embedded NUL
-        return False
-
-
-def _shown(value: str, limit: int = 40) -> str:
-    """``value`` for an error message: repr, cut to ``limit`` characters."""
-    return repr(value) if len(value) <= limit else repr(value[:limit]) + f"... ({len(value)} chars)"
-
-
-def _check_topic_level(value: str, what: str) -> str:
-    if not value:
-        msg = f"{what} must not be empty"
-        raise ValueError(msg)
-    if _TOPIC_FORBIDDEN.search(value):
-        msg = f"{what} {_shown(value)} must not contain '+', '#', '/', spaces or control characters"
-        raise ValueError(msg)
-    return value
-
-
-def check_device_id(v: str) -> str:
-    """A device id usable as one MQTT topic level, a client id and a file name."""
-    _check_topic_level(v, "device id")
-    if len(v) > DEVICE_ID_MAX or not _DEVICE_ID.fullmatch(v):
-        msg = f"device id {_shown(v)}: at most {DEVICE_ID_MAX} characters of A-Z a-z 0-9 _ . -"
-        raise ValueError(msg)
-    return v
-
-
-class SourceSettings(BaseModel):
-    """Where the bytes come from: exactly one of port, replay, simulate."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    port: str | None = None  # serial device, e.g. /dev/scotti-receiver
-    replay: Path | None = None  # session file fed back through the live path
-    simulate: str | None = None  # scene name (sim/scenes/NAME.toml) or a scene TOML path
-    speed: Speed = 1.0  # replay / simulate rate: 1 = real time, N times, or max
-
-    @field_validator("speed", mode="before")
-    @classmethod
-    def _speed(cls, v: object) -> Speed:
-        return parse_speed(v)
-
-    @model_validator(mode="after")
-    def _exactly_one(self) -> SourceSettings:
-        given = [n for n in ("port", "replay", "simulate") if getattr(self, n) is not None]
-        if not given:
-            msg = "no source: set --port (source.port), --replay, --simulate or [[devices]]"
-            raise ValueError(msg)
-        if len(given) > 1:
-            msg = f"give only one source, got {' and '.join(given)}"
-            raise ValueError(msg)
-        if self.replay is not None and not _is_file(self.replay):
-            msg = f"replay file not found: {self.replay}"
-            raise ValueError(msg)
-        return self
-
-    @property
-    def kind(self) -> Literal["port", "replay", "simulate"]:
-        return "port" if self.port else "replay" if self.replay else "simulate"
-
-
-class DeviceSettings(SourceSettings):
-    """One insole pair in ``[[devices]]``: its id (the topic level) and its source.
-
-    A receiver is best named by its ``/dev/serial/by-id/...`` path: it stays the
-    same across reboots and replugging, whichever USB port it is in.
-    """
-
-    id: str  # scotti/<id>/...: unique in the daemon, a valid MQTT topic level
-    record: Path | None = None  # this device's recording (default: the top-level record)
-
-    @field_validator("id")
-    @classmethod
-    def _id(cls, v: str) -> str:
-        return check_device_id(v)
-
-    @model_validator(mode="after")
-    def _exactly_one(self) -> DeviceSettings:
-        given = [n for n in ("port", "replay", "simulate") if getattr(self, n) is not None]
-        if len(given) != 1:
-            what = f"got {' and '.join(given)}" if given else "got none"
-            msg = f"device {self.id!r}: give exactly one of port, replay, simulate ({what})"
-            raise ValueError(msg)
-        if self.replay is not None and not _is_file(self.replay):
-            msg = f"device {self.id!r}: replay file not found: {self.replay}"
-            raise ValueError(msg)
-        return self
 
 
 class InferenceSettings(BaseModel):
@@ -179,158 +91,11 @@ class ModelSettings(BaseModel):
     def resolved_path(self) -> Path:
         """The model file to load; the shipped default when ``path`` is unset."""
         if self.path is not None:
-            if not _is_file(self.path):
+            if not is_file(self.path):
                 msg = f"model.path: file not found: {self.path}"
                 raise ConfigError(msg)
             return self.path
         return default_model_path()
-
-
-class MqttSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    broker: str = "mqtt://localhost:1883"  # mqtt://host[:port] or mqtts://host[:port] (TLS)
-    username: str | None = None
-    password: SecretStr | None = None  # only from SCOTTI_MQTT_PASSWORD
-    password_file: Path | None = None  # file holding the password (first line)
-    client_id: str | None = None  # default: scotti-daemon-<device_id>
-    device_id: str = Field(default_factory=lambda: sanitise_device_id(socket.gethostname()))
-    topic_prefix: str = "scotti"
-    format: Literal["json", "msgpack"] = "json"
-    protocol: Literal["5", "3.1.1"] = "5"  # 3.1.1 only for brokers without v5 (no properties)
-    keepalive_s: Annotated[int, Field(ge=5, le=3600)] = 15
-    message_expiry_s: Annotated[int, Field(ge=1, le=3600)] = 2  # pose/action/progress
-    queue_size: Annotated[int, Field(ge=1, le=10_000)] = 32  # predictions waiting to publish
-    health_interval_s: Annotated[float, Field(gt=0, le=3600)] = 5.0
-    reconnect_max_s: Annotated[float, Field(gt=0, le=300)] = 5.0  # backoff ceiling
-    pressure: bool = False  # also publish downsampled pressure frames (the demo's view)
-    pressure_downsample: Annotated[int, Field(ge=1, le=8)] = 2
-    tls_ca_file: Path | None = None  # CA bundle (PEM) the broker's certificate must chain to
-    tls_cert_file: Path | None = None  # client certificate (PEM), for brokers that want one
-    tls_key_file: Path | None = None  # its private key (PEM); default: inside tls_cert_file
-
-    @field_validator("device_id")
-    @classmethod
-    def _device_id(cls, v: str) -> str:
-        return check_device_id(v)
-
-    @field_validator("topic_prefix")
-    @classmethod
-    def _prefix(cls, v: str) -> str:
-        # A prefix may have several levels ("site/a"), none of them empty or a wildcard.
-        if len(v) > TOPIC_PREFIX_MAX:
-            msg = f"topic prefix {_shown(v)}: at most {TOPIC_PREFIX_MAX} characters"
-            raise ValueError(msg)
-        for level in v.split("/"):
-            if not level or _TOPIC_FORBIDDEN.search(level):
-                msg = f"topic prefix {_shown(v)}: levels must be non-empty, without + # or spaces"
-                raise ValueError(msg)
-        return v
-
-    @field_validator("broker")
-    @classmethod
-    def _broker(cls, v: str) -> str:
-        _split_broker(v)
-        return v
-
-    @model_validator(mode="after")
-    def _read_password_file(self) -> MqttSettings:
-        if self.password is None and self.password_file is not None:
-            try:
-                secret = self.password_file.read_text(encoding="utf-8").splitlines()
-            except OSError as exc:
-                msg = f"cannot read password_file {self.password_file}: {exc.strerror}"
-                raise ValueError(msg) from None
-            object.__setattr__(self, "password", SecretStr(secret[0] if secret else ""))
-        return self
-
-    @model_validator(mode="after")
-    def _tls_files(self) -> MqttSettings:
-        given = [n for n in ("tls_ca_file", "tls_cert_file", "tls_key_file") if getattr(self, n)]
-        if given and not self.tls:
-            msg = f"{', '.join(given)} given but the broker URL is not mqtts://"
-            raise ValueError(msg)
-        if self.tls_key_file is not None and self.tls_cert_file is None:
-            msg = "tls_key_file given without tls_cert_file"
-            raise ValueError(msg)
-        for name in given:
-            path: Path = getattr(self, name)
-            if not _is_file(path):
-                msg = f"{name}: file not found: {_shown(str(path), 200)}"
-                raise ValueError(msg)
-        return self
-
-    def tls_context(self) -> ssl.SSLContext | None:
-        """The TLS context for ``mqtts://`` (None for ``mqtt://``); ``ConfigError`` if the
-        CA, certificate or key file cannot be used."""
-        if not self.tls:
-            return None
-        try:
-            context = ssl.create_default_context(
-                cafile=str(self.tls_ca_file) if self.tls_ca_file else None
-            )
-            if self.tls_cert_file is not None:
-                key = str(self.tls_key_file) if self.tls_key_file else None
-                context.load_cert_chain(str(self.tls_cert_file), key)
-        except (ssl.SSLError, OSError, ValueError) as exc:
-            files = [str(p) for p in (self.tls_ca_file, self.tls_cert_file, self.tls_key_file) if p]
-            reason = getattr(exc, "reason", None) or getattr(exc, "strerror", None) or exc
-            msg = f"mqtt TLS files {', '.join(files) or '(system CAs)'}: {reason}"
-            raise ConfigError(msg) from None
-        return context
-
-    @property
-    def host(self) -> str:
-        return _split_broker(self.broker)[0]
-
-    @property
-    def port(self) -> int:
-        return _split_broker(self.broker)[1]
-
-    @property
-    def tls(self) -> bool:
-        return _split_broker(self.broker)[2]
-
-    def topic(self, name: str) -> str:
-        return f"{self.topic_prefix}/{self.device_id}/{name}"
-
-
-def _split_broker(url: str) -> tuple[str, int, bool]:
-    """(host, port, tls) of ``mqtt://host[:port]`` or ``mqtts://host[:port]``, else ValueError.
-
-    Nothing is guessed: a URL without a scheme, port 0 or an empty host is refused
-    (``garbage`` would otherwise be a host name retried forever).
-    """
-    shown = _shown(url, 80)
-    if "://" not in url:
-        msg = f"broker {shown}: give a URL, mqtt://host[:port] or mqtts://host[:port]"
-        raise ValueError(msg)
-    try:
-        parts = urlsplit(url)
-    except ValueError as exc:
-        msg = f"broker {shown}: {exc}"
-        raise ValueError(msg) from None
-    if parts.scheme not in ("mqtt", "mqtts"):
-        msg = f"broker {shown}: scheme must be mqtt:// or mqtts://"
-        raise ValueError(msg)
-    if parts.username or parts.password:
-        msg = "broker URL must not carry credentials; use mqtt.username and SCOTTI_MQTT_PASSWORD"
-        raise ValueError(msg)
-    try:
-        port = parts.port
-    except ValueError:
-        port = -1
-    if port is not None and not 1 <= port <= 65535:
-        msg = f"broker {shown}: port must be 1..65535"
-        raise ValueError(msg)
-    if not parts.hostname:
-        msg = f"broker {shown}: no host"
-        raise ValueError(msg)
-    if parts.path not in ("", "/") or parts.query or parts.fragment:
-        msg = f"broker {shown}: only mqtt://host[:port], no path or query"
-        raise ValueError(msg)
-    tls = parts.scheme == "mqtts"
-    return parts.hostname, port if port is not None else (8883 if tls else 1883), tls
 
 
 class Settings(BaseSettings):

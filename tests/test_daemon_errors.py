@@ -29,7 +29,7 @@ def test_every_daemon_exception_derives_from_daemon_error() -> None:
     classes = daemon_exception_classes()
     names = {f"{c.__module__}.{c.__qualname__}" for c in classes}
     assert {
-        "scotti.daemon.settings.ConfigError",
+        "scotti.daemon.config_checks.ConfigError",
         "scotti.daemon.sources.SourceError",
         "scotti.daemon.recording.RecordingError",
         "scotti.daemon.board_emulator.EmulatorError",

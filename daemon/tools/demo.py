@@ -26,7 +26,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 from scotti.daemon.errors import DaemonError
-from scotti.daemon.settings import EX_CONFIG, ConfigError, MqttSettings, default_model_path
+from scotti.daemon.mqtt_settings import MqttSettings
+from scotti.daemon.settings import EX_CONFIG, ConfigError, default_model_path
 from scotti.daemon.sources_sim import resolve_scene
 from scotti.daemon.tools.local_broker import Mosquitto, find_mosquitto, free_port
 from scotti.daemon.tools.viewer import run_viewer

@@ -23,7 +23,8 @@ from typing import Any, Final, TextIO
 import aiomqtt
 import msgpack
 import numpy as np
-from scotti.daemon.settings import ConfigError, MqttSettings
+from scotti.daemon.config_checks import ConfigError
+from scotti.daemon.mqtt_settings import MqttSettings
 from scotti.daemon.waiting import wait_event
 from scotti.models.contract import ACTIONS, MAX_COUNT, has_progress
 
