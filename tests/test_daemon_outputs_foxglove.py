@@ -46,7 +46,7 @@ async def _session(preds: list[Prediction]) -> tuple[dict[str, Any], list[tuple[
 
     output = FoxgloveOutput(mcap=None, port=0)
     try:
-        output.prediction(preds[0], 1.0)  # the JSON channels exist from the first message
+        output.prediction("scotti", preds[0], 1.0)  # the JSON channels exist from the first message
         async with websockets.connect(
             f"ws://127.0.0.1:{output.port}", subprotocols=SUBPROTOCOLS
         ) as ws:
@@ -63,14 +63,14 @@ async def _session(preds: list[Prediction]) -> tuple[dict[str, Any], list[tuple[
             warm = preds[1]
             seen: set[int] = set()
             while len(seen) < len(topics):
-                output.prediction(warm, 1.0)
+                output.prediction("scotti", warm, 1.0)
                 with contextlib.suppress(TimeoutError):
                     while len(seen) < len(topics):
                         msg = await asyncio.wait_for(ws.recv(), 0.2)
                         if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
                             seen.add(struct.unpack_from("<I", msg, 1)[0])
             for p in preds[2:]:
-                output.prediction(p, 1.0)
+                output.prediction("scotti", p, 1.0)
             while len(got) < len(topics) * (len(preds) - 2):
                 msg = await asyncio.wait_for(ws.recv(), 10)
                 if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:

@@ -45,7 +45,7 @@ def test_inlets_read_what_the_outlets_send(preds: list[Prediction]) -> None:
     from scotti.daemon.outputs.lsl import LslOutput
 
     device = f"test-{uuid.uuid4().hex[:8]}"  # never another run's outlets
-    output = LslOutput(device)
+    output = LslOutput([device])
     inlets = {}
     for what in ("pose", "action", "progress", "pressure"):
         (info,) = pylsl.resolve_byprop("source_id", f"scotti/{device}/{what}", 1, TIMEOUT_S)
@@ -59,7 +59,7 @@ def test_inlets_read_what_the_outlets_send(preds: list[Prediction]) -> None:
     time.sleep(0.2)  # the inlets' connections settle before the first sample
     sent = preds[:10]
     for p in sent:
-        output.prediction(p, 1.0)
+        output.prediction(device, p, 1.0)
     got = {what: inlet.pull_chunk(timeout=TIMEOUT_S, max_samples=len(sent))
            for what, inlet in inlets.items()}  # fmt: skip
     for what, (samples, stamps) in got.items():

@@ -46,9 +46,9 @@ class LiveView:
     def send(self, p: Prediction | None = None, status: Any = None) -> None:
         def call() -> None:
             if p is not None:
-                self.output.prediction(p, 4.2)
+                self.output.prediction("scotti", p, 4.2)
             if status is not None:
-                self.output.status(status)
+                self.output.status("scotti", status)
 
         self.loop.call_soon_threadsafe(call)
 
