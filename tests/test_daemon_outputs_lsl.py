@@ -77,3 +77,32 @@ def test_inlets_read_what_the_outlets_send(preds: list[Prediction]) -> None:
         np.testing.assert_array_equal(left, synthetic_counts(Foot.LEFT, p.left_seq))
         np.testing.assert_array_equal(right, synthetic_counts(Foot.RIGHT, p.right_seq))
     asyncio.run(output.close())
+
+
+def test_one_outlet_set_per_device_named_after_it(preds: list[Prediction]) -> None:
+    from scotti.daemon.outputs.lsl import LslOutput
+
+    run = uuid.uuid4().hex[:8]
+    devices = (f"a-{run}", f"b-{run}")
+    output = LslOutput(devices)
+    inlets = {}
+    for device in devices:
+        (info,) = pylsl.resolve_byprop("source_id", f"scotti/{device}/action", 1, TIMEOUT_S)
+        assert info.name() == f"{device} action"  # what LabRecorder lists
+        inlets[device] = pylsl.StreamInlet(info, max_buflen=60)
+        inlets[device].open_stream(timeout=TIMEOUT_S)
+    # Every device has all four streams, and only these eight carry this run's ids.
+    found = [s for s in pylsl.resolve_streams(1.0) if run in s.source_id()]
+    assert sorted(s.source_id() for s in found) == sorted(
+        f"scotti/{d}/{w}" for d in devices for w in ("pose", "action", "progress", "pressure")
+    )
+    time.sleep(0.2)  # the inlets' connections settle before the first sample
+    sent = {devices[0]: preds[:4], devices[1]: preds[4:8]}
+    for to_a, to_b in zip(*sent.values(), strict=True):  # interleaved, as the devices run
+        output.prediction(devices[0], to_a, 1.0)
+        output.prediction(devices[1], to_b, 1.0)
+    for device, inlet in inlets.items():
+        samples, stamps = inlet.pull_chunk(timeout=TIMEOUT_S, max_samples=4)
+        np.testing.assert_allclose(stamps, [p.last_byte_mono_ns / 1e9 for p in sent[device]])
+        np.testing.assert_allclose(samples, [p.action_probs for p in sent[device]], atol=1e-6)
+    asyncio.run(output.close())
