@@ -84,6 +84,9 @@ async def _session(preds: list[Prediction]) -> tuple[dict[str, Any], list[tuple[
 
 def test_client_subscribes_and_decodes(preds: list[Prediction]) -> None:
     channels, got = asyncio.run(_session(preds))
+    # A lone device keeps the names a one-pair daemon always had: no id in them.
+    assert {"/pressure/left", "/pressure/right", "/skeleton", "/action"} <= set(channels)
+    assert not [t for t in channels if t.startswith("/scotti/")]
     skeleton = channels["/skeleton"]
     assert skeleton["encoding"] == "protobuf"
     assert skeleton["schemaName"] == "foxglove.SceneUpdate"
@@ -98,6 +101,7 @@ def test_client_subscribes_and_decodes(preds: list[Prediction]) -> None:
         assert [t for t, _ in by_sub[sub]] == [p.host_wall_ns for p in expected]
     for (_, payload), p in zip(by_sub[0], expected, strict=True):
         (entity,) = scene_class.FromString(payload).entities
+        assert entity.frame_id == "pose"  # a lone device's pose frame, as before
         assert len(entity.spheres) == NUM_KEYPOINTS
         centres = [[s.pose.position.x, s.pose.position.y, s.pose.position.z]
                    for s in entity.spheres]  # fmt: skip
@@ -139,11 +143,13 @@ async def _two_devices(
                         msg = await asyncio.wait_for(ws.recv(), 0.2)
                         if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
                             seen.add(struct.unpack_from("<I", msg, 1)[0])
-            for to_a, to_b in zip(preds[2:5], preds[5:8], strict=True):  # interleaved
+            for to_a, to_b in zip(preds[2:4], preds[4:6], strict=True):  # interleaved
                 output.prediction("a", to_a, 1.0)
                 output.prediction("b", to_b, 1.0)
+            for p in preds[6:9]:  # then b falls silent: a's frames go on alone
+                output.prediction("a", p, 1.0)
             got: dict[int, list[int]] = {0: [], 1: []}
-            while sum(map(len, got.values())) < 6:
+            while sum(map(len, got.values())) < 7:
                 msg = await asyncio.wait_for(ws.recv(), 10)
                 if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
                     sub, log_time = struct.unpack_from("<IQ", msg, 1)
@@ -159,7 +165,7 @@ def test_two_devices_one_server_and_one_file_channels_per_device(
 ) -> None:
     from tests.support.outputs import read_mcap
 
-    assert len(preds) >= 8
+    assert len(preds) >= 9
     mcap = tmp_path / "two.mcap"
     channels, got = asyncio.run(_two_devices(preds, mcap))
     # Every topic carries its device; none is left with a lone device's name.
@@ -167,8 +173,8 @@ def test_two_devices_one_server_and_one_file_channels_per_device(
     assert {t.removeprefix("/a/") for t in channels if t.startswith("/a/")} >= {
         "pressure/left", "pressure/right", "skeleton", "pose", "action", "progress"
     }  # fmt: skip
-    assert got[0] == [p.seq for p in preds[2:5]]  # a's frames to a's subscription
-    assert got[1] == [p.seq for p in preds[5:8]]
+    assert got[0] == [p.seq for p in preds[2:4] + preds[6:9]]  # a's to a's subscription
+    assert got[1] == [p.seq for p in preds[4:6]]
     # The file: the same channels, each device's skeleton in its own pose frame.
     messages, schemas, metadata = read_mcap(mcap)
     assert schemas["/b/skeleton"] == "foxglove.SceneUpdate"

@@ -131,10 +131,15 @@ def test_two_devices_one_server_a_page_and_a_feed_each(
         for to_a, to_b in zip(preds[:3], preds[3:6], strict=True):
             two.send(to_a, device="a")
             two.send(to_b, device="b")
-        got_a = [_event(feed_a) for _ in range(3)]
-        got_b = [_event(feed_b) for _ in range(3)]
-    assert [(e["device"], e["seq"]) for e in got_a] == [("a", p.seq) for p in preds[:3]]
-    assert [(e["device"], e["seq"]) for e in got_b] == [("b", p.seq) for p in preds[3:6]]
+        for p in preds[6:9]:  # then b falls silent: a's frames go on alone
+            two.send(p, device="a")
+        two.send(status=messages.status("online", [], None), device="b")  # b's next event
+        got_a = [_event(feed_a) for _ in range(6)]
+        got_b = [_event(feed_b) for _ in range(4)]
+    expected_a = [("a", p.seq) for p in preds[:3] + preds[6:9]]
+    assert [(e["device"], e["seq"]) for e in got_a] == expected_a
+    assert [(e["device"], e["seq"]) for e in got_b[:3]] == [("b", p.seq) for p in preds[3:6]]
+    assert (got_b[3]["type"], got_b[3]["state"]) == ("status", "online")  # none of a's
     with pytest.raises(urllib.error.HTTPError, match="404"):  # several: no lone feed
         urllib.request.urlopen(two.url + "events", timeout=5)
     with pytest.raises(urllib.error.HTTPError, match="404"):

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -67,3 +69,14 @@ def read_mcap(path: Path) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, s
         f.seek(0)
         metadata = list(mcap_reader.make_reader(f).iter_metadata())
     return messages, schemas, metadata
+
+
+def lsl_on_this_host() -> None:
+    """Find LSL outlets on this host without relying on multicast (CI containers may have
+    none): liblsl reads the file named by LSLAPICFG the first time it is used, in this
+    process and in a daemon started from it. Call it before pylsl is first used."""
+    if "LSLAPICFG" in os.environ:
+        return
+    config = Path(tempfile.mkdtemp(prefix="scotti-lsl-")) / "lsl_api.cfg"
+    config.write_text("[lab]\nKnownPeers = {127.0.0.1}\n")
+    os.environ["LSLAPICFG"] = str(config)
