@@ -220,3 +220,24 @@ def test_a_missing_library_names_the_extra() -> None:
         require("no_such_lib_x", "--lsl")
     with pytest.raises(OutputError, match=r"pip install 'scotti\[outputs\]'$"):
         require("no_such_lib_x", "--lsl")
+
+
+def test_a_library_that_cannot_load_is_one_line(tmp_path: Path, tiny_model_path: Path) -> None:
+    # pylsl installed without its liblsl raises RuntimeError (a long, multi-line one)
+    # when imported, not ImportError: still one line and exit 78, never a traceback.
+    broken = tmp_path / "site" / "pylsl"
+    broken.mkdir(parents=True)
+    (broken / "__init__.py").write_text(
+        'raise RuntimeError("LSL binary library file was not found.\\n Install liblsl.")\n'
+    )
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=4)
+    args = ["--replay", str(session.path), "--model", str(tiny_model_path)]
+    args += ["--broker", "mqtt://127.0.0.1:1", "--lsl"]
+    daemon = start_daemon(args, tmp_path / "d.log", env={"PYTHONPATH": str(broken.parent)})
+    assert daemon.wait(60) == 78, daemon.log
+    assert "Traceback" not in daemon.log
+    last = daemon.log.strip().splitlines()[-1]
+    assert last == (
+        "scotti-daemon: error: --lsl: the Python package 'pylsl' cannot be loaded: "
+        "LSL binary library file was not found. Install liblsl."
+    )

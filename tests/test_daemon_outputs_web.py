@@ -155,6 +155,32 @@ def test_a_lone_device_is_also_under_its_id(view: LiveView, preds: list[Predicti
         assert _event(feed)["seq"] == preds[0].seq
 
 
+def test_stopping_with_a_client_behind_ends_its_feed(
+    view: LiveView, preds: list[Prediction]
+) -> None:
+    from scotti.daemon.outputs.web import CLIENT_QUEUE
+
+    sent = preds[: CLIENT_QUEUE + 2]
+
+    async def flood_then_stop() -> None:
+        for p in sent:  # on the loop, in one go: the client's queue fills before it reads
+            view.output.prediction("scotti", p, 4.2)
+        await asyncio.sleep(0)  # the frames reach the queue; the client has not run yet
+        await view.output.close()  # the daemon stops now, with the client's queue full
+
+    with urllib.request.urlopen(view.url + "events", timeout=5) as feed:
+        assert _event(feed)["type"] == "hello"
+        time.sleep(0.2)  # the client registered before the frames go out
+        asyncio.run_coroutine_threadsafe(flood_then_stop(), view.loop).result(5)
+        rest = feed.read()  # to the end of the stream: the server ended it
+    seqs = [
+        json.loads(e.strip().removeprefix(b"data: "))["seq"]
+        for e in rest.split(b"\n\n")
+        if e.strip()
+    ]
+    assert seqs == [p.seq for p in sent[-(CLIENT_QUEUE - 1) :]]  # the newest, then the end
+
+
 @pytest.mark.skipif(not (CHROMIUM and CHROMEDRIVER), reason="needs chromium and chromium-driver")
 def test_live_view_in_headless_chromium(
     view: LiveView, preds: list[Prediction], tmp_path: Path

@@ -70,6 +70,10 @@ def require(module: str, what: str) -> None:
     except ImportError as exc:
         msg = f"{what} needs the Python package {exc.name or module!r}: {EXTRA_HINT}"
         raise OutputError(msg) from None
+    except Exception as exc:  # installed but broken: pylsl without its liblsl raises this
+        reason = " ".join(str(exc).split())  # one line, whatever the library wrote
+        msg = f"{what}: the Python package {module!r} cannot be loaded: {reason}"
+        raise OutputError(msg) from None
 
 
 class Outputs:
@@ -80,7 +84,9 @@ class Outputs:
         self.outputs = list(outputs)
         self.devices = tuple(devices)
         self.errors: dict[str, int] = {o.name: 0 for o in self.outputs}
-        self._thread = OutputThread(self._handle, devices=len(devices)) if self.outputs else None
+        # No thread without outputs, nor without devices (what ``open`` closes on a failure).
+        started = self.outputs and self.devices
+        self._thread = OutputThread(self._handle, devices=len(devices)) if started else None
 
     @classmethod
     async def open(cls, settings: OutputSettings, devices: Sequence[str]) -> Outputs:
@@ -104,13 +110,17 @@ class Outputs:
                 require("pylsl", "--lsl")
                 from scotti.daemon.outputs.lsl import LslOutput
 
-                opened.append(LslOutput(devices))
+                try:
+                    opened.append(LslOutput(devices))
+                except Exception as exc:  # liblsl's own errors (a network it cannot use)
+                    msg = f"--lsl: cannot open the outlets: {exc}"
+                    raise OutputError(msg) from None
             if settings.web is not None:
                 from scotti.daemon.outputs.web import WebOutput
 
                 opened.append(await WebOutput.start(settings.host, settings.web, devices))
         except BaseException:
-            await cls(opened).close()
+            await cls(opened).close()  # no thread yet (no devices): closes at once
             raise
         for output in opened:
             log.info("output %s", output)
@@ -138,7 +148,11 @@ class Outputs:
         if self._thread is not None:
             thread, self._thread = self._thread, None
             if not await asyncio.to_thread(thread.close, CLOSE_TIMEOUT_S):
-                log.warning("outputs did not write their queue within %.0f s", CLOSE_TIMEOUT_S)
+                log.warning(
+                    "outputs did not write their queue within %.0f s: %d items given up",
+                    CLOSE_TIMEOUT_S,
+                    thread.abandoned,
+                )
         for output in self.outputs:
             try:
                 await output.close()

@@ -29,6 +29,7 @@ log = logging.getLogger(__name__)
 
 FRAMES_PER_DEVICE: Final = 16  # a second of frames per device may wait before drops
 DROP_LOG_EVERY_S: Final = 10.0  # a full queue is logged at most this often (and counted)
+ABANDON_WAIT_S: Final = 1.0  # after close's timeout: for the item in hand to finish
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -47,6 +48,8 @@ class OutputThread:
         self.handle = handle
         self.max_items = FRAMES_PER_DEVICE * max(1, devices)
         self.dropped = 0  # predictions the outputs never saw because they fell behind
+        self.abandoned = 0  # items still queued when ``close`` gave up waiting
+        self.failed = 0  # items whose ``handle`` raised (the outputs count their own)
         self._items: collections.deque[Item] = collections.deque()
         self._wake = threading.Condition()
         self._closing = False
@@ -65,12 +68,21 @@ class OutputThread:
 
     def close(self, timeout_s: float) -> bool:
         """Write what is queued, then end the thread; False if it did not end in time.
+        Then what is still queued is given up (``abandoned``), so that the outputs are
+        not closed while the thread is still writing into them for long: it ends after
+        the item in hand (waited for up to ``ABANDON_WAIT_S`` more).
         Blocks: call it from a worker thread (``asyncio.to_thread``)."""
         with self._wake:
             self._closing = True
             self._wake.notify()
         self._thread.join(timeout_s)
-        return not self._thread.is_alive()
+        if not self._thread.is_alive():
+            return True
+        with self._wake:
+            self.abandoned = len(self._items)
+            self._items.clear()
+        self._thread.join(ABANDON_WAIT_S)
+        return False
 
     def _run(self) -> None:
         while True:
@@ -78,9 +90,14 @@ class OutputThread:
                 while not self._items and not self._closing:
                     self._wake.wait()
                 if not self._items:
-                    return  # closing and everything written
+                    return  # closing and everything written (or given up)
                 item = self._items.popleft()
-            self.handle(item)
+            try:
+                self.handle(item)
+            except Exception:  # the thread outlives a bad item: the next ones still go out
+                self.failed += 1
+                if self.failed == 1:
+                    log.warning("outputs: an item failed (counted from now on)", exc_info=True)
 
     def _drop_oldest_prediction(self) -> bool:
         for k, queued in enumerate(self._items):

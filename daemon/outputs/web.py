@@ -121,7 +121,7 @@ class WebOutput:
         try:
             server = await asyncio.start_server(handle, host, port)
         except OSError as exc:
-            msg = f"--web: cannot listen on {host}:{port}: {exc.strerror}"
+            msg = f"--web: cannot listen on {host}:{port}: {exc.strerror or exc}"
             raise OutputError(msg) from None
         holder.append(cls(server, devices, asyncio.get_running_loop()))
         return holder[0]
@@ -147,9 +147,8 @@ class WebOutput:
 
     async def close(self) -> None:
         self.server.close()
-        for clients in self._clients.values():
-            for queue in list(clients):
-                queue.put_nowait(b"")  # b"": the stream ends
+        for device in self.devices:  # b"": the stream ends, after what its queue holds
+            self._broadcast(device, b"")  # (a full queue drops its oldest, never raises)
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(self.server.wait_closed(), 1.0)
 
