@@ -56,7 +56,7 @@ class Daemon:
         self._ready = False
         self._sd_status = ""
         self._stop = asyncio.Event()
-        self._outputs = Outputs()  # MCAP, Foxglove, LSL, web: a lone device's predictions
+        self._outputs = Outputs()  # MCAP, Foxglove, LSL, web: every device's predictions
 
     @property
     def counters(self) -> Counters:
@@ -81,12 +81,15 @@ class Daemon:
                 self.devices.append(
                     Device(self.settings, one, self.runtime, self.engine, source, recorder)
                 )
-            # MCAP, Foxglove, LSL, web (one device only): a port in use is a one-line error
-            self._outputs = await Outputs.open(self.settings.outputs, title=self.devices[0].id)
+            # MCAP, Foxglove, LSL, web, one of each for all the devices (channels, outlets
+            # and pages per device): a port in use is a one-line error
+            ids = [device.id for device in self.devices]
+            self._outputs = await Outputs.open(self.settings.outputs, ids)
         except BaseException:
             self._close_recorders()
             raise
-        self.devices[0].outputs = self._outputs
+        for device in self.devices:
+            device.outputs = self._outputs.of(device.id)
         loop = asyncio.get_running_loop()
         loop_errors.install(loop, logging.getLogger("scotti.daemon.mqtt"))
         for sig in (signal.SIGTERM, signal.SIGINT):

@@ -23,7 +23,7 @@ from pydantic import BaseModel
 from scotti.daemon import messages
 from scotti.daemon.counters import Counters
 from scotti.daemon.inference import InferenceEngine
-from scotti.daemon.outputs import Outputs
+from scotti.daemon.outputs import DeviceOutputs
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
 from scotti.daemon.publisher import BrokerState, FrameBatch, Publisher
 from scotti.daemon.recording import Recorder
@@ -59,7 +59,7 @@ class Device:
         self.recorder = recorder
         self.counters = Counters()
         self.started_mono = time.monotonic()
-        self.outputs = Outputs()  # MCAP, Foxglove, LSL, web: only a lone device has them
+        self.outputs = DeviceOutputs(None, self.id)  # MCAP, Foxglove, LSL, web: app.py sets
         self.publisher: Publisher | None = None
         self.state: PipelineState | None = None
         self.on_change: Callable[[Device], None] = lambda _d: None  # state or broker changed
@@ -131,7 +131,6 @@ class Device:
     # --- callbacks from the pipeline and the publisher ------------------------------
     def _on_prediction(self, prediction: Prediction) -> None:
         assert self.publisher is not None
-        self.outputs.prediction(prediction)
         pressure = self.mqtt.pressure_downsample if self.mqtt.pressure else 0
 
         def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
@@ -145,6 +144,7 @@ class Device:
                 render=render,
             )
         )
+        self.outputs.prediction(prediction)  # queued only: written on the outputs' thread
 
     def _on_state(self, state: PipelineState) -> None:
         self.state = state

@@ -160,9 +160,6 @@ class Settings(BaseSettings):
             msg = f"devices: id {twice[0]!r} given twice; each device needs its own id"
             raise ValueError(msg)
         if len(self.devices) > 1:
-            if self.outputs.any:
-                msg = "outputs (MCAP, Foxglove, LSL, web) serve one device; not with [[devices]]"
-                raise ValueError(msg)
             unnamed = [d.id for d in self.devices if d.record is None]
             if self.record is not None and unnamed and not self.record.is_dir():
                 msg = f"record: with several devices give a directory, {self.record} is not one"

@@ -1,12 +1,16 @@
 """The outputs from the daemon itself: ``scotti-daemon --record-mcap`` beside MQTT
-(a real mosquitto) gives the same predictions on both; the flags' settings and
-their one-line errors."""
+(a real mosquitto) gives the same predictions on both; two devices in one daemon
+(real ptys), each with its own channels, outlets and page, the silent one holding up
+nothing; the flags' settings and their one-line errors."""
 
 from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterator
+import re
+import time
+import urllib.request
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -15,8 +19,11 @@ from scotti.daemon.main import build_parser, cli_overrides, main
 from scotti.daemon.settings import load_settings
 from scotti.daemon.tools.local_broker import Mosquitto
 
-from tests.support.broker import collect, payloads, start_daemon
+from tests.support.broker import DaemonProcess, collect, payloads, start_daemon
+from tests.support.outputs import lsl_on_this_host, read_mcap
 from tests.support.sessions import write_synthetic_session
+
+lsl_on_this_host()  # the daemon's LSL outlets found here without multicast
 
 mcap_reader = pytest.importorskip("mcap.reader")
 pytest.importorskip("foxglove")
@@ -56,6 +63,102 @@ def test_record_mcap_beside_mqtt(
     states = [s["state"] for s in _mcap_json(written, "/status")]
     assert states[-1] == "offline"
     assert "online" in states
+
+
+def _wait_log(daemon: DaemonProcess, pattern: str, timeout: float) -> re.Match[str]:
+    deadline = time.monotonic() + timeout
+    while (found := re.search(pattern, daemon.log)) is None:
+        assert daemon.proc.poll() is None, daemon.log[-3000:]
+        assert time.monotonic() < deadline, f"no {pattern!r} in the log:\n{daemon.log[-3000:]}"
+        time.sleep(0.1)
+    return found
+
+
+def _feed_frames(url: str, count: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The hello and the first ``count`` frames of an SSE feed."""
+    frames: list[dict[str, Any]] = []
+    with urllib.request.urlopen(url, timeout=10) as feed:
+        hello = json.loads(feed.readline().removeprefix(b"data: "))
+        while len(frames) < count:
+            line = feed.readline()
+            assert line, "the feed ended"
+            if line.startswith(b"data: "):
+                event = json.loads(line.removeprefix(b"data: "))
+                if event["type"] == "frame":
+                    frames.append(event)
+    return hello, frames
+
+
+@pytest.mark.mosquitto
+def test_two_devices_in_one_daemon_each_on_its_own_channels_the_silent_one_holds_up_nothing(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path, board_factory: Callable[..., Any]
+) -> None:
+    pylsl = pytest.importorskip("pylsl")
+    from scotti.daemon.tools.bench import board_records
+
+    records = board_records(4.0)
+    live = board_factory(records, loop=True, link=tmp_path / "live")
+    silent = board_factory(records, loop=True, link=tmp_path / "silent")
+    silent.pause()  # plugged in, never a byte
+    run = f"{time.monotonic_ns() % 10**8}"  # this run's LSL outlets, never another's
+    live_id, silent_id = f"live{run}", f"silent{run}"
+    config = tmp_path / "two.toml"
+    config.write_text(
+        f'log_level = "info"\n[mqtt]\nbroker = "{mosquitto.url}"\n'
+        f'[[devices]]\nid = "{live_id}"\nport = "{live.link}"\n'
+        f'[[devices]]\nid = "{silent_id}"\nport = "{silent.link}"\n'
+        f'[outputs]\nrecord_mcap = "{tmp_path / "two.mcap"}"\nweb = 0\nlsl = true\n'
+    )
+    with collect(mosquitto, "scotti/#") as got:
+        daemon = start_daemon(
+            ["--config", str(config), "--model", str(tiny_model_path)], tmp_path / "d.log"
+        )
+        try:
+            url = _wait_log(daemon, r"2 devices listed on (http://\S+/),", 30)[1]
+            # The web: the live device's frames on its page's feed while the other is silent.
+            hello, frames = _feed_frames(f"{url}devices/{live_id}/events", 5)
+            assert (hello["device"], hello["devices"]) == (live_id, [live_id, silent_id])
+            assert {f["device"] for f in frames} == {live_id}
+            seqs = [f["seq"] for f in frames]
+            assert seqs == sorted(seqs)
+            with urllib.request.urlopen(f"{url}devices", timeout=5) as listing:
+                listed = {d["id"]: d for d in json.load(listing)}
+            assert listed[live_id]["view"] == f"/devices/{live_id}/"
+            # LSL: four outlets per device; the live one's carry samples, the silent's none.
+            inlets = {}
+            for device in (live_id, silent_id):
+                for what in ("pose", "action", "progress", "pressure"):
+                    source = f"scotti/{device}/{what}"
+                    (info,) = pylsl.resolve_byprop("source_id", source, 1, 10.0)
+                    assert info.name() == f"{device} {what}"
+                inlets[device] = pylsl.StreamInlet(info, max_buflen=60)
+                inlets[device].open_stream(timeout=10.0)
+            samples, _ = inlets[live_id].pull_chunk(timeout=5.0, max_samples=3)
+            deadline = time.monotonic() + 5.0
+            while len(samples) < 3 and time.monotonic() < deadline:
+                more, _ = inlets[live_id].pull_chunk(timeout=1.0, max_samples=3)
+                samples += more
+            assert len(samples) >= 3
+            assert inlets[silent_id].pull_chunk(timeout=0.5)[0] == []
+            # MQTT is untouched by the outputs: the live device keeps publishing.
+            got.wait_for(lambda m: len(payloads(m, "pose")) >= 5, 10, "poses")
+        finally:
+            assert daemon.stop() == 0, daemon.log[-3000:]
+        mqtt = got.snapshot()
+    # The MCAP file: one for the daemon, every topic under its device's id.
+    (written,) = tmp_path.glob("two*.mcap")
+    messages, schemas, metadata = read_mcap(written)
+    assert all(t.startswith((f"/{live_id}/", f"/{silent_id}/")) for t in messages), messages.keys()
+    live_actions = [m["seq"] for _, m in messages[f"/{live_id}/action"]]
+    assert set(seqs) <= set(live_actions)
+    mqtt_actions = {a["seq"] for a in payloads(mqtt, "action")}
+    assert mqtt_actions <= set(live_actions)
+    assert schemas[f"/{live_id}/skeleton"] == "foxglove.SceneUpdate"
+    assert f"/{silent_id}/action" not in messages  # silent: no frame, no prediction
+    for device in (live_id, silent_id):  # each ends with its own last word
+        assert messages[f"/{device}/status"][-1][1]["state"] == "offline"
+    (devices,) = [m for m in metadata if m.name == "scotti.devices"]
+    assert devices.metadata == {live_id: f"/{live_id}/", silent_id: f"/{silent_id}/"}
 
 
 def test_output_flags_become_settings(tmp_path: Path) -> None:
@@ -117,3 +220,24 @@ def test_a_missing_library_names_the_extra() -> None:
         require("no_such_lib_x", "--lsl")
     with pytest.raises(OutputError, match=r"pip install 'scotti\[outputs\]'$"):
         require("no_such_lib_x", "--lsl")
+
+
+def test_a_library_that_cannot_load_is_one_line(tmp_path: Path, tiny_model_path: Path) -> None:
+    # pylsl installed without its liblsl raises RuntimeError (a long, multi-line one)
+    # when imported, not ImportError: still one line and exit 78, never a traceback.
+    broken = tmp_path / "site" / "pylsl"
+    broken.mkdir(parents=True)
+    (broken / "__init__.py").write_text(
+        'raise RuntimeError("LSL binary library file was not found.\\n Install liblsl.")\n'
+    )
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=4)
+    args = ["--replay", str(session.path), "--model", str(tiny_model_path)]
+    args += ["--broker", "mqtt://127.0.0.1:1", "--lsl"]
+    daemon = start_daemon(args, tmp_path / "d.log", env={"PYTHONPATH": str(broken.parent)})
+    assert daemon.wait(60) == 78, daemon.log
+    assert "Traceback" not in daemon.log
+    last = daemon.log.strip().splitlines()[-1]
+    assert last == (
+        "scotti-daemon: error: --lsl: the Python package 'pylsl' cannot be loaded: "
+        "LSL binary library file was not found. Install liblsl."
+    )

@@ -46,7 +46,7 @@ async def _session(preds: list[Prediction]) -> tuple[dict[str, Any], list[tuple[
 
     output = FoxgloveOutput(mcap=None, port=0)
     try:
-        output.prediction(preds[0], 1.0)  # the JSON channels exist from the first message
+        output.prediction("scotti", preds[0], 1.0)  # the JSON channels exist from the first message
         async with websockets.connect(
             f"ws://127.0.0.1:{output.port}", subprotocols=SUBPROTOCOLS
         ) as ws:
@@ -63,14 +63,14 @@ async def _session(preds: list[Prediction]) -> tuple[dict[str, Any], list[tuple[
             warm = preds[1]
             seen: set[int] = set()
             while len(seen) < len(topics):
-                output.prediction(warm, 1.0)
+                output.prediction("scotti", warm, 1.0)
                 with contextlib.suppress(TimeoutError):
                     while len(seen) < len(topics):
                         msg = await asyncio.wait_for(ws.recv(), 0.2)
                         if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
                             seen.add(struct.unpack_from("<I", msg, 1)[0])
             for p in preds[2:]:
-                output.prediction(p, 1.0)
+                output.prediction("scotti", p, 1.0)
             while len(got) < len(topics) * (len(preds) - 2):
                 msg = await asyncio.wait_for(ws.recv(), 10)
                 if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
@@ -84,6 +84,9 @@ async def _session(preds: list[Prediction]) -> tuple[dict[str, Any], list[tuple[
 
 def test_client_subscribes_and_decodes(preds: list[Prediction]) -> None:
     channels, got = asyncio.run(_session(preds))
+    # A lone device keeps the names a one-pair daemon always had: no id in them.
+    assert {"/pressure/left", "/pressure/right", "/skeleton", "/action"} <= set(channels)
+    assert not [t for t in channels if t.startswith("/scotti/")]
     skeleton = channels["/skeleton"]
     assert skeleton["encoding"] == "protobuf"
     assert skeleton["schemaName"] == "foxglove.SceneUpdate"
@@ -98,6 +101,7 @@ def test_client_subscribes_and_decodes(preds: list[Prediction]) -> None:
         assert [t for t, _ in by_sub[sub]] == [p.host_wall_ns for p in expected]
     for (_, payload), p in zip(by_sub[0], expected, strict=True):
         (entity,) = scene_class.FromString(payload).entities
+        assert entity.frame_id == "pose"  # a lone device's pose frame, as before
         assert len(entity.spheres) == NUM_KEYPOINTS
         centres = [[s.pose.position.x, s.pose.position.y, s.pose.position.z]
                    for s in entity.spheres]  # fmt: skip
@@ -106,3 +110,78 @@ def test_client_subscribes_and_decodes(preds: list[Prediction]) -> None:
         action = json.loads(payload)
         assert action["seq"] == p.seq
         assert list(action["probabilities"]) == list(ACTIONS)
+
+
+async def _two_devices(
+    preds: list[Prediction], mcap: Path
+) -> tuple[dict[str, Any], dict[int, list[int]]]:
+    """One server and one MCAP file for devices ``a`` and ``b``: a client subscribed to
+    both devices' actions, and the seqs each subscription got (the warm-up left out)."""
+    from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
+
+    output = FoxgloveOutput(mcap=mcap, port=0, devices=("a", "b"))
+    try:
+        for device in ("a", "b"):
+            output.prediction(device, preds[0], 1.0)
+        async with websockets.connect(
+            f"ws://127.0.0.1:{output.port}", subprotocols=SUBPROTOCOLS
+        ) as ws:
+            channels: dict[str, Any] = {}
+            while not {"/a/action", "/b/action", "/a/skeleton", "/b/skeleton"} <= set(channels):
+                for ch in (await _json(ws, "advertise"))["channels"]:
+                    channels[ch["topic"]] = ch
+            topics = ("/a/action", "/b/action")
+            subscribe = [{"id": i, "channelId": channels[t]["id"]} for i, t in enumerate(topics)]
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscribe}))
+            warm = preds[1]
+            seen: set[int] = set()
+            while len(seen) < len(topics):
+                for device in ("a", "b"):
+                    output.prediction(device, warm, 1.0)
+                with contextlib.suppress(TimeoutError):
+                    while len(seen) < len(topics):
+                        msg = await asyncio.wait_for(ws.recv(), 0.2)
+                        if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
+                            seen.add(struct.unpack_from("<I", msg, 1)[0])
+            for to_a, to_b in zip(preds[2:4], preds[4:6], strict=True):  # interleaved
+                output.prediction("a", to_a, 1.0)
+                output.prediction("b", to_b, 1.0)
+            for p in preds[6:9]:  # then b falls silent: a's frames go on alone
+                output.prediction("a", p, 1.0)
+            got: dict[int, list[int]] = {0: [], 1: []}
+            while sum(map(len, got.values())) < 7:
+                msg = await asyncio.wait_for(ws.recv(), 10)
+                if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:
+                    sub, log_time = struct.unpack_from("<IQ", msg, 1)
+                    if log_time != warm.host_wall_ns:
+                        got[sub].append(json.loads(msg[13:])["seq"])
+            return channels, got
+    finally:
+        await output.close()
+
+
+def test_two_devices_one_server_and_one_file_channels_per_device(
+    preds: list[Prediction], tmp_path: Path
+) -> None:
+    from tests.support.outputs import read_mcap
+
+    assert len(preds) >= 9
+    mcap = tmp_path / "two.mcap"
+    channels, got = asyncio.run(_two_devices(preds, mcap))
+    # Every topic carries its device; none is left with a lone device's name.
+    assert all(t.startswith(("/a/", "/b/")) for t in channels), sorted(channels)
+    assert {t.removeprefix("/a/") for t in channels if t.startswith("/a/")} >= {
+        "pressure/left", "pressure/right", "skeleton", "pose", "action", "progress"
+    }  # fmt: skip
+    assert got[0] == [p.seq for p in preds[2:4] + preds[6:9]]  # a's to a's subscription
+    assert got[1] == [p.seq for p in preds[4:6]]
+    # The file: the same channels, each device's skeleton in its own pose frame.
+    messages, schemas, metadata = read_mcap(mcap)
+    assert schemas["/b/skeleton"] == "foxglove.SceneUpdate"
+    in_file = {d: [m["seq"] for _, m in messages[f"/{d}/action"]] for d in ("a", "b")}
+    assert [s for s in in_file["a"] if s > preds[1].seq] == got[0]
+    assert [s for s in in_file["b"] if s > preds[1].seq] == got[1]
+    frames = {m.entities[0].frame_id for d in "ab" for _, m in messages[f"/{d}/skeleton"]}
+    assert frames == {"a/pose", "b/pose"}
+    (devices,) = [m for m in metadata if m.name == "scotti.devices"]
+    assert devices.metadata == {"a": "/a/", "b": "/b/"}

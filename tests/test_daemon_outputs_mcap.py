@@ -4,7 +4,6 @@ the counts the session carries."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -14,36 +13,13 @@ from scotti.cli.main import main as scotti
 from scotti.firmware_protocol.packets import Foot
 from scotti.models.contract import ACTIONS, BONES, FRAME_COLS, FRAME_ROWS, NUM_KEYPOINTS
 
-from tests.support.outputs import protobuf_class
+from tests.support.outputs import read_mcap
 from tests.support.sessions import PERIOD_NS, synthetic_counts, write_synthetic_session
 
 pytest.importorskip("foxglove")
 mcap_reader = pytest.importorskip("mcap.reader")
 
 FRAMES = 64
-
-
-def read_mcap(path: Path) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, str], list[Any]]:
-    """topic -> [(log_time, decoded message)], topic -> schema name, metadata records."""
-    messages: dict[str, list[tuple[int, Any]]] = {}
-    schemas: dict[str, str] = {}
-    classes: dict[int, Any] = {}
-    with path.open("rb") as f:
-        reader = mcap_reader.make_reader(f)
-        for schema, channel, message in reader.iter_messages(log_time_order=True):
-            assert schema is not None
-            schemas[channel.topic] = schema.name
-            if channel.message_encoding == "json":
-                decoded = json.loads(message.data)
-            else:
-                assert channel.message_encoding == "protobuf"
-                if schema.id not in classes:
-                    classes[schema.id] = protobuf_class(schema.name, schema.data)
-                decoded = classes[schema.id].FromString(message.data)
-            messages.setdefault(channel.topic, []).append((message.log_time, decoded))
-        f.seek(0)
-        metadata = list(mcap_reader.make_reader(f).iter_metadata())
-    return messages, schemas, metadata
 
 
 @pytest.fixture(scope="module")

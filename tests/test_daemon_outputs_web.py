@@ -33,22 +33,22 @@ CHROMEDRIVER = shutil.which("chromedriver")
 class LiveView:
     """A ``WebOutput`` on its own event loop thread, fed like the daemon feeds it."""
 
-    def __init__(self) -> None:
+    def __init__(self, devices: tuple[str, ...] = ("scotti",)) -> None:
         from scotti.daemon.outputs.web import WebOutput
 
         self.loop = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
-        start = WebOutput.start("127.0.0.1", 0)
+        start = WebOutput.start("127.0.0.1", 0, devices)
         self.output = asyncio.run_coroutine_threadsafe(start, self.loop).result(5)
         self.url = f"http://127.0.0.1:{self.output.port}/"
 
-    def send(self, p: Prediction | None = None, status: Any = None) -> None:
+    def send(self, p: Prediction | None = None, status: Any = None, device: str = "scotti") -> None:
         def call() -> None:
             if p is not None:
-                self.output.prediction(p, 4.2)
+                self.output.prediction(device, p, 4.2)
             if status is not None:
-                self.output.status(status)
+                self.output.status(device, status)
 
         self.loop.call_soon_threadsafe(call)
 
@@ -87,6 +87,98 @@ def test_page_and_feed_over_plain_http(view: LiveView, preds: list[Prediction]) 
     assert len(frame["left"]) == len(frame["right"]) == frame["rows"] * frame["cols"]
     with pytest.raises(urllib.error.HTTPError, match="404"):
         urllib.request.urlopen(view.url + "nothing", timeout=5)
+
+
+@pytest.fixture
+def two() -> Iterator[LiveView]:
+    live = LiveView(("a", "b"))
+    yield live
+    live.close()
+
+
+def _event(feed: Any) -> dict[str, Any]:
+    line = feed.readline()
+    while line == b"\n":  # the blank line that ends each event
+        line = feed.readline()
+    return json.loads(line.removeprefix(b"data: "))  # type: ignore[no-any-return]
+
+
+def test_two_devices_one_server_a_page_and_a_feed_each(
+    two: LiveView, preds: list[Prediction]
+) -> None:
+    two.send(status=messages.status("degraded", ["left insole silent"], None), device="b")
+    with urllib.request.urlopen(two.url + "devices", timeout=5) as listing:
+        devices = json.load(listing)
+    assert [d["id"] for d in devices] == ["a", "b"]
+    assert devices[1]["state"] == "degraded"
+    assert devices[1]["view"] == "/devices/b/"
+    with urllib.request.urlopen(two.url, timeout=5) as index:  # the list, linking each view
+        html = index.read().decode()
+    assert 'href="/devices/a/"' in html
+    assert "left insole silent" in html
+    with urllib.request.urlopen(two.url + "devices/b", timeout=5) as page:  # redirected
+        assert page.url.endswith("/devices/b/")
+        assert "EventSource" in page.read().decode()
+    with (
+        urllib.request.urlopen(two.url + "devices/a/events", timeout=5) as feed_a,
+        urllib.request.urlopen(two.url + "devices/b/events", timeout=5) as feed_b,
+    ):
+        hello = _event(feed_a)
+        assert (hello["device"], hello["devices"]) == ("a", ["a", "b"])  # the chooser's
+        assert _event(feed_b)["device"] == "b"
+        assert _event(feed_b)["state"] == "degraded"  # b's status, to b's new client
+        time.sleep(0.2)  # both clients registered before the frames go out
+        for to_a, to_b in zip(preds[:3], preds[3:6], strict=True):
+            two.send(to_a, device="a")
+            two.send(to_b, device="b")
+        for p in preds[6:9]:  # then b falls silent: a's frames go on alone
+            two.send(p, device="a")
+        two.send(status=messages.status("online", [], None), device="b")  # b's next event
+        got_a = [_event(feed_a) for _ in range(6)]
+        got_b = [_event(feed_b) for _ in range(4)]
+    expected_a = [("a", p.seq) for p in preds[:3] + preds[6:9]]
+    assert [(e["device"], e["seq"]) for e in got_a] == expected_a
+    assert [(e["device"], e["seq"]) for e in got_b[:3]] == [("b", p.seq) for p in preds[3:6]]
+    assert (got_b[3]["type"], got_b[3]["state"]) == ("status", "online")  # none of a's
+    with pytest.raises(urllib.error.HTTPError, match="404"):  # several: no lone feed
+        urllib.request.urlopen(two.url + "events", timeout=5)
+    with pytest.raises(urllib.error.HTTPError, match="404"):
+        urllib.request.urlopen(two.url + "devices/c/", timeout=5)
+
+
+def test_a_lone_device_is_also_under_its_id(view: LiveView, preds: list[Prediction]) -> None:
+    with urllib.request.urlopen(view.url + "devices/scotti/events", timeout=5) as feed:
+        hello = _event(feed)
+        assert (hello["device"], hello["devices"]) == ("scotti", ["scotti"])
+        time.sleep(0.2)
+        view.send(preds[0])
+        assert _event(feed)["seq"] == preds[0].seq
+
+
+def test_stopping_with_a_client_behind_ends_its_feed(
+    view: LiveView, preds: list[Prediction]
+) -> None:
+    from scotti.daemon.outputs.web import CLIENT_QUEUE
+
+    sent = preds[: CLIENT_QUEUE + 2]
+
+    async def flood_then_stop() -> None:
+        for p in sent:  # on the loop, in one go: the client's queue fills before it reads
+            view.output.prediction("scotti", p, 4.2)
+        await asyncio.sleep(0)  # the frames reach the queue; the client has not run yet
+        await view.output.close()  # the daemon stops now, with the client's queue full
+
+    with urllib.request.urlopen(view.url + "events", timeout=5) as feed:
+        assert _event(feed)["type"] == "hello"
+        time.sleep(0.2)  # the client registered before the frames go out
+        asyncio.run_coroutine_threadsafe(flood_then_stop(), view.loop).result(5)
+        rest = feed.read()  # to the end of the stream: the server ended it
+    seqs = [
+        json.loads(e.strip().removeprefix(b"data: "))["seq"]
+        for e in rest.split(b"\n\n")
+        if e.strip()
+    ]
+    assert seqs == [p.seq for p in sent[-(CLIENT_QUEUE - 1) :]]  # the newest, then the end
 
 
 @pytest.mark.skipif(not (CHROMIUM and CHROMEDRIVER), reason="needs chromium and chromium-driver")

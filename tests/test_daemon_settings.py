@@ -286,7 +286,6 @@ def test_speed_alone_applies_to_devices_that_set_none(tmp_path: Path) -> None:
         ('[[devices]]\nid = "a"\nprot = "/dev/a"\n', "unknown setting"),
         ('[[devices]]\nport = "/dev/a"\n', "devices.0.id: Field required"),
         ('[source]\nport = "/dev/x"\n' + DEVICES + 'port = "/dev/b"\n', "not both"),
-        (DEVICES + 'port = "/dev/b"\n[outputs]\nlsl = true\n', "serve one device"),
     ],
 )
 def test_a_bad_devices_table_is_one_line(tmp_path: Path, toml: str, message: str) -> None:
@@ -295,6 +294,16 @@ def test_a_bad_devices_table_is_one_line(tmp_path: Path, toml: str, message: str
     text = str(info.value)
     assert message in text
     assert "\n" not in text
+
+
+def test_several_devices_take_the_outputs(tmp_path: Path) -> None:
+    # MCAP, Foxglove, LSL and web serve every device (channels, outlets, pages per device).
+    toml = DEVICES + 'port = "/dev/b"\n[outputs]\nlsl = true\nweb = 8080\nfoxglove = 8765\n'
+    s = load_settings({}, write(tmp_path, toml))
+    assert len(s.device_list()) == 2
+    assert s.outputs.lsl
+    assert s.outputs.web == 8080
+    assert s.outputs.foxglove == 8765
 
 
 def test_several_devices_record_into_a_directory(tmp_path: Path) -> None:

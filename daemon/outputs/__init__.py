@@ -1,23 +1,33 @@
 """Outputs beside MQTT: MCAP files and Foxglove live, Lab Streaming Layer, a browser view.
 
-The daemon hands every output the same two things it hands the MQTT
-publisher: each ``Prediction`` (pose, action probabilities, progress,
+The daemon hands every output the same two things it hands each device's
+MQTT publisher: each ``Prediction`` (pose, action probabilities, progress,
 repetition, stamps and the raw counts of the frame that made it) and each
-``Status``. ``Outputs`` fans them out. An output that fails is counted and
-logged once, never allowed to stall or kill the pipeline; the libraries an
-output needs come with the ``[outputs]`` extra and are imported only when
-that output is asked for, so the daemon runs without them.
+``Status``, with the id of the device it came from. One set of outputs
+serves every device of the daemon: one MCAP file and one Foxglove server
+with channels per device, LSL outlets per device, one web server with a
+page per device. With a single device the names are those of a one-pair
+daemon (``/skeleton``, not ``/<id>/skeleton``); see ``device_prefix``.
+
+A device only queues what it hands over (``fanout.OutputThread``); the
+outputs do their work on their own thread, so they never hold up a reader or
+a publisher. An output that fails is counted and logged once, never allowed
+to stall or kill anything; the libraries an output needs come with the
+``[outputs]`` extra and are imported only when that output is asked for, so
+the daemon runs without them.
 """
 
 from __future__ import annotations
 
+import asyncio
 import importlib
 import logging
 import time
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Final, Protocol
 
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.outputs.fanout import Item, OutputThread
 
 if TYPE_CHECKING:
     from scotti.daemon.outputs.settings import OutputSettings
@@ -27,6 +37,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 EXTRA_HINT = "pip install 'scotti[outputs]'"
+CLOSE_TIMEOUT_S: Final = 5.0  # to write what is still queued when the daemon stops
 
 
 class OutputError(DaemonError):
@@ -35,13 +46,21 @@ class OutputError(DaemonError):
 
 
 class Output(Protocol):
+    """Called on the outputs' thread (never the event loop's), one item at a time."""
+
     name: str
 
-    def prediction(self, p: Prediction, latency_ms: float) -> None: ...
+    def prediction(self, device: str, p: Prediction, latency_ms: float) -> None: ...
 
-    def status(self, status: Status) -> None: ...
+    def status(self, device: str, status: Status) -> None: ...
 
     async def close(self) -> None: ...
+
+
+def device_prefix(device: str, devices: Sequence[str]) -> str:
+    """What a device's names start with: nothing for a lone device (the names a one-pair
+    daemon always had), ``<id>/`` when the daemon serves several."""
+    return f"{device}/" if len(devices) > 1 else ""
 
 
 def require(module: str, what: str) -> None:
@@ -51,18 +70,28 @@ def require(module: str, what: str) -> None:
     except ImportError as exc:
         msg = f"{what} needs the Python package {exc.name or module!r}: {EXTRA_HINT}"
         raise OutputError(msg) from None
+    except Exception as exc:  # installed but broken: pylsl without its liblsl raises this
+        reason = " ".join(str(exc).split())  # one line, whatever the library wrote
+        msg = f"{what}: the Python package {module!r} cannot be loaded: {reason}"
+        raise OutputError(msg) from None
 
 
 class Outputs:
-    """The outputs of one daemon run, called from the event loop thread."""
+    """The outputs of one daemon run; ``prediction`` and ``status`` are called from the
+    event loop and return at once."""
 
-    def __init__(self, outputs: Sequence[Output] = ()) -> None:
+    def __init__(self, outputs: Sequence[Output] = (), devices: Sequence[str] = ()) -> None:
         self.outputs = list(outputs)
+        self.devices = tuple(devices)
         self.errors: dict[str, int] = {o.name: 0 for o in self.outputs}
+        # No thread without outputs, nor without devices (what ``open`` closes on a failure).
+        started = self.outputs and self.devices
+        self._thread = OutputThread(self._handle, devices=len(devices)) if started else None
 
     @classmethod
-    async def open(cls, settings: OutputSettings, *, title: str = "scotti") -> Outputs:
-        """Start what ``settings`` asks for; ``OutputError`` when one cannot start."""
+    async def open(cls, settings: OutputSettings, devices: Sequence[str]) -> Outputs:
+        """Start what ``settings`` asks for, for every device in ``devices``;
+        ``OutputError`` when one cannot start."""
         opened: list[Output] = []
         try:
             if settings.record_mcap is not None or settings.foxglove is not None:
@@ -71,51 +100,96 @@ class Outputs:
 
                 opened.append(
                     FoxgloveOutput(
-                        mcap=settings.record_mcap, port=settings.foxglove, host=settings.host
+                        mcap=settings.record_mcap,
+                        port=settings.foxglove,
+                        host=settings.host,
+                        devices=devices,
                     )
                 )
             if settings.lsl:
                 require("pylsl", "--lsl")
                 from scotti.daemon.outputs.lsl import LslOutput
 
-                opened.append(LslOutput(title))
+                try:
+                    opened.append(LslOutput(devices))
+                except Exception as exc:  # liblsl's own errors (a network it cannot use)
+                    msg = f"--lsl: cannot open the outlets: {exc}"
+                    raise OutputError(msg) from None
             if settings.web is not None:
                 from scotti.daemon.outputs.web import WebOutput
 
-                opened.append(await WebOutput.start(settings.host, settings.web))
+                opened.append(await WebOutput.start(settings.host, settings.web, devices))
         except BaseException:
-            await cls(opened).close()
+            await cls(opened).close()  # no thread yet (no devices): closes at once
             raise
         for output in opened:
             log.info("output %s", output)
-        return cls(opened)
+        return cls(opened, devices)
 
-    def prediction(self, p: Prediction) -> None:
-        if not self.outputs:
-            return
-        origin = p.last_byte_mono_ns or p.host_mono_ns
-        latency_ms = (time.monotonic_ns() - origin) / 1e6
-        for output in self.outputs:
-            try:
-                output.prediction(p, latency_ms)
-            except Exception:  # an output never kills the reader
-                self._failed(output)
+    @property
+    def dropped(self) -> int:
+        """Predictions the outputs never saw because they fell behind."""
+        return self._thread.dropped if self._thread is not None else 0
 
-    def status(self, status: Status) -> None:
-        for output in self.outputs:
-            try:
-                output.status(status)
-            except Exception:
-                self._failed(output)
+    def of(self, device: str) -> DeviceOutputs:
+        """What one device calls."""
+        return DeviceOutputs(self, device)
+
+    def prediction(self, device: str, p: Prediction) -> None:
+        if self._thread is not None:
+            self._thread.submit(Item(device, prediction=p))
+
+    def status(self, device: str, status: Status) -> None:
+        if self._thread is not None:
+            self._thread.submit(Item(device, status=status))
 
     async def close(self) -> None:
+        """Write what is queued (each device's last status too), then close every output."""
+        if self._thread is not None:
+            thread, self._thread = self._thread, None
+            if not await asyncio.to_thread(thread.close, CLOSE_TIMEOUT_S):
+                log.warning(
+                    "outputs did not write their queue within %.0f s: %d items given up",
+                    CLOSE_TIMEOUT_S,
+                    thread.abandoned,
+                )
         for output in self.outputs:
             try:
                 await output.close()
             except Exception:
                 log.warning("output %s did not close cleanly", output.name, exc_info=True)
 
+    def _handle(self, item: Item) -> None:  # on the outputs' thread
+        p = item.prediction
+        latency_ms = 0.0
+        if p is not None:  # from the frame's last byte to now, the queue's wait included
+            latency_ms = (time.monotonic_ns() - (p.last_byte_mono_ns or p.host_mono_ns)) / 1e6
+        for output in self.outputs:
+            try:
+                if p is not None:
+                    output.prediction(item.device, p, latency_ms)
+                elif item.status is not None:
+                    output.status(item.device, item.status)
+            except Exception:  # an output never kills the others, nor the daemon
+                self._failed(output)
+
     def _failed(self, output: Output) -> None:
         self.errors[output.name] += 1
         if self.errors[output.name] == 1:
             log.warning("output %s failed (counted from now on)", output.name, exc_info=True)
+
+
+class DeviceOutputs:
+    """One device's side of ``Outputs``: hands its predictions and statuses over."""
+
+    def __init__(self, outputs: Outputs | None, device: str) -> None:
+        self.outputs = outputs
+        self.device = device
+
+    def prediction(self, p: Prediction) -> None:
+        if self.outputs is not None:
+            self.outputs.prediction(self.device, p)
+
+    def status(self, status: Status) -> None:
+        if self.outputs is not None:
+            self.outputs.status(self.device, status)

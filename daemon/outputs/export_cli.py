@@ -82,7 +82,8 @@ async def export_mcap(
     starts = [r.t_ns for r in packets[:1]] + [lb.t_ns for lb in session.labels]
     t0 = min(starts, default=0)
     wall0 = round(session.header.created_unix * 1e9)
-    output = FoxgloveOutput(mcap=out, port=None, overwrite=True)
+    device = session.header.device or "session"  # one device: the topics carry no id
+    output = FoxgloveOutput(mcap=out, port=None, overwrite=True, devices=(device,))
     output.write_metadata(
         "scotti",
         {
@@ -102,7 +103,9 @@ async def export_mcap(
         mono = p.last_byte_mono_ns
         last_wall = wall0 + (mono - t0)
         output.prediction(
-            dataclasses.replace(p, host_wall_ns=last_wall, host_mono_ns=mono), p.inference_ms
+            device,
+            dataclasses.replace(p, host_wall_ns=last_wall, host_mono_ns=mono),
+            p.inference_ms,
         )
         count += 1
 
@@ -114,7 +117,7 @@ async def export_mcap(
         last_status = key
         st: Literal["online", "degraded"] = "degraded" if state.reasons else "online"
         status = messages.status(st, list(state.reasons), state)
-        output.status(status.model_copy(update={"host_wall_ns": last_wall}))
+        output.status(device, status.model_copy(update={"host_wall_ns": last_wall}))
 
     for label in session.labels:  # the ground truth, on the same clock as the frames
         output.label(label, wall0 + (label.t_ns - t0))

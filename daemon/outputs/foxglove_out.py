@@ -2,7 +2,11 @@
 
 One ``foxglove.Context`` per output holds the channels; the MCAP writer and
 the WebSocket server are sinks on it, so a file and a live Foxglove session
-carry exactly the same topics, schemas and log times. Channels:
+carry exactly the same topics, schemas and log times. A daemon of several
+devices has one file and one server, and every device its own channels:
+each topic below under ``/<device>`` (``/lab1/skeleton``), each frame id
+under ``<device>/`` (``lab1/pose``: every person's pose frame has its own
+origin). A lone device keeps the names below. Channels:
 
 - ``/pressure/left``, ``/pressure/right``: ``foxglove.RawImage``, mono16 raw
   counts, 32 x 22 (toes up);
@@ -23,6 +27,7 @@ entity carries them as metadata.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Final
@@ -48,7 +53,7 @@ from foxglove.messages import (
 from foxglove.websocket import WebSocketServer
 from pydantic import BaseModel
 from scotti.daemon import messages
-from scotti.daemon.outputs import OutputError
+from scotti.daemon.outputs import OutputError, device_prefix
 from scotti.daemon.pipeline import Prediction
 from scotti.daemon.recording import candidate_paths
 from scotti.daemon.schemas import Status
@@ -71,13 +76,13 @@ def stamp(ns: int) -> Timestamp:
     return Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
 
 
-def pressure_image(counts: np.ndarray, ns: int, foot: str) -> RawImage:
+def pressure_image(counts: np.ndarray, ns: int, foot: str, prefix: str = "") -> RawImage:
     """One foot's raw counts as a 16-bit grey image (little-endian, row-major)."""
     data = np.ascontiguousarray(counts, dtype="<u2")
     rows, cols = data.shape
     return RawImage(
         timestamp=stamp(ns),
-        frame_id=f"insole_{foot}",
+        frame_id=f"{prefix}insole_{foot}",
         width=cols,
         height=rows,
         encoding="mono16",
@@ -86,18 +91,25 @@ def pressure_image(counts: np.ndarray, ns: int, foot: str) -> RawImage:
     )
 
 
-def skeleton(p: Prediction, ns: int) -> SceneUpdate:
+def skeleton(p: Prediction, ns: int, device: str = "", prefix: str = "") -> SceneUpdate:
     """The pose as one scene entity: a line list of the bones and a sphere per keypoint."""
     metadata = {
         "seq": str(p.seq),
         "device_time_us": str(p.device_clock_us),
         "device_seq": f"{p.left_seq},{p.right_seq}",
     }
-    return skeleton_of(p.pose, ns, metadata)
+    if device:
+        metadata["device"] = device
+    return skeleton_of(p.pose, ns, metadata, frame_id=f"{prefix}{POSE_FRAME_ID}")
 
 
 def skeleton_of(
-    keypoints: np.ndarray, ns: int, metadata: dict[str, str], *, ground_truth: bool = False
+    keypoints: np.ndarray,
+    ns: int,
+    metadata: dict[str, str],
+    *,
+    ground_truth: bool = False,
+    frame_id: str = POSE_FRAME_ID,
 ) -> SceneUpdate:
     """``keypoints`` (19, 3) as an entity; the ground truth is drawn grey and thin."""
     kp = np.asarray(keypoints, dtype=np.float64)
@@ -117,7 +129,7 @@ def skeleton_of(
     ]
     entity = SceneEntity(
         timestamp=stamp(ns),
-        frame_id=POSE_FRAME_ID,
+        frame_id=frame_id,
         id="ground_truth" if ground_truth else "skeleton",
         frame_locked=True,
         metadata=[KeyValuePair(key=k, value=v) for k, v in metadata.items()],
@@ -136,8 +148,39 @@ def skeleton_of(
     return SceneUpdate(entities=[entity])
 
 
+class _DeviceChannels:
+    """One device's channels, under ``/<prefix>`` (``prefix``: ``""`` or ``"<id>/"``)."""
+
+    def __init__(self, context: foxglove.Context, device: str, prefix: str) -> None:
+        self.context = context
+        self.device = device
+        self.prefix = prefix
+        self.left = RawImageChannel(f"/{prefix}pressure/left", context=context)
+        self.right = RawImageChannel(f"/{prefix}pressure/right", context=context)
+        self.skeleton = SceneUpdateChannel(f"/{prefix}skeleton", context=context)
+        self.json: dict[str, foxglove.Channel] = {}
+
+    def prediction(self, p: Prediction, latency_ms: float) -> None:
+        ns, prefix = p.host_wall_ns, self.prefix
+        self.left.log(pressure_image(p.counts[:, :FRAME_COLS], ns, "left", prefix), log_time=ns)
+        self.right.log(pressure_image(p.counts[:, FRAME_COLS:], ns, "right", prefix), log_time=ns)
+        self.skeleton.log(skeleton(p, ns, self.device, prefix), log_time=ns)
+        for name, payload in messages.frame_payloads(p, latency_ms):
+            self.log_json(name, payload, ns)
+
+    def log_json(self, name: str, payload: BaseModel, ns: int) -> None:
+        channel = self.json.get(name)
+        if channel is None:
+            schema: dict[str, Any] = type(payload).model_json_schema()
+            topic = f"/{self.prefix}{name}"
+            channel = foxglove.Channel(topic, schema=schema, context=self.context)
+            self.json[name] = channel
+        channel.log(payload.model_dump(mode="json"), log_time=ns)
+
+
 class FoxgloveOutput:
-    """``mcap``: a file to write; ``port``: serve live (0: any free port).
+    """``mcap``: a file to write; ``port``: serve live (0: any free port); ``devices``:
+    the ids of the devices it carries (one: today's topic names; several: per device).
 
     An existing MCAP file is never overwritten unless ``overwrite`` (what an export
     asks for): the daemon takes a new name beside it, as ``--record`` does.
@@ -152,6 +195,7 @@ class FoxgloveOutput:
         port: int | None,
         host: str = "127.0.0.1",
         overwrite: bool = False,
+        devices: Sequence[str] = ("scotti",),
     ) -> None:
         self.context = foxglove.Context()
         if mcap is not None and not overwrite:
@@ -174,10 +218,13 @@ class FoxgloveOutput:
             target = f"MCAP file {mcap}" if self._writer is None and mcap else f"port {port}"
             msg = f"cannot open {target}: {exc}"
             raise OutputError(msg) from None
-        self._left = RawImageChannel("/pressure/left", context=self.context)
-        self._right = RawImageChannel("/pressure/right", context=self.context)
-        self._skeleton = SceneUpdateChannel("/skeleton", context=self.context)
-        self._json: dict[str, foxglove.Channel] = {}
+        self.devices = {
+            d: _DeviceChannels(self.context, d, device_prefix(d, devices)) for d in devices
+        }
+        if len(devices) > 1:  # which topics are whose, for a reader of the file
+            self.write_metadata(
+                "scotti.devices", {d: f"/{device_prefix(d, devices)}" for d in devices}
+            )
         self._truth: SceneUpdateChannel | None = None
         self._labels: foxglove.Channel | None = None
 
@@ -189,18 +236,15 @@ class FoxgloveOutput:
         parts = [f"MCAP {self.mcap_path}"] if self.mcap_path else []
         if self._server is not None:
             parts.append(f"Foxglove WebSocket ws://{self.host}:{self._server.port}")
+        if len(self.devices) > 1:
+            parts.append(f"channels of {len(self.devices)} devices under /<id>/")
         return "foxglove: " + ", ".join(parts)
 
-    def prediction(self, p: Prediction, latency_ms: float) -> None:
-        ns = p.host_wall_ns
-        self._left.log(pressure_image(p.counts[:, :FRAME_COLS], ns, "left"), log_time=ns)
-        self._right.log(pressure_image(p.counts[:, FRAME_COLS:], ns, "right"), log_time=ns)
-        self._skeleton.log(skeleton(p, ns), log_time=ns)
-        for name, payload in messages.frame_payloads(p, latency_ms):
-            self._log_json(name, payload, ns)
+    def prediction(self, device: str, p: Prediction, latency_ms: float) -> None:
+        self.devices[device].prediction(p, latency_ms)
 
-    def status(self, status: Status) -> None:
-        self._log_json("status", status, status.host_wall_ns)
+    def status(self, device: str, status: Status) -> None:
+        self.devices[device].log_json("status", status, status.host_wall_ns)
 
     def label(self, label: LabelRecord, ns: int) -> None:
         """A session's ground truth (export only): ``/labels/skeleton`` and ``/labels``."""
@@ -223,14 +267,6 @@ class FoxgloveOutput:
 
     async def close(self) -> None:
         self._stop_sinks()
-
-    def _log_json(self, name: str, payload: BaseModel, ns: int) -> None:
-        channel = self._json.get(name)
-        if channel is None:
-            schema: dict[str, Any] = type(payload).model_json_schema()
-            channel = foxglove.Channel(f"/{name}", schema=schema, context=self.context)
-            self._json[name] = channel
-        channel.log(payload.model_dump(mode="json"), log_time=ns)
 
     def _stop_sinks(self) -> None:
         if self._writer is not None:

@@ -1,8 +1,9 @@
 """Lab Streaming Layer outlets: what a biomechanics lab's LabRecorder picks up.
 
-Four streams, 16 Hz, float32 unless said, named ``<device> <what>`` with the
-source id ``scotti/<device>/<what>`` so that LabRecorder finds them again
-after a restart:
+Four streams per device, 16 Hz, float32 unless said, named ``<device> <what>``
+with the source id ``scotti/<device>/<what>`` (the device's id as in its MQTT
+topics) so that LabRecorder tells the devices apart and finds each stream
+again after a restart:
 
 | stream type | channels | labels |
 |---|---|---|
@@ -20,6 +21,7 @@ install from Debian.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Final
 
 import numpy as np
@@ -81,20 +83,23 @@ def _or_nan(progress: float | None) -> float:
 
 
 class LslOutput:
+    """Four outlets per device, each named after its device: LabRecorder lists a
+    dozen pairs as a dozen groups of four streams and records any of them."""
+
     name = "lsl"
 
-    def __init__(self, device: str) -> None:
-        self.device = device
-        self.outlets = LslOutlets(device)
+    def __init__(self, devices: Sequence[str]) -> None:
+        self.outlets = {device: LslOutlets(device) for device in devices}
 
     def __str__(self) -> str:
-        return f"lsl: 4 outlets named '{self.device} pose|action|progress|pressure'"
+        names = ", ".join(f"'{d} pose|action|progress|pressure'" for d in self.outlets)
+        return f"lsl: {4 * len(self.outlets)} outlets named {names}"
 
-    def prediction(self, p: Prediction, latency_ms: float) -> None:
-        self.outlets.push(p)
+    def prediction(self, device: str, p: Prediction, latency_ms: float) -> None:
+        self.outlets[device].push(p)
 
-    def status(self, status: Status) -> None:
+    def status(self, device: str, status: Status) -> None:
         pass  # LSL streams carry samples; a silent stream is LabRecorder's sign of trouble
 
     async def close(self) -> None:
-        del self.outlets  # the outlets close (and leave the network) when dropped
+        self.outlets.clear()  # the outlets close (and leave the network) when dropped

@@ -7,6 +7,9 @@ tiny model (what ``scotti-daemon --replay`` does, without MQTT).
 from __future__ import annotations
 
 import asyncio
+import json
+import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -41,3 +44,39 @@ def protobuf_class(name: str, data: bytes) -> Any:
         except TypeError:
             pending.append(fd)
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+
+
+def read_mcap(path: Path) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, str], list[Any]]:
+    """topic -> [(log_time, decoded message)], topic -> schema name, metadata records."""
+    from mcap import reader as mcap_reader
+
+    messages: dict[str, list[tuple[int, Any]]] = {}
+    schemas: dict[str, str] = {}
+    classes: dict[int, Any] = {}
+    with path.open("rb") as f:
+        reader = mcap_reader.make_reader(f)
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            assert schema is not None
+            schemas[channel.topic] = schema.name
+            if channel.message_encoding == "json":
+                decoded = json.loads(message.data)
+            else:
+                assert channel.message_encoding == "protobuf"
+                if schema.id not in classes:
+                    classes[schema.id] = protobuf_class(schema.name, schema.data)
+                decoded = classes[schema.id].FromString(message.data)
+            messages.setdefault(channel.topic, []).append((message.log_time, decoded))
+        f.seek(0)
+        metadata = list(mcap_reader.make_reader(f).iter_metadata())
+    return messages, schemas, metadata
+
+
+def lsl_on_this_host() -> None:
+    """Find LSL outlets on this host without relying on multicast (CI containers may have
+    none): liblsl reads the file named by LSLAPICFG the first time it is used, in this
+    process and in a daemon started from it. Call it before pylsl is first used."""
+    if "LSLAPICFG" in os.environ:
+        return
+    config = Path(tempfile.mkdtemp(prefix="scotti-lsl-")) / "lsl_api.cfg"
+    config.write_text("[lab]\nKnownPeers = {127.0.0.1}\n")
+    os.environ["LSLAPICFG"] = str(config)
