@@ -67,8 +67,8 @@ class SegmentTrack:
     runtime: ScottiRuntime  # the step graph
     out: SessionReplay
     batch: int = BATCH
-    chunk_frames: int = CHUNK_FRAMES
-    min_segment: int = MIN_SEGMENT_FRAMES
+    chunk_frames: int | None = None  # default CHUNK_FRAMES
+    min_segment: int | None = None  # default MIN_SEGMENT_FRAMES
     made: list[Prediction] = field(default_factory=list)
     restarts: int = 0  # restarts of a window that held frames (as ``Window.restarts``)
     _counts: U16 = field(init=False, repr=False)
@@ -83,7 +83,8 @@ class SegmentTrack:
         if self.batch < 1:
             msg = f"--batch must be at least 1, got {self.batch}"
             raise ValueError(msg)
-        cap = max(self.chunk_frames, 2 * self.runtime.window)
+        chunk = CHUNK_FRAMES if self.chunk_frames is None else self.chunk_frames
+        cap = max(chunk, 2 * self.runtime.window)
         self._counts = np.empty((cap, *self.runtime.frame_shape), dtype=np.uint16)
         self._run_pos = np.zeros(cap, dtype=np.int64)
         self._ext = np.zeros(cap, dtype=np.int64)
@@ -121,7 +122,8 @@ class SegmentTrack:
             return
         t = self.runtime.window
         unloaded, out_of_range = window_flags(_stats(self._counts[:end]), t)
-        lanes = max(1, min(self.batch, (end - first) // max(self.min_segment, 1)))
+        shortest = MIN_SEGMENT_FRAMES if self.min_segment is None else self.min_segment
+        lanes = max(1, min(self.batch, (end - first) // max(shortest, 1)))
         bounds = [first + (end - first) * k // lanes for k in range(lanes + 1)]
         starts = np.array(bounds[:-1], dtype=np.int64)
         score_from = starts.copy()
