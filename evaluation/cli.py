@@ -7,7 +7,7 @@ overall and per action, next to a random baseline. ``--plots DIR`` writes the
 precision-margin curve and the confusion matrix as PNG files. ``--every K``
 scores every K-th prediction time only, through the window graph next to each
 model (NAME.window.onnx) in batches: a uniform sample for a fraction of the time.
-``--batch K`` (default 64) runs K segments of a session side by side in each
+``--batch K`` (default 16) runs K segments of a session side by side in each
 step-graph call, the same predictions as frame by frame (``--batch 1``, the
 daemon's own window), several times faster.
 """

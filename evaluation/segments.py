@@ -40,12 +40,15 @@ if TYPE_CHECKING:  # replay imports this module
     from scotti.evaluation.replay import SessionReplay
 
 U16 = npt.NDArray[np.uint16]
-# Segments run side by side in one step-graph call. The graph costs about the same per
-# row from 8 rows up (docs/performance.md); 64 leaves room for a wider machine.
-BATCH: Final = 64
-# Paired frames held at most (raw counts: 2.8 kB each, 92 MB): a longer session is
-# replayed chunk after chunk, the last T-1 frames of one warming the next.
-CHUNK_FRAMES: Final = 32_768
+# Segments run side by side in one step-graph call. scotti-default costs the same per
+# row from 16 rows up (``python -m scotti.daemon.tools.bench --step-batches 1 8 16 64``:
+# 0.58 to 0.60 ms per frame, 1.06 at batch 1; docs/performance.md); more rows only
+# need a longer chunk for the same warm-up share.
+BATCH: Final = 16
+# Paired frames held at most (raw counts: 2.8 kB each, 46 MB): a longer session is
+# replayed chunk after chunk, the last T-1 frames of one warming the next. 16 segments
+# of 1,024 frames: 3.8 % warm-up steps.
+CHUNK_FRAMES: Final = 16_384
 # Shortest segment: each costs T-1 = 39 warm-up steps more, 10 % of 400.
 MIN_SEGMENT_FRAMES: Final = 400
 # Rows of the input checks computed together (float64 temporaries of ~6 MB).

@@ -21,7 +21,6 @@ from scotti.models.runtime import ScottiRuntime
 from tests.support.export_sessions import write_session
 from tests.support.sessions import synthetic_counts, write_synthetic_session
 
-
 FLAG_FRAMES = 230
 
 
@@ -101,7 +100,9 @@ def test_segments_predict_what_frame_by_frame_predicts(
 
 @pytest.mark.parametrize("frames", [25, 39, 40, 41, 55])
 @pytest.mark.usefixtures("small_segments")
-def test_sessions_around_one_window_long(tmp_path: Path, tiny_model_path: Path, frames: int) -> None:
+def test_sessions_around_one_window_long(
+    tmp_path: Path, tiny_model_path: Path, frames: int
+) -> None:
     path = write_session(tmp_path / "short.ses", frames)
     runtime = ScottiRuntime(tiny_model_path)
     sequential = replay_session(path, runtime, batch=1)
@@ -112,7 +113,9 @@ def test_sessions_around_one_window_long(tmp_path: Path, tiny_model_path: Path, 
 
 @pytest.mark.usefixtures("small_segments")
 def test_flags_count_exactly_as_frame_by_frame(tmp_path: Path, calibrated: ScottiRuntime) -> None:
-    path = write_synthetic_session(tmp_path / "flags.ses", frames=FLAG_FRAMES, counts_of=_counts).path
+    path = write_synthetic_session(
+        tmp_path / "flags.ses", frames=FLAG_FRAMES, counts_of=_counts
+    ).path
     sequential = replay_session(path, calibrated, batch=1)
     batched = replay_session(path, calibrated, batch=6)
     assert_same_replay(batched, sequential)
@@ -143,7 +146,8 @@ def test_cli_batch_reports_the_same_scores(
     assert main(["eval", str(path), "--model", model, "--json", "--batch", "5"]) == 0
     run = capsys.readouterr()
     five = json.loads(run.out)
-    assert "peak RSS" in run.err and "frames per CPU s" in run.err
+    assert "peak RSS" in run.err
+    assert "frames per CPU s" in run.err
     assert five["rate"]["paired_frames"] == one["rate"]["paired_frames"] == 150
     assert five["step_ms_per_row"]["largest_batch"] == 5
     assert "step_ms_per_row" not in one
@@ -160,12 +164,14 @@ def test_bad_batch_and_a_truncated_session_are_one_line(
     model = str(tiny_model_path)
     assert main(["eval", str(path), "--model", model, "--batch", "0"]) == 2
     err = capsys.readouterr().err
-    assert "--batch must be at least 1" in err and err.count("\n") == 1
+    assert "--batch must be at least 1" in err
+    assert err.count("\n") == 1
     cut = tmp_path / "cut.ses"
     cut.write_bytes(path.read_bytes()[:20])  # cut inside the header
     assert main(["eval", str(cut), "--model", model]) == 2
     err = capsys.readouterr().err
-    assert "cut short" in err and err.count("\n") == 1
+    assert "cut short" in err
+    assert err.count("\n") == 1
 
 
 @pytest.mark.usefixtures("small_segments")
