@@ -128,10 +128,9 @@ class SegmentTrack:
         shortest = MIN_SEGMENT_FRAMES if self.min_segment is None else self.min_segment
         lanes = max(1, min(self.batch, (end - first) // max(shortest, 1)))
         bounds = [first + (end - first) * k // lanes for k in range(lanes + 1)]
-        starts = np.array(bounds[:-1], dtype=np.int64)
-        score_from = starts.copy()
+        score_from = np.array(bounds[:-1], dtype=np.int64)
         # Warm up on the T-1 frames before the segment, or from the restart after them.
-        feed_from = starts - np.minimum(t - 1, self._run_pos[starts])
+        feed_from = score_from - np.minimum(t - 1, self._run_pos[score_from])
         ends = np.array(bounds[1:], dtype=np.int64)
         per_lane: list[list[Prediction]] = [[] for _ in range(lanes)]
         cache = np.zeros((lanes, 2 * (t - 1), self.runtime.embed_dim), dtype=np.float32)
