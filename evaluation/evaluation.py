@@ -7,6 +7,7 @@ No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
 
 from __future__ import annotations
 
+import resource
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -24,6 +25,7 @@ from scotti.evaluation.replay import (
 )
 from scotti.evaluation.sampling import window_timing
 from scotti.evaluation.scores import random_baseline, score, task_metrics
+from scotti.evaluation.segments import BATCH
 from scotti.models.ood import flag_shares
 from scotti.models.runtime import ScottiRuntime
 
@@ -47,9 +49,10 @@ def evaluate_sessions(
     pairing: PairingConfig | None = None,
     *,
     every: int = 1,
+    batch: int = BATCH,
 ) -> dict[str, Any]:
     """Replay every session, pool their frames, and score them (JSON-ready)."""
-    return evaluate_models(paths, [runtime], pairing, every=every)[0]
+    return evaluate_models(paths, [runtime], pairing, every=every, batch=batch)[0]
 
 
 def evaluate_models(
@@ -58,6 +61,7 @@ def evaluate_models(
     pairing: PairingConfig | None = None,
     *,
     every: int = 1,
+    batch: int = BATCH,
     on_session: Callable[[int, int, Path, float], None] | None = None,
 ) -> list[dict[str, Any]]:
     """``evaluate_sessions`` for several models over one replay of each session.
@@ -73,22 +77,24 @@ def evaluate_models(
     for i, p in enumerate(paths):
         started = time.perf_counter()
         per_session.append(
-            replay_session_models(p, runtimes, pairing, every=every, windows=windows)
+            replay_session_models(p, runtimes, pairing, every=every, windows=windows, batch=batch)
         )
         if on_session is not None:
             on_session(i + 1, len(paths), Path(p), time.perf_counter() - started)
     seconds = time.perf_counter() - began
     cpu_seconds = time.process_time() - began_cpu
-    return [
+    reports = [
         _report(
-            runtime,
-            [replays[i] for replays in per_session],
-            every,
-            windows[i] if windows else None,
+            runtime, [replays[i] for replays in per_session], every, windows[i] if windows else None
         )
         | {"rate": rate(per_session, i, seconds, cpu_seconds)}
         for i, runtime in enumerate(runtimes)
     ]
+    # The process's peak so far, scoring included (its pooled frames are the largest part).
+    peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)  # Linux: kB
+    for report in reports:
+        report["rate"]["peak_rss_mb"] = peak_rss_mb
+    return reports
 
 
 def rate(
@@ -134,7 +140,17 @@ def _report(
         "sessions": [r.summary() | {"metrics": task_metrics(r.frames)} for r in replays],
         "subjects": sorted({r.subject for r in replays}),
     }
-    if window_graph is None:
+    if window_graph is None and any(r.step_batches for r in replays):
+        # Segments side by side: throughput per step-graph row (warm-up rows included).
+        batches = [b for r in replays for b in r.step_batches]
+        rows = sum(n for _, n in batches)
+        report["step_ms_per_row"] = {
+            "mean": sum(ms for ms, _ in batches) / rows if rows else float("nan"),
+            "rows": rows,
+            "batches": len(batches),
+            "largest_batch": max(n for _, n in batches),
+        }
+    elif window_graph is None:
         steps = np.array([ms for r in replays for ms in r.step_ms], dtype=np.float64)
         report["step_ms"] = {
             "median": float(np.median(steps)) if steps.size else float("nan"),

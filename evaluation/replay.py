@@ -9,9 +9,12 @@ the frame after the newest one in its window. The first T labelled frames of
 a session therefore have no prediction (the window warms up on T frames and
 the first prediction is for frame T).
 
-``every=K`` > 1 scores every K-th prediction time instead, through the window
-graph in batches (``evaluation.sampling``): same decoding, assembly, pairing
-and restarts, a fraction of the model time.
+``batch=K`` > 1 (the default) makes the same predictions K segments of the
+session at a time, one step-graph call per time step for all of them
+(``evaluation.segments``); ``batch=1`` steps the daemon's own ``Window`` frame
+by frame. ``every=K`` > 1 scores every K-th prediction time instead, through
+the window graph in batches (``evaluation.sampling``): same decoding,
+assembly, pairing and restarts, a fraction of the model time.
 
 No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
 """
@@ -29,6 +32,7 @@ from scotti.daemon.window import Window
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameSet, align
 from scotti.evaluation.sampling import Prediction, SampledTrack
+from scotti.evaluation.segments import BATCH, SegmentTrack
 from scotti.firmware_protocol.assembly import FrameAssembler
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
@@ -51,7 +55,8 @@ class SessionReplay:
     window_restarts: int = 0
     decode_errors: int = 0
     degraded_pairs: int = 0  # pairs with a held, filled or patched foot
-    step_ms: list[float] = field(default_factory=list, repr=False)  # step graph only
+    step_ms: list[float] = field(default_factory=list, repr=False)  # step graph, batch 1
+    step_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)  # (ms, rows)
     window_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)
     model_cpu_s: float = 0.0  # CPU time in the model's graph (this thread), for the rate
     frames: FrameSet = field(default_factory=FrameSet.empty, repr=False)
@@ -74,9 +79,10 @@ def replay_session(
     pairing: PairingConfig | None = None,
     *,
     every: int = 1,
+    batch: int = BATCH,
 ) -> SessionReplay:
     """Replay one session file through the daemon's path; score against its labels."""
-    return replay_session_models(path, [runtime], pairing, every=every)[0]
+    return replay_session_models(path, [runtime], pairing, every=every, batch=batch)[0]
 
 
 def window_graphs(runtimes: Sequence[ScottiRuntime]) -> list[ScottiRuntime]:
@@ -92,15 +98,20 @@ def replay_session_models(
     *,
     every: int = 1,
     windows: Sequence[ScottiRuntime] | None = None,
+    batch: int = BATCH,
 ) -> list[SessionReplay]:
     """One replay, several models: the bytes are decoded, assembled and paired once,
     and every paired frame goes into each model's own window (nothing is shared
     between the models but the pairs). One ``SessionReplay`` per runtime.
 
     ``every`` > 1: every ``every``-th prediction through the window graphs
-    ``windows`` (default: those next to ``runtimes``) instead of the step graph."""
+    ``windows`` (default: those next to ``runtimes``) instead of the step graph;
+    ``batch`` > 1: segments side by side in each step-graph call (same predictions)."""
     if every < 1:
         msg = f"--every must be at least 1, got {every}"
+        raise EvaluationError(msg)
+    if batch < 1:
+        msg = f"--batch must be at least 1, got {batch}"
         raise EvaluationError(msg)
     decoder = StreamDecoder()
     assembler = FrameAssembler()
@@ -109,8 +120,10 @@ def replay_session_models(
     clock = _SeqClock()
     with SessionReader(path) as reader:
         subject = _subject_of(reader.header.subject) or Path(path).stem
-        tracks: list[_Track | SampledTrack]
-        if every == 1:
+        tracks: list[_Track | SampledTrack | SegmentTrack]
+        if every == 1 and batch > 1:
+            tracks = [SegmentTrack(r, SessionReplay(str(path), subject), batch) for r in runtimes]
+        elif every == 1:
             tracks = [_Track(Window(r), SessionReplay(str(path), subject)) for r in runtimes]
         else:
             graphs = window_graphs(runtimes) if windows is None else windows

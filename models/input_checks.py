@@ -140,6 +140,45 @@ _N_PER_KPA: Final = 1e3 * TAXEL_AREA_M2  # one kPa on one taxel, in newtons
 
 def check_frames(frames: npt.ArrayLike) -> list[FrameCheck]:
     """``check_frame`` of N frames (N, H, 2W) at once (counts rounded to whole counts)."""
+    s = frame_stats(frames)
+    return [
+        FrameCheck(
+            (float(s.force_n[i, 0]), float(s.force_n[i, 1])),
+            float(s.outside_share[i]),
+            float(s.rail_share[i]),
+            float(s.peak_share[i]),
+        )
+        for i in range(len(s.outside_share))
+    ]
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    """``FrameCheck`` of N frames as arrays (the batched evaluation replay's form)."""
+
+    force_n: npt.NDArray[np.float64]  # (N, 2) left, right
+    outside_share: npt.NDArray[np.float64]  # (N,)
+    rail_share: npt.NDArray[np.float64]  # (N,) the larger foot's
+    peak_share: npt.NDArray[np.float64]  # (N,) the larger foot's
+
+    @property
+    def loaded(self) -> npt.NDArray[np.bool_]:
+        """(N,) ``FrameCheck.loaded`` of each frame."""
+        return np.asarray(self.force_n[:, 0] + self.force_n[:, 1] >= UNLOADED_FORCE_N)
+
+    @property
+    def implausible(self) -> npt.NDArray[np.bool_]:
+        """(N,) whether ``FrameCheck.implausible`` names any rule for the frame."""
+        return np.asarray(
+            (self.outside_share > OUTSIDE_SHARE_MAX)
+            | (self.rail_share > RAIL_SHARE_MAX)
+            | (self.peak_share > PEAK_SHARE_MAX)
+            | (self.force_n[:, 0] + self.force_n[:, 1] > FORCE_MAX_N)
+        )
+
+
+def frame_stats(frames: npt.ArrayLike) -> FrameStats:
+    """The statistics of N frames (N, H, 2W) the rules read, as arrays."""
     x = np.asarray(frames, dtype=np.float64)
     if x.ndim != 3 or x.shape[1:] != (FRAME_ROWS, 2 * FRAME_COLS):
         msg = f"frames are (N, {FRAME_ROWS}, {2 * FRAME_COLS}), got {x.shape}"
@@ -155,15 +194,36 @@ def check_frames(frames: npt.ArrayLike) -> list[FrameCheck]:
     rail = at_rail.sum(axis=(1, 3)) / _MASK.sum()  # (N, 2)
     sums = feet.sum(axis=(1, 3))
     peak = np.where(sums > 0, feet.max(axis=(1, 3)) / np.maximum(sums, 1), 0.0)  # (N, 2)
-    return [
-        FrameCheck(
-            (float(force[i, 0]), float(force[i, 1])),
-            float(outside[i]),
-            float(rail[i].max()),
-            float(peak[i].max()),
-        )
-        for i in range(n)
-    ]
+    return FrameStats(force, outside, rail.max(axis=1), peak.max(axis=1))
+
+
+def window_flags(
+    stats: FrameStats, window: int = WINDOW
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """``verdict``'s flags for every full window of consecutive frames, at once:
+    (unloaded, out_of_range), each (N,), row j for the window of frames j-window+1..j
+    (False for j < window - 1, where no full window ends)."""
+    full = np.arange(len(stats.outside_share)) >= window - 1
+    # The newest UNLOADED_FRAMES of the window (none: a window shorter than that).
+    unloaded = _all_in(~stats.loaded, UNLOADED_FRAMES) & full & (window >= UNLOADED_FRAMES)
+    bad = _count_in(stats.implausible, window) >= OUT_OF_RANGE_FRAMES
+    force = stats.force_n
+    empty = _all_in(force[:, 0] < FOOT_EMPTY_N, window) | _all_in(
+        force[:, 1] < FOOT_EMPTY_N, window
+    )
+    return unloaded, (bad | (empty & ~unloaded)) & full
+
+
+def _count_in(x: npt.NDArray[np.bool_], width: int) -> npt.NDArray[np.int64]:
+    """(N,) how many of x[j-width+1 .. j] are True (fewer rows near the start)."""
+    c = np.concatenate([[0], np.cumsum(x, dtype=np.int64)])
+    return np.asarray(c[1:] - c[np.maximum(np.arange(1, len(c)) - width, 0)])
+
+
+def _all_in(x: npt.NDArray[np.bool_], width: int) -> npt.NDArray[np.bool_]:
+    """(N,) whether x[j-width+1 .. j] are all True (False where fewer than width rows)."""
+    full = np.arange(len(x)) >= width - 1
+    return np.asarray((_count_in(x, width) == width) & full)
 
 
 @dataclass(frozen=True)

@@ -67,10 +67,43 @@ class WindowResult:
     @property
     def unfamiliar(self) -> npt.NDArray[np.bool_]:
         """(B,) scores above the calibrated threshold (all False when not calibrated)."""
-        n = self.progress.shape[0]
         if self.unfamiliar_score is None or self.threshold is None:
-            return np.zeros(n, dtype=bool)
+            return np.zeros(self.progress.shape[0], dtype=bool)
         return np.asarray(self.unfamiliar_score > self.threshold)
+
+
+@dataclass(frozen=True)
+class StepBatch:
+    """B streaming steps from one call (``run_steps``), row i for frame i."""
+
+    pose: F32  # (B, 19, 3)
+    action_logits: F32  # (B, NUM_ACTIONS)
+    action_probs: F32  # (B, NUM_ACTIONS)
+    progress: F32  # (B,)
+    embedding: F32  # (B, E)
+    pooled: F32 | None = None  # (B, E); None from a graph without it
+    unfamiliar_score: npt.NDArray[np.float64] | None = None  # (B,); None: not calibrated
+    threshold: float | None = None  # the OOD threshold the scores were judged by
+
+    @property
+    def unfamiliar(self) -> npt.NDArray[np.bool_]:
+        """(B,) scores above the calibrated threshold (all False when not calibrated)."""
+        if self.unfamiliar_score is None or self.threshold is None:
+            return np.zeros(self.progress.shape[0], dtype=bool)
+        return np.asarray(self.unfamiliar_score > self.threshold)
+
+    def row(self, i: int) -> StepResult:
+        score = None if self.unfamiliar_score is None else float(self.unfamiliar_score[i])
+        return StepResult(
+            pose=self.pose[i],
+            action_logits=self.action_logits[i],
+            action_probs=self.action_probs[i],
+            progress=float(self.progress[i]),
+            embedding=self.embedding[i],
+            pooled=None if self.pooled is None else self.pooled[i],
+            unfamiliar_score=score,
+            flags=(UNFAMILIAR,) if self.unfamiliar[i] else (),
+        )
 
 
 def softmax(logits: npt.ArrayLike, axis: int = -1) -> F32:
@@ -170,29 +203,9 @@ class ScottiRuntime:
 
     def step(self, frame: npt.ArrayLike, past: npt.ArrayLike) -> StepResult:
         """One new frame (H, 2W) + the previous T-1 embeddings (T-1, E), oldest first."""
-        if self._graph != "step":
-            msg = f"{self._path.name} is a window graph; step() needs the step graph"
-            raise ModelError(msg)
         f = _as_f32(frame, self._frame_shape, "frame")
         p = _as_f32(past, (self._window - 1, self._embed_dim), "past embeddings")
-        pose, logits, progress, embedding, *rest = self._session.run(
-            self._outputs, {c.STEP_INPUT_FRAME: f[None], c.STEP_INPUT_PAST: p[None]}
-        )
-        pooled = rest[0][0] if rest else None
-        score = None
-        if pooled is not None and self._ood is not None:
-            score = float(self._ood.score(pooled))
-        unfamiliar = score is not None and self._ood is not None and score > self._ood.threshold
-        return StepResult(
-            pose=pose[0],
-            action_logits=logits[0],
-            action_probs=softmax(logits[0]),
-            progress=float(progress[0]),
-            embedding=embedding[0],
-            pooled=pooled,
-            unfamiliar_score=score,
-            flags=(UNFAMILIAR,) if unfamiliar else (),
-        )
+        return self.run_steps(f[None], p[None]).row(0)
 
     def step_batch(self, frames: npt.ArrayLike, past: npt.ArrayLike) -> list[StepResult]:
         """B new frames (B, H, 2W) + each one's previous T-1 embeddings (B, T-1, E) in one
@@ -201,8 +214,14 @@ class ScottiRuntime:
         Many insole pairs share one model this way: the graph's fixed cost (weights
         walked once, one kernel launch per operator) is paid once per turn, not per pair.
         """
+        batch = self.run_steps(frames, past)
+        return [batch.row(i) for i in range(len(batch.progress))]
+
+    def run_steps(self, frames: npt.ArrayLike, past: npt.ArrayLike) -> StepBatch:
+        """``step_batch`` as arrays, one row per frame (no object per row: the batched
+        evaluation replay reads thousands of rows a second)."""
         if self._graph != "step":
-            msg = f"{self._path.name} is a window graph; step_batch() needs the step graph"
+            msg = f"{self._path.name} is a window graph; step() needs the step graph"
             raise ModelError(msg)
         f = np.ascontiguousarray(frames, dtype=np.float32)
         p = np.ascontiguousarray(past, dtype=np.float32)
@@ -216,27 +235,13 @@ class ScottiRuntime:
         pose, logits, progress, embedding, *rest = self._session.run(
             self._outputs, {c.STEP_INPUT_FRAME: f, c.STEP_INPUT_PAST: p}
         )
-        probs = softmax(logits)
-        results = []
-        for i in range(len(f)):
-            pooled = rest[0][i] if rest else None
-            score = None
-            if pooled is not None and self._ood is not None:
-                score = float(self._ood.score(pooled))
-            unfamiliar = score is not None and self._ood is not None and score > self._ood.threshold
-            results.append(
-                StepResult(
-                    pose=pose[i],
-                    action_logits=logits[i],
-                    action_probs=probs[i],
-                    progress=float(progress[i]),
-                    embedding=embedding[i],
-                    pooled=pooled,
-                    unfamiliar_score=score,
-                    flags=(UNFAMILIAR,) if unfamiliar else (),
-                )
-            )
-        return results
+        pooled = rest[0] if rest else None
+        ood = self._ood
+        score = ood.score(pooled) if pooled is not None and ood is not None else None
+        threshold = ood.threshold if ood is not None else None
+        return StepBatch(
+            pose, logits, softmax(logits), progress, embedding, pooled, score, threshold
+        )
 
     def run_windows(self, frames: npt.ArrayLike, batch_size: int = 32) -> WindowResult:
         """B windows (B, T, H, 2W) of raw counts -> the heads for each; window graph only."""

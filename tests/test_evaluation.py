@@ -223,10 +223,14 @@ def test_cli_every_reports_what_was_done(
     assert report["metrics"]["frames"] == (FRAMES - 40 + 1) // 4
     assert report["model"]["window_graph"]["path"].endswith("scotti-tiny.window.onnx")
 
-    assert main(["eval", str(session), "--model", model, "--json"]) == 0
+    assert main(["eval", str(session), "--model", model, "--json", "--batch", "1"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert (report["every"], report["graph"]) == (1, "step")
     assert report["step_ms"]["steps"] == FRAMES
+    assert main(["eval", str(session), "--model", model, "--json"]) == 0  # batched segments
+    report = json.loads(capsys.readouterr().out)
+    assert (report["every"], report["graph"]) == (1, "step")
+    assert report["step_ms_per_row"]["rows"] == FRAMES  # one segment: no warm-up rows
 
     assert main(["eval", str(session), "--model", model, "--every", "4"]) == 0
     assert "1 prediction in 4, window graph" in capsys.readouterr().out
