@@ -2,8 +2,8 @@
 the threshold from held-out ones.
 
 The checkpoint names the subjects it was trained on and those it held out
-(``training_data.split``: ``train_subjects``, and ``val_subjects`` when the
-trainer drew a validation split, else ``test_subjects``). The session files
+(``training_data.split``: ``train_subjects``, and ``validation_subjects`` when
+the trainer drew a validation split, else ``test_subjects``). The session files
 given to ``scotti export --calibrate`` are grouped by subject; the usable
 windows of the training subjects (as training draws them,
 ``WindowDataset``), thinned evenly to at most ``max_windows``, go through
@@ -53,10 +53,11 @@ def split_subjects(training_data: Any) -> tuple[list[str], list[str], str]:
             "train_subjects): cannot calibrate the unfamiliar score"
         )
         raise ExportError(msg)
-    for key in ("val_subjects", "test_subjects"):
+    # "validation_subjects" is what export/validation.py's Splits.describe writes.
+    for key, name in (("validation_subjects", "validation"), ("test_subjects", "test")):
         if split.get(key):
-            return list(split["train_subjects"]), list(split[key]), key.removesuffix("_subjects")
-    msg = "the checkpoint names no held-out subjects (val_subjects or test_subjects)"
+            return list(split["train_subjects"]), list(split[key]), name
+    msg = "the checkpoint names no held-out subjects (validation_subjects or test_subjects)"
     raise ExportError(msg)
 
 
@@ -99,7 +100,7 @@ class CalibrationSets:
 
     train: list[SessionArrays]
     held_out: list[SessionArrays]
-    held_kind: str  # "val" or "test": which split of the checkpoint was held out
+    held_kind: str  # "validation" or "test": which split of the checkpoint was held out
 
 
 def gather(training_data: Any, request: Calibration) -> CalibrationSets:

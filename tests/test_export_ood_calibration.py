@@ -9,10 +9,12 @@ import numpy as np
 import onnx
 import pytest
 from scotti.cli.main import main as scotti_main
+from scotti.export.data import load_session
 from scotti.export.errors import ExportError
 from scotti.export.make_tiny import build_tiny
 from scotti.export.onnx_export import Checkpoint, export_model
 from scotti.export.ood_calibration import Calibration, split_subjects
+from scotti.export.validation import three_way_split
 from scotti.models.contract import META_OOD, OUTPUT_POOLED
 from scotti.models.runtime import ScottiRuntime, load_pair
 from scotti.models.streaming import StreamingWindow
@@ -108,10 +110,21 @@ def test_a_checkpoint_without_its_split_cannot_be_calibrated(tmp_path: Path) -> 
         split_subjects({"files": []})
     with pytest.raises(ExportError, match="no held-out subjects"):
         split_subjects({"split": {"train_subjects": ["a"]}})
-    assert split_subjects({"split": {"train_subjects": ["a"], "val_subjects": ["v"]}})[1:] == (
-        ["v"],
-        "val",
-    )
+    # As the trainer records it (export/validation.py): validation first, else test.
+    split = {"train_subjects": ["a"], "validation_subjects": ["v"], "test_subjects": ["t"]}
+    assert split_subjects({"split": split})[1:] == (["v"], "validation")
+    split["validation_subjects"] = []
+    assert split_subjects({"split": split})[1:] == (["t"], "test")
+
+
+def test_a_run_with_a_validation_split_names_its_held_out_subjects(tmp_path: Path) -> None:
+    for i in range(6):
+        write_session(tmp_path / f"s{i:02d}.ses", 40, subject=f"s{i:02d}")
+    sessions = [load_session(p) for p in sorted(tmp_path.iterdir())]
+    splits = three_way_split(sessions, test_fraction=0.0, val_subjects=["s04", "s05"])
+    train, held, which = split_subjects({"split": splits.describe()})
+    assert (held, which) == (["s04", "s05"], "validation")
+    assert set(train) == {"s00", "s01", "s02", "s03"}
 
 
 def test_cli_calibrate_without_the_subjects_sessions_is_one_line(
