@@ -12,7 +12,8 @@ score calibrated, held-out evaluation, ship):
 ``--checkpoint`` runs ``scotti export CKPT -o runs/X/models/scotti-ship.onnx
 --calibrate SESSIONS`` (statistics from the checkpoint's training subjects,
 threshold from its held-out ones) and, unless ``--eval`` is given, ``scotti
-eval --json`` on the held-out subjects' session files found among SESSIONS;
+eval --json`` on the held-out subjects' session files found among SESSIONS
+(``--held-out SUBJECT ...``, or those the calibration held out);
 then ships as below.
 
 Copies the step and window graphs (the int8 copies with --int8) to
@@ -249,7 +250,9 @@ def export_calibrated(args: argparse.Namespace) -> Path:
     if args.eval:
         return out
     card = json.loads(out.with_name("scotti-ship.card.json").read_text())
-    held = card["ood"]["held_out_subjects"]
+    # The test subjects when the run held some out; a run whose only held-out
+    # subjects were its validation split says them with --held-out.
+    held = args.held_out or card["ood"]["held_out_subjects"]
     files = [
         p
         for p in sorted(f for d in args.calibrate for f in (d.glob("*.ses") if d.is_dir() else [d]))
@@ -274,6 +277,13 @@ def main(argv: list[str] | None = None) -> int:
         "--calibrate", type=Path, nargs="+", default=[], help="with --checkpoint: sessions"
     )
     parser.add_argument("--every", type=int, default=1, help="with --checkpoint: scotti eval")
+    parser.add_argument(
+        "--held-out",
+        nargs="+",
+        default=[],
+        metavar="SUBJECT",
+        help="with --checkpoint: evaluate on these subjects (default: the calibration's)",
+    )
     parser.add_argument("--cache-dir", type=Path, default=ROOT / "data" / "cache")
     parser.add_argument("--int8", action="store_true", help="ship the int8 copies")
     parser.add_argument(
