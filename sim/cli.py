@@ -52,6 +52,13 @@ def _corpus_parser() -> argparse.ArgumentParser:
     p.add_argument("--subjects", type=int, required=True, help="how many subjects to draw")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
+        "--first-subject",
+        type=int,
+        default=0,
+        metavar="INDEX",
+        help="start at this subject of the seed's population (extend a corpus with new people)",
+    )
+    p.add_argument(
         "--minutes-per-action", type=float, default=4.0, help="at least this much of each action"
     )
     p.add_argument("--effects", choices=("realistic", "none"), default="realistic")
@@ -138,12 +145,13 @@ def _corpus(a: argparse.Namespace) -> int:
     from scotti.sim import SimError
     from scotti.sim.corpus import MANIFEST, write_corpus
 
-    if a.subjects < 1 or not 0 < a.minutes_per_action <= 60:
-        msg = "--subjects must be >= 1 and --minutes-per-action in (0, 60]"
+    if a.subjects < 1 or a.first_subject < 0 or not 0 < a.minutes_per_action <= 60:
+        msg = "--subjects must be >= 1, --first-subject >= 0 and --minutes-per-action in (0, 60]"
         raise SimError(msg)
     manifest = write_corpus(
         a.output,
         subjects=a.subjects,
+        first=a.first_subject,
         seed=a.seed,
         minutes_per_action=a.minutes_per_action,
         effects=a.effects,

@@ -124,13 +124,21 @@ def write_corpus(
     seed: int,
     minutes_per_action: float,
     effects: EffectsPreset,
+    first: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Render every subject's session into ``out_dir`` and write the manifest."""
+    """Render every subject's session into ``out_dir`` and write the manifest.
+
+    ``first`` skips that many people of the seed's population: subjects
+    ``first .. first + subjects - 1``, the same people (names, seeds, effects,
+    insoles) as in a corpus of ``first + subjects`` drawn from the same seed, so
+    a corpus can be extended with new training subjects without touching the old.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     entries: list[dict[str, Any]] = []
-    for i, subject in enumerate(draw_subjects(subjects, seed)):
+    population = draw_subjects(first + subjects, seed)
+    for i, subject in enumerate(population[first:], start=first):
         scene = subject_scene(
             i, subject, corpus_seed=seed, minutes_per_action=minutes_per_action, effects=effects
         )
@@ -153,7 +161,7 @@ def write_corpus(
         )
         if progress is not None:
             progress(
-                f"{name} ({i + 1}/{subjects}): {report.duration_s / 60:.1f} min, "
+                f"{name} ({i + 1 - first}/{subjects}): {report.duration_s / 60:.1f} min, "
                 f"{report.frames} frames, rendered in {elapsed:.1f} s "
                 f"({report.duration_s / max(elapsed, 1e-9):.0f}x real time)"
             )
@@ -161,6 +169,7 @@ def write_corpus(
         "kind": "scotti-sim-corpus",
         "seed": seed,
         "subjects": subjects,
+        "first_subject": first,
         "minutes_per_action": minutes_per_action,
         "effects": effects,
         "total_duration_s": sum(e["duration_s"] for e in entries),

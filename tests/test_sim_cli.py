@@ -105,6 +105,26 @@ def test_corpus_writes_sessions_and_manifest(tmp_path: Path) -> None:
     assert json.loads((out / "manifest.json").read_text())["sessions"][1]["effects"] == []
 
 
+def test_corpus_extended_with_first_subject_draws_the_same_later_people(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["sim", "corpus", "--minutes-per-action", "0.02", "--seed", "3"]
+    assert main([*argv, "-o", str(tmp_path / "all"), "--subjects", "2"]) == 0
+    assert (
+        main([*argv, "-o", str(tmp_path / "more"), "--subjects", "1", "--first-subject", "1"]) == 0
+    )
+    more = json.loads((tmp_path / "more" / "manifest.json").read_text())
+    assert [s["file"] for s in more["sessions"]] == ["subject-001.ses"]
+    assert more["first_subject"] == 1
+    # Subject 1 of the extension is subject 1 of the whole: the same person and bytes.
+    same = (tmp_path / "all" / "subject-001.ses").read_bytes()
+    assert (tmp_path / "more" / "subject-001.ses").read_bytes() == same
+    assert (
+        main([*argv, "-o", str(tmp_path / "bad"), "--subjects", "1", "--first-subject", "-1"]) == 2
+    )
+    assert "--first-subject >= 0" in capsys.readouterr().err
+
+
 def test_render_png_and_gif(scene: Path, tmp_path: Path) -> None:
     session, png, gif = tmp_path / "s.ses", tmp_path / "s.png", tmp_path / "s.gif"
     assert main(["sim", str(scene), "-o", str(session)]) == 0
