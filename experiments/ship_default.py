@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import onnx
+from card_training import training_block, training_markdown
 from common import ROOT, ExperimentError, fmt, mean_sd, run, scoring, scotti_command, utc_now
 from measure import describe
 from scotti.export.card import ood_markdown
@@ -133,6 +134,7 @@ def card_md(card: dict[str, Any]) -> str:
         "## Training data",
         "",
         card["shipped_data"],
+        *training_markdown(card.get("training")),
         "",
         "## Held-out metrics (simulated subjects, not the paper's data)",
         "",
@@ -239,6 +241,13 @@ def embed_card(src: Path, dst: Path, card: dict[str, Any]) -> None:
     onnx.save(proto, str(dst))
 
 
+def _from_root(arg: object) -> str:
+    """A path as the card quotes it: from the repository root, the way a reader reruns it."""
+    if isinstance(arg, Path) and arg.is_absolute() and arg.is_relative_to(ROOT):
+        return str(arg.relative_to(ROOT))
+    return str(arg)
+
+
 def export_calibrated(args: argparse.Namespace) -> Path:
     """``scotti export --calibrate``, then ``scotti eval`` on the held-out subjects."""
     # The verbs run from the repository root: paths as given here, made absolute.
@@ -263,7 +272,8 @@ def export_calibrated(args: argparse.Namespace) -> Path:
     command = ["eval", *files, "--json", "--every", str(args.every)]
     report.write_text(run(scotti_command(*command, "--model", out)))
     args.eval = [report]
-    args.eval_command.append(f"scotti eval {' '.join(map(str, command[1:]))} --model {out}")
+    quoted = " ".join(_from_root(a) for a in [*command[1:], "--model", out])
+    args.eval_command.append(f"scotti eval {quoted}")
     return out
 
 
@@ -324,6 +334,7 @@ def main(argv: list[str] | None = None) -> int:
         "shipped_from": args.source or str(base),
         "shipped_data": args.data,
         "shipped_note": args.note,
+        "training": training_block(Path(args.source)) if args.source else None,
         "evaluation": evaluation_block(reports, args.eval_command) if reports else None,
         "latency": {
             "measured_utc": utc_now(),

@@ -1,0 +1,77 @@
+"""The model card's training section: how the run went, epoch by epoch.
+
+Read from the run directory next to the shipped checkpoint (``history.jsonl``,
+written by ``scotti train``): per epoch the training loss, the validation
+figures and whether the run stopped on a plateau, so a reader of the card sees
+where validation stopped improving rather than taking "trained to its plateau"
+on trust. ``command.txt`` in the run directory, when there, is quoted too.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+VAL_KEYS = ("loss", "mpjpe_mm", "action_accuracy", "progress_mse", "app")
+
+
+def training_block(checkpoint: Path) -> dict[str, Any] | None:
+    """The run's history beside ``checkpoint`` (None when it has none)."""
+    run = checkpoint.parent
+    history = run / "history.jsonl"
+    if not history.is_file():
+        return None
+    records = [json.loads(line) for line in history.read_text().splitlines() if line.strip()]
+    if not records:
+        return None
+    epochs = [
+        {
+            "epoch": int(r["epoch"]),
+            "train_loss": r["train_loss"],
+            "seconds": r.get("seconds"),
+            "val": {k: (r.get("val") or {}).get(k) for k in VAL_KEYS},
+        }
+        for r in records
+    ]
+    last = records[-1]
+    command = run / "command.txt"
+    return {
+        "epochs": epochs,
+        "best_epoch": last.get("best_epoch"),
+        "status": last.get("status", "running"),
+        "train_seconds": sum(float(e["seconds"] or 0) for e in epochs),
+        "command": command.read_text().strip() if command.is_file() else None,
+    }
+
+
+def training_markdown(block: dict[str, Any] | None) -> list[str]:
+    if not block:
+        return []
+    lines = [
+        "",
+        "## Training run (validation per epoch)",
+        "",
+        f"Stopped: {block['status']} after {len(block['epochs'])} epochs; best epoch "
+        f"{block['best_epoch']} (the shipped weights); "
+        f"{block['train_seconds'] / 60:.0f} min of training on this CPU "
+        "(time of the epochs after any resume).",
+        "",
+        "| epoch | train loss | val loss | val MPJPE (mm) | val accuracy | val progress MSE "
+        "| val APP |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for e in block["epochs"]:
+        v = e["val"]
+        if v["loss"] is None:
+            lines.append(f"| {e['epoch']} | {e['train_loss']:.4f} | - | - | - | - | - |")
+            continue
+        lines.append(
+            f"| {e['epoch']} | {e['train_loss']:.4f} | {v['loss']:.4f} | {v['mpjpe_mm']:.1f} | "
+            f"{100 * v['action_accuracy']:.2f} % | {v['progress_mse']:.4f} | {v['app']:.4f} |"
+        )
+    if block.get("command"):
+        command = block["command"]
+        shown = command if command.startswith("scotti ") else f"scotti train {command}"
+        lines += ["", "```", shown, "```"]
+    return lines
