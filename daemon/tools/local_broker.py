@@ -105,6 +105,9 @@ class Mosquitto:
             "log_type notice",
             "connection_messages true",
             "max_queued_messages 10000",
+            # Nagle on the broker's sockets holds small messages for a delayed ACK
+            # (~40 ms): a subscriber of per-frame topics wants each one now.
+            "set_tcp_nodelay true",
         ]
         if self.tls is not None:
             ca, cert, key = self.tls
