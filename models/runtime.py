@@ -52,6 +52,15 @@ class StepResult:
     flags: tuple[str, ...] = ()  # "unfamiliar"; the streaming window adds the input flags
 
 
+def _above(
+    scores: npt.NDArray[np.float64] | None, threshold: float | None, rows: int
+) -> npt.NDArray[np.bool_]:
+    """Which of ``rows`` unfamiliar scores exceed the threshold (none when not calibrated)."""
+    if scores is None or threshold is None:
+        return np.zeros(rows, dtype=bool)
+    return np.asarray(scores > threshold)
+
+
 @dataclass(frozen=True)
 class WindowResult:
     """Predictions for B windows (window graph)."""
@@ -67,9 +76,7 @@ class WindowResult:
     @property
     def unfamiliar(self) -> npt.NDArray[np.bool_]:
         """(B,) scores above the calibrated threshold (all False when not calibrated)."""
-        if self.unfamiliar_score is None or self.threshold is None:
-            return np.zeros(self.progress.shape[0], dtype=bool)
-        return np.asarray(self.unfamiliar_score > self.threshold)
+        return _above(self.unfamiliar_score, self.threshold, self.progress.shape[0])
 
 
 @dataclass(frozen=True)
@@ -88,9 +95,7 @@ class StepBatch:
     @property
     def unfamiliar(self) -> npt.NDArray[np.bool_]:
         """(B,) scores above the calibrated threshold (all False when not calibrated)."""
-        if self.unfamiliar_score is None or self.threshold is None:
-            return np.zeros(self.progress.shape[0], dtype=bool)
-        return np.asarray(self.unfamiliar_score > self.threshold)
+        return _above(self.unfamiliar_score, self.threshold, self.progress.shape[0])
 
     def row(self, i: int) -> StepResult:
         score = None if self.unfamiliar_score is None else float(self.unfamiliar_score[i])
