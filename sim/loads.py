@@ -28,7 +28,8 @@ than the internal step, so it is not averaged over the 62.5 ms frame period).
 
 Along the foot the COP follows the foot's pitch: heel only on the floor ->
 heel, toes only -> forefoot, rolling onto the hallux as the heel rises; flat
--> under the COM's projection. Across the foot it rolls to the edge the COM
+-> under the COM's projection (further back towards the heel when both feet
+are flat). Across the foot it rolls to the edge the COM
 leans over (side walking).
 
 :mod:`scotti.sim.pressure` renders these loads into taxel maps.
@@ -69,6 +70,15 @@ _COP_FLAT_RANGE: Final = (0.30, 0.72)
 # Cavanagh & Lafortune 1980), easing back to the COM's projection as the
 # foot settles.
 _COP_FLAT_LANDING: Final = 0.55
+# Both feet flat (standing, squatting, a jump's crouch): nothing is rolling
+# over a heel or forefoot rocker, so the COP follows the COM back towards the
+# heel pad, down to this far along. With the walking floor (0.30) a squat's
+# COM, which starts 0.33-0.41 along the foot and moves ~0.09 back as the hips
+# go back, pinned the COP at 0.30 for 57-100 % of every repetition: depth
+# then left no trace in the pressure maps and squat progress could not be
+# read from them. Walking never has both feet flat at once (the trailing heel
+# is up before the leading forefoot lands), so its calibration is untouched.
+_COP_BOTH_FLAT_FLOOR: Final = 0.15
 # Toes-only contact: on the metatarsal heads through push-off, rolling toward
 # the hallux only as the foot pitches steeply (sine of the pitch from the
 # first to the second value), i.e. as the load runs out. The COP does not
@@ -168,7 +178,9 @@ def foot_loads(
     rel = com[:, None, :2] - heel[..., :2]  # (N, 2, 2)
     u_com = np.einsum("nfk,nfk->nf", rel, fwd) / length
     settling = 1.0 - np.maximum(c_heel, c_toe)  # 1 at first touch of a flat foot, 0 once down
-    floor_u = _COP_FLAT_RANGE[0] + (_COP_FLAT_LANDING - _COP_FLAT_RANGE[0]) * settling
+    both_flat = np.minimum(c_heel, c_toe).min(axis=1, keepdims=True)  # (N, 1), 1: both down flat
+    floor_still = _COP_FLAT_RANGE[0] - (_COP_FLAT_RANGE[0] - _COP_BOTH_FLAT_FLOOR) * both_flat
+    floor_u = floor_still + (_COP_FLAT_LANDING - floor_still) * settling
     u_flat = np.clip(u_com, floor_u, _COP_FLAT_RANGE[1])
     pitch_sin = (heel_z - toe_z) / np.maximum(np.linalg.norm(toe - heel, axis=-1), 1e-3)
     lo, hi = _PITCH_SIN_ROLL
