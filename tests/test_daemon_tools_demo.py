@@ -7,6 +7,7 @@ import base64
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -194,3 +195,25 @@ def test_demo_with_an_unknown_scene_is_one_line(
     assert demo.main(["--scene", "no-such-scene", "--model", str(tiny_model_path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["demo: scene 'no-such-scene': no such file and no shipped scene of that name"]
+
+
+def test_demo_duration_counts_from_the_first_frame_shown() -> None:
+    # Launch, broker, daemon and scene rendering take seconds (more on a busy
+    # host); a --duration counted from launch once ended before any frame.
+    from scotti.daemon.tools.demo import _stop_after_frames
+
+    async def scenario() -> tuple[float, float]:
+        state, stop = ViewState(), asyncio.Event()
+        start = time.monotonic()
+        timer = asyncio.create_task(_stop_after_frames(state, 0.3, stop))
+        await asyncio.sleep(0.5)  # nothing shown yet: the clock has not started
+        assert not stop.is_set()
+        state.update("pose", {}, "scotti/demo/pose")
+        shown = time.monotonic()
+        await stop.wait()
+        await timer
+        return shown - start, time.monotonic() - shown
+
+    before, after = asyncio.run(scenario())
+    assert before >= 0.5
+    assert after >= 0.3

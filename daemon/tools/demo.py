@@ -30,14 +30,21 @@ from scotti.daemon.mqtt_settings import MqttSettings
 from scotti.daemon.settings import EX_CONFIG, ConfigError, default_model_path
 from scotti.daemon.sources_sim import resolve_scene
 from scotti.daemon.tools.local_broker import Mosquitto, find_mosquitto, free_port
-from scotti.daemon.tools.viewer import run_viewer
+from scotti.daemon.tools.viewer import ViewState, run_viewer
+from scotti.daemon.waiting import wait_event
 
 DEVICE = "demo"
+FIRST_FRAME_LIMIT_S = 120.0  # with --duration: the longest wait for the first frame
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="scripts/demo", description=__doc__.split("\n\n")[0])
-    p.add_argument("--duration", type=float, default=0.0, help="seconds; 0 = until Ctrl-C")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=0.0,
+        help="seconds of frames shown, counted from the first one; 0 = until Ctrl-C",
+    )
     p.add_argument("--scene", default="demo", help="scene name or TOML path (default demo)")
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
     p.add_argument("--speed", default="1", help="1 = real time, N times faster")
@@ -84,8 +91,10 @@ async def run_demo(args: argparse.Namespace, model: Path) -> int:
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    state = ViewState()
+    timer = None
     if args.duration > 0:
-        loop.call_later(args.duration, stop.set)
+        timer = asyncio.create_task(_stop_after_frames(state, args.duration, stop))
     log_path = Path(tempfile.gettempdir()) / f"scotti-demo-daemon-{os.getpid()}.log"
     async with local_broker(args.broker) as (url, protocol):
         cmd = [sys.executable, "-m", "scotti.daemon.main", "--model", str(model), "--broker", url]
@@ -99,8 +108,10 @@ async def run_demo(args: argparse.Namespace, model: Path) -> int:
             )
         watcher = asyncio.create_task(_stop_when_exits(daemon, stop))
         settings = MqttSettings(broker=url, protocol=protocol, device_id=DEVICE)
-        state = await run_viewer(settings, stop, device=DEVICE)
+        await run_viewer(settings, stop, device=DEVICE, state=state)
         watcher.cancel()
+        if timer is not None:
+            timer.cancel()
         code = await _stop_daemon(daemon)
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.remove_signal_handler(sig)
@@ -110,6 +121,20 @@ async def run_demo(args: argparse.Namespace, model: Path) -> int:
         print("\n".join(f"  {line}" for line in tail), file=sys.stderr)
         return 1
     return 0
+
+
+async def _stop_after_frames(state: ViewState, duration: float, stop: asyncio.Event) -> None:
+    """Stop ``duration`` s after the first frame is shown.
+
+    The clock starts at the first frame, not at launch: starting the broker
+    and the daemon and rendering the scene take seconds, more on a busy or
+    slow host, and a short ``--duration`` counted from launch once ended
+    before anything was shown. With no frame in ``FIRST_FRAME_LIMIT_S`` the
+    demo stops anyway (the summary says 0 frames shown).
+    """
+    await wait_event(state.first_pose, FIRST_FRAME_LIMIT_S)
+    await wait_event(stop, duration)
+    stop.set()
 
 
 async def _stop_when_exits(daemon: asyncio.subprocess.Process, stop: asyncio.Event) -> None:

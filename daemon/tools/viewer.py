@@ -44,11 +44,13 @@ class ViewState:
     latest: dict[str, dict[str, Any]] = field(default_factory=dict)
     frames_seen: int = 0
     arrivals: collections.deque[float] = field(default_factory=lambda: collections.deque(maxlen=33))
+    first_pose: asyncio.Event = field(default_factory=asyncio.Event)  # set at the first pose
 
     def update(self, name: str, data: dict[str, Any], topic: str) -> None:
         self.latest[name] = data
         if name == "pose":
             self.frames_seen += 1
+            self.first_pose.set()
             self.arrivals.append(time.monotonic())
             self.topic = topic.rsplit("/", 1)[0]
 
@@ -195,9 +197,14 @@ async def run_viewer(
     device: str = "+",
     out: TextIO = sys.stdout,
     fps: float = 8.0,
+    state: ViewState | None = None,
 ) -> ViewState:
-    """Subscribe and redraw until ``stop``; reconnects while the broker is away."""
-    state = ViewState()
+    """Subscribe and redraw until ``stop``; reconnects while the broker is away.
+
+    ``state``: the caller's own, to watch while the view runs (the demo waits
+    for its first frame); a fresh one when None.
+    """
+    state = ViewState() if state is None else state
     drawer = asyncio.create_task(_draw(state, stop, out, fps))
     topic = f"{settings.topic_prefix}/{device}/#"
     try:
