@@ -1,13 +1,16 @@
 """The outputs from the daemon itself: ``scotti-daemon --record-mcap`` beside MQTT
 (a real mosquitto) gives the same predictions on both; two devices in one daemon
 (real ptys), each with its own channels, outlets and page, the silent one holding up
-nothing; the flags' settings and their one-line errors."""
+nothing; the flags' settings and their one-line errors; the predictions an output that
+falls behind never got, in the device's health."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import re
+import threading
 import time
 import urllib.request
 from collections.abc import Callable, Iterator
@@ -15,9 +18,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from scotti.daemon import messages as payload
+from scotti.daemon.device import Device
+from scotti.daemon.inference import InferenceEngine
 from scotti.daemon.main import build_parser, cli_overrides, main
-from scotti.daemon.settings import load_settings
+from scotti.daemon.outputs import Outputs
+from scotti.daemon.pipeline import Prediction
+from scotti.daemon.schemas import Status
+from scotti.daemon.settings import Settings, load_settings
+from scotti.daemon.sources import ReplaySource
 from scotti.daemon.tools.local_broker import Mosquitto
+from scotti.models.runtime import ScottiRuntime
 
 from tests.support.broker import DaemonProcess, collect, payloads, start_daemon
 from tests.support.outputs import lsl_on_this_host, read_mcap
@@ -241,3 +252,68 @@ def test_a_library_that_cannot_load_is_one_line(tmp_path: Path, tiny_model_path:
         "scotti-daemon: error: --lsl: the Python package 'pylsl' cannot be loaded: "
         "LSL binary library file was not found. Install liblsl."
     )
+
+
+def _settings(args: list[str]) -> Settings:
+    return load_settings(cli_overrides(build_parser().parse_args(args)))
+
+
+class _HeldOutput:
+    """An output that holds the outputs' thread until ``gate`` is set: it falls behind."""
+
+    name = "held"
+
+    def __init__(self) -> None:
+        self.gate = threading.Event()
+        self.predictions = 0
+
+    def prediction(self, device: str, p: Prediction, latency_ms: float) -> None:
+        self.gate.wait(30)
+        self.predictions += 1
+
+    def status(self, device: str, status: Status) -> None:
+        self.gate.wait(30)
+
+    async def close(self) -> None:
+        self.gate.set()
+
+
+@pytest.mark.mosquitto
+def test_the_predictions_outputs_dropped_are_in_the_devices_health(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
+) -> None:
+    # One device as the daemon runs it (real replay, engine and broker) with one output
+    # that never keeps up, so the fan-out drops the oldest predictions.
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=100)
+    device_id = "outdrops"
+    settings = _settings(["--replay", str(session.path), "--speed", "max",
+                          "--broker", mosquitto.url, "--device-id", device_id])  # fmt: skip
+    runtime = ScottiRuntime(tiny_model_path)
+    held = _HeldOutput()
+
+    async def run() -> tuple[Device, Outputs]:
+        (one,) = settings.device_list()
+        engine = InferenceEngine()
+        device = Device(settings, one, runtime, engine, ReplaySource(session.path, speed="max"),
+                        None)  # fmt: skip
+        outputs = Outputs([held], [device.id])
+        device.outputs = outputs.of(device.id)
+        engine.start()
+        try:
+            assert await device.run(asyncio.Event(), payload.info(settings, runtime, {})) == 0
+        finally:
+            held.gate.set()
+            await outputs.close()
+            await engine.stop()
+        return device, outputs
+
+    with collect(mosquitto, f"scotti/{device_id}/health") as got:
+        device, outputs = asyncio.run(run())
+        made = device.counters.predictions
+        final = got.wait_for(
+            lambda m: any(h["predictions"] == made for h in payloads(m, "health")), 5, "health"
+        )
+    health = [h for h in payloads(final, "health") if h["predictions"] == made][-1]
+    assert outputs.dropped > 0  # it did fall behind
+    assert health["pipeline"]["outputs"] == {"dropped_queue_full": outputs.dropped}
+    assert held.predictions + outputs.dropped == made  # what the output never got
