@@ -7,7 +7,8 @@ through the engine and publishes on its own topics with its own client; the
 systemd watchdog is patted from this loop. Stop: SIGTERM/SIGINT set an event
 (the end of every device's replay does too), the devices wind down, each
 publishes ``offline``, drains its queue and closes its recording, all within
-``stop_timeout_s``.
+``stop_timeout_s``; then the engine, the outputs and the rest close. An error or a
+cancellation after the start takes the same way out (and then goes on unmasked).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import logging
 import platform
 import signal
 import time
+from collections.abc import Awaitable, Callable
 from importlib import metadata
 from typing import Any
 
@@ -57,6 +59,8 @@ class Daemon:
         self._sd_status = ""
         self._stop = asyncio.Event()
         self._outputs = Outputs()  # MCAP, Foxglove, LSL, web: every device's predictions
+        self._signals: list[signal.Signals] = []  # the handlers run added (and removes)
+        self._helpers: list[asyncio.Task[Any]] = []  # the watchdog and the stop's waiter
 
     @property
     def counters(self) -> Counters:
@@ -88,15 +92,36 @@ class Daemon:
         except BaseException:
             self._close_recorders()
             raise
+        # From here on every way out (the devices' end, a signal, an error, a cancellation)
+        # goes through ``_close``: an output left open is an MCAP file without its index,
+        # a bound port, a thread. On an error, the devices get the same graceful stop.
+        tasks: list[asyncio.Task[int]] = []
+        try:
+            exit_code = await self._serve(tasks)
+        except BaseException:
+            try:
+                await self._stop_devices(tasks)
+            finally:
+                await self._close()  # logs what fails in it: the run's own error goes on
+            raise
+        if not await self._close():
+            exit_code = max(exit_code, 1)
+        published = sum(d.publisher.stats.published for d in self.devices if d.publisher)
+        log.info("stopped (%s predictions published)", published)
+        return exit_code
+
+    async def _serve(self, tasks: list[asyncio.Task[int]]) -> int:
+        """Run every device until all have ended (replays) or a signal, then stop them;
+        the exit status. ``tasks`` gets each device's task as it starts."""
         for device in self.devices:
             device.outputs = self._outputs.of(device.id)
         loop = asyncio.get_running_loop()
         loop_errors.install(loop, logging.getLogger("scotti.daemon.mqtt"))
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self._on_signal, sig)
+            self._signals.append(sig)
         self.engine.start()
         versions = _versions()
-        tasks: list[asyncio.Task[int]] = []
         for device in self.devices:
             device.on_change = self._on_device_change
             settings = self.settings.model_copy(update={"mqtt": device.mqtt})
@@ -104,7 +129,9 @@ class Daemon:
             info = messages.info(settings, self.runtime, versions, recording)
             tasks.append(asyncio.create_task(device.run(self._stop, info), name=device.id))
         watchdog = asyncio.create_task(self.notifier.watchdog_loop(self._stop), name="watchdog")
+        self._helpers.append(watchdog)
         stop_waiter = asyncio.create_task(self._stop.wait())
+        self._helpers.append(stop_waiter)
         # Until every device has ended (replays) or a signal: a device that ends or
         # fails leaves the others running.
         all_done: asyncio.Future[list[int | BaseException]] = asyncio.gather(
@@ -112,10 +139,16 @@ class Daemon:
         )
         waiting: list[asyncio.Future[Any]] = [all_done, stop_waiter]
         await asyncio.wait(waiting, return_when=asyncio.FIRST_COMPLETED)
-        stop_waiter.cancel()
         self.notifier.stopping()
+        return await self._stop_devices(tasks)
+
+    async def _stop_devices(self, tasks: list[asyncio.Task[int]]) -> int:
+        """Set ``stop`` and give the devices the stop budget; the worst exit status."""
         self._stop.set()
+        if not tasks:
+            return 0
         budget = 2 * self.settings.stop_timeout_s + 1  # the pipeline's, then the publisher's
+        all_done = asyncio.gather(*tasks, return_exceptions=True)
         try:
             results = await asyncio.wait_for(all_done, budget)
         except TimeoutError:
@@ -123,21 +156,45 @@ class Daemon:
             results = [1]
             for task in tasks:
                 task.cancel()
-        exit_code = max((r if isinstance(r, int) else 1 for r in results), default=0)
         for r in results:
             if isinstance(r, BaseException):
                 log.error("device failed: %s", r)
-        self._close_recorders()
-        watchdog.cancel()
-        await asyncio.gather(watchdog, return_exceptions=True)
-        await self.engine.stop()
-        await self._outputs.close()
-        self.notifier.close()
-        for sig in (signal.SIGTERM, signal.SIGINT):
+        return max((r if isinstance(r, int) else 1 for r in results), default=0)
+
+    async def _close(self) -> bool:
+        """Close what ``run`` opened, each part even when one before it failed (logged,
+        never raised: on an error path that would hide the error that ended the run);
+        False when one failed."""
+        steps: list[tuple[str, Callable[[], Awaitable[object] | None]]] = [
+            ("recordings", self._close_recorders),
+            ("watchdog", self._end_helpers),
+            ("inference engine", self.engine.stop),
+            ("outputs", self._outputs.close),
+            ("systemd notifier", self.notifier.close),
+            ("signal handlers", self._remove_signal_handlers),
+        ]
+        closed = True
+        for what, step in steps:
+            try:
+                pending = step()
+                if pending is not None:
+                    await pending
+            except Exception:
+                log.exception("closing the %s failed", what)
+                closed = False
+        return closed
+
+    async def _end_helpers(self) -> None:
+        helpers, self._helpers = self._helpers, []
+        for task in helpers:
+            task.cancel()
+        await asyncio.gather(*helpers, return_exceptions=True)
+
+    def _remove_signal_handlers(self) -> None:
+        loop = asyncio.get_running_loop()
+        signals, self._signals = self._signals, []
+        for sig in signals:
             loop.remove_signal_handler(sig)
-        published = sum(d.publisher.stats.published for d in self.devices if d.publisher)
-        log.info("stopped (%s predictions published)", published)
-        return exit_code
 
     # --- construction -----------------------------------------------------------
     def _make_source(self, device: DeviceSettings) -> Source:

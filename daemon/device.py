@@ -179,10 +179,12 @@ class Device:
 
     def _publish_final_state(self) -> None:
         assert self.publisher is not None
-        self.publisher.set_health(self.health())
         final = messages.status("offline", ["stopped"], self.state)
-        self.publisher.set_status(final)
+        # To the outputs before the last health is taken: queueing it may drop one more
+        # prediction there, and the last health counts it.
         self.outputs.status(final)
+        self.publisher.set_health(self.health())
+        self.publisher.set_status(final)
 
     # --- health -------------------------------------------------------------------------
     async def _health_loop(self, stop: asyncio.Event) -> None:
@@ -198,6 +200,7 @@ class Device:
             self.counters.snapshot(),
             self.publisher,
             uptime_s=time.monotonic() - self.started_mono,
+            outputs_dropped=self.outputs.dropped,
         )
 
 

@@ -219,8 +219,12 @@ def dropped_packets(decoder: Mapping[str, int] | None) -> int:
     return DecoderCounters(**decoder).errors if decoder else 0
 
 
-def health(snapshot: Mapping[str, Any], publisher: Publisher, uptime_s: float) -> Health:
-    """``snapshot`` is ``Counters.snapshot()``; the publisher adds what it counted."""
+def health(
+    snapshot: Mapping[str, Any], publisher: Publisher, uptime_s: float, outputs_dropped: int = 0
+) -> Health:
+    """``snapshot`` is ``Counters.snapshot()``; the publisher adds what it counted, and
+    ``outputs_dropped`` is this device's predictions the outputs beside MQTT (MCAP,
+    Foxglove, LSL, web) dropped because they fell behind."""
     stats = publisher.stats
     latency = snapshot.get("latency_ms", {})
     return Health(
@@ -247,5 +251,9 @@ def health(snapshot: Mapping[str, Any], publisher: Publisher, uptime_s: float) -
                 "dropped_stale": stats.dropped_stale,
                 "dropped_error": stats.dropped_error,
             },
+            # Under ``pipeline`` (free-form in the schema), not a top-level field: health's
+            # schema forbids unknown fields, so a consumer validating against version 1
+            # would refuse every health with a new one.
+            "outputs": {"dropped_queue_full": outputs_dropped},
         },
     )

@@ -1,13 +1,18 @@
 """The outputs from the daemon itself: ``scotti-daemon --record-mcap`` beside MQTT
 (a real mosquitto) gives the same predictions on both; two devices in one daemon
 (real ptys), each with its own channels, outlets and page, the silent one holding up
-nothing; the flags' settings and their one-line errors."""
+nothing; the flags' settings and their one-line errors; the predictions an output that
+falls behind never got, in the device's health; the outputs closed on every way out of
+a run, a failure or a cancellation after the start included."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import re
+import socket
+import threading
 import time
 import urllib.request
 from collections.abc import Callable, Iterator
@@ -15,9 +20,18 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from scotti.daemon import messages as payload
+from scotti.daemon.app import Daemon
+from scotti.daemon.device import Device
+from scotti.daemon.inference import InferenceEngine
 from scotti.daemon.main import build_parser, cli_overrides, main
-from scotti.daemon.settings import load_settings
+from scotti.daemon.outputs import Outputs
+from scotti.daemon.pipeline import Prediction
+from scotti.daemon.schemas import Status
+from scotti.daemon.settings import Settings, load_settings
+from scotti.daemon.sources import ReplaySource
 from scotti.daemon.tools.local_broker import Mosquitto
+from scotti.models.runtime import ScottiRuntime
 
 from tests.support.broker import DaemonProcess, collect, payloads, start_daemon
 from tests.support.outputs import lsl_on_this_host, read_mcap
@@ -241,3 +255,178 @@ def test_a_library_that_cannot_load_is_one_line(tmp_path: Path, tiny_model_path:
         "scotti-daemon: error: --lsl: the Python package 'pylsl' cannot be loaded: "
         "LSL binary library file was not found. Install liblsl."
     )
+
+
+def _settings(args: list[str]) -> Settings:
+    return load_settings(cli_overrides(build_parser().parse_args(args)))
+
+
+class _HeldOutput:
+    """An output that holds the outputs' thread until ``gate`` is set: it falls behind."""
+
+    name = "held"
+
+    def __init__(self) -> None:
+        self.gate = threading.Event()
+        self.predictions = 0
+
+    def prediction(self, device: str, p: Prediction, latency_ms: float) -> None:
+        self.gate.wait(30)
+        self.predictions += 1
+
+    def status(self, device: str, status: Status) -> None:
+        self.gate.wait(30)
+
+    async def close(self) -> None:
+        self.gate.set()
+
+
+@pytest.mark.mosquitto
+def test_the_predictions_outputs_dropped_are_in_the_devices_health(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
+) -> None:
+    # One device as the daemon runs it (real replay, engine and broker) with one output
+    # that never keeps up, so the fan-out drops the oldest predictions.
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=100)
+    device_id = "outdrops"
+    settings = _settings(["--replay", str(session.path), "--speed", "max",
+                          "--broker", mosquitto.url, "--device-id", device_id])  # fmt: skip
+    runtime = ScottiRuntime(tiny_model_path)
+    held = _HeldOutput()
+
+    async def run() -> tuple[Device, Outputs]:
+        (one,) = settings.device_list()
+        engine = InferenceEngine()
+        device = Device(settings, one, runtime, engine, ReplaySource(session.path, speed="max"),
+                        None)  # fmt: skip
+        outputs = Outputs([held], [device.id])
+        device.outputs = outputs.of(device.id)
+        engine.start()
+        try:
+            assert await device.run(asyncio.Event(), payload.info(settings, runtime, {})) == 0
+        finally:
+            held.gate.set()
+            await outputs.close()
+            await engine.stop()
+        return device, outputs
+
+    with collect(mosquitto, f"scotti/{device_id}/health") as got:
+        device, outputs = asyncio.run(run())
+        made = device.counters.predictions
+        final = got.wait_for(
+            lambda m: any(h["predictions"] == made for h in payloads(m, "health")), 5, "health"
+        )
+    health = [h for h in payloads(final, "health") if h["predictions"] == made][-1]
+    assert outputs.dropped > 0  # it did fall behind
+    assert health["pipeline"]["outputs"] == {"dropped_queue_full": outputs.dropped}
+    assert held.predictions + outputs.dropped == made  # what the output never got
+
+
+def _outputs_threads() -> set[threading.Thread]:
+    return {t for t in threading.enumerate() if t.name == "scotti-outputs"}
+
+
+def _assert_outputs_closed(mcap: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The MCAP file is finished (readable to its end, its closing magic written), the
+    web port no longer listens."""
+    (written,) = mcap.parent.glob(f"{mcap.stem}*.mcap")
+    assert written.read_bytes().endswith(b"\x89MCAP0\r\n"), "the MCAP file was left unfinished"
+    read_mcap(written)
+    (port,) = [
+        int(m[1])
+        for r in caplog.records
+        if (m := re.search(r"web: live view on \S+:(\d+)/", r.getMessage()))
+    ]
+    with pytest.raises(ConnectionRefusedError), socket.create_connection(("127.0.0.1", port), 2):
+        pass
+
+
+def test_a_run_that_fails_after_opening_the_outputs_closes_them(
+    tmp_path: Path, tiny_model_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A loop outside the main thread cannot take signal handlers: ``run`` fails with its
+    # own error right after it opened the outputs (the devices have not started).
+    caplog.set_level(logging.INFO, logger="scotti.daemon.outputs")
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=4)
+    out = tmp_path / "failed.mcap"
+    settings = _settings(["--replay", str(session.path), "--model", str(tiny_model_path),
+                          "--broker", "mqtt://127.0.0.1:1", "--record-mcap", str(out),
+                          "--web", "0"])  # fmt: skip
+    daemon = Daemon(settings, ScottiRuntime(tiny_model_path))
+    before = _outputs_threads()
+    raised: list[BaseException] = []
+
+    def in_a_thread() -> None:
+        try:
+            asyncio.run(daemon.run())
+        except BaseException as exc:
+            raised.append(exc)
+
+    thread = threading.Thread(target=in_a_thread)
+    thread.start()
+    thread.join(60)
+    assert not thread.is_alive(), "the run did not end"
+    (error,) = raised
+    assert isinstance(error, RuntimeError)  # the run's own error, not one of the closing
+    assert "main thread" in str(error)
+    _assert_outputs_closed(out, caplog)
+    assert not {t for t in _outputs_threads() - before if t.is_alive()}
+
+
+@pytest.mark.mosquitto
+def test_a_cancelled_run_closes_the_outputs_after_the_devices_last_word(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="scotti.daemon.outputs")
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=400)  # 25 s at speed 4
+    out = tmp_path / "cancelled.mcap"
+    settings = _settings(["--replay", str(session.path), "--speed", "4",
+                          "--model", str(tiny_model_path), "--broker", mosquitto.url,
+                          "--device-id", "cancelled", "--record-mcap", str(out),
+                          "--web", "0"])  # fmt: skip
+    daemon = Daemon(settings, ScottiRuntime(tiny_model_path))
+    before = _outputs_threads()
+
+    async def cancel_mid_run() -> None:
+        run = asyncio.create_task(daemon.run())
+        deadline = time.monotonic() + 30
+        while daemon.counters.predictions < 3:
+            assert not run.done(), "the run ended before it was cancelled"
+            assert time.monotonic() < deadline, "no predictions"
+            await asyncio.sleep(0.05)
+        run.cancel()
+        with pytest.raises(asyncio.CancelledError):  # the cancellation goes on, unmasked
+            await run
+
+    asyncio.run(cancel_mid_run())
+    _assert_outputs_closed(out, caplog)
+    assert not {t for t in _outputs_threads() - before if t.is_alive()}
+    (written,) = tmp_path.glob("cancelled*.mcap")
+    recorded, _, _ = read_mcap(written)
+    assert recorded["/action"]  # it was recording when cancelled
+    assert recorded["/status"][-1][1]["state"] == "offline"  # the device stopped first
+
+
+class _FailingClose(_HeldOutput):
+    name = "failing"
+
+    async def close(self) -> None:
+        msg = "this output cannot close"
+        raise OSError(msg)
+
+
+def test_an_output_that_fails_to_close_leaves_none_of_the_others_open(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
+
+    mcap = FoxgloveOutput(mcap=tmp_path / "after.mcap", port=None, devices=["a"])
+    failing = _FailingClose()
+    failing.gate.set()
+    outputs = Outputs([failing, mcap], ["a"])
+    outputs.status("a", payload.status("online", [], None))
+    asyncio.run(outputs.close())  # the failure is logged, not raised
+    assert (tmp_path / "after.mcap").read_bytes().endswith(b"\x89MCAP0\r\n")
+    assert [r.getMessage() for r in caplog.records if r.exc_info] == [
+        "output failing did not close cleanly"
+    ]

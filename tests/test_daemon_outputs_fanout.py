@@ -60,8 +60,29 @@ def test_a_full_queue_drops_the_oldest_predictions_never_a_status(
     handle.gate.set()
     assert thread.close(WAIT_S)
     assert thread.dropped == extra + 1  # the queue holds FRAMES_PER_DEVICE, the status one
+    assert thread.dropped_of("a") == extra + 1
     assert handle.got[:2] == [first, online]
     assert handle.got[2:] == queued[extra + 1 :]  # the newest, in order
+
+
+def test_a_dropped_prediction_is_counted_for_its_own_device(preds: list[Prediction]) -> None:
+    # Each device's health reports its own drops: one device's backlog makes room for
+    # another's newer frames, and the drop is the backlogged device's.
+    handle = Recorder()
+    handle.gate.clear()
+    thread = OutputThread(handle, devices=2)  # room for 2 * FRAMES_PER_DEVICE
+    thread.submit(Item("a", prediction=preds[0]))  # taken at once, held at the gate
+    assert handle.holding.wait(WAIT_S)
+    for k in range(FRAMES_PER_DEVICE):
+        thread.submit(Item("a", prediction=preds[k % len(preds)]))
+    extra = 3
+    for k in range(FRAMES_PER_DEVICE + extra):
+        thread.submit(Item("b", prediction=preds[k % len(preds)]))
+    handle.gate.set()
+    assert thread.close(WAIT_S)
+    assert (thread.dropped_of("a"), thread.dropped_of("b")) == (extra, 0)
+    assert thread.dropped_of("c") == 0  # a device that never handed anything over
+    assert thread.dropped == extra
 
 
 def test_a_failing_item_does_not_end_the_thread(

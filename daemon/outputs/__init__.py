@@ -87,6 +87,7 @@ class Outputs:
         # No thread without outputs, nor without devices (what ``open`` closes on a failure).
         started = self.outputs and self.devices
         self._thread = OutputThread(self._handle, devices=len(devices)) if started else None
+        self._closed = False
 
     @classmethod
     async def open(cls, settings: OutputSettings, devices: Sequence[str]) -> Outputs:
@@ -128,8 +129,13 @@ class Outputs:
 
     @property
     def dropped(self) -> int:
-        """Predictions the outputs never saw because they fell behind."""
+        """Predictions the outputs never saw because they fell behind (after ``close``
+        too: the count is the run's)."""
         return self._thread.dropped if self._thread is not None else 0
+
+    def dropped_of(self, device: str) -> int:
+        """The predictions of ``device`` among ``dropped``: its ``health`` reports them."""
+        return self._thread.dropped_of(device) if self._thread is not None else 0
 
     def of(self, device: str) -> DeviceOutputs:
         """What one device calls."""
@@ -145,8 +151,11 @@ class Outputs:
 
     async def close(self) -> None:
         """Write what is queued (each device's last status too), then close every output."""
+        if self._closed:
+            return
+        self._closed = True  # the thread is kept for its counts; it takes nothing more
         if self._thread is not None:
-            thread, self._thread = self._thread, None
+            thread = self._thread
             if not await asyncio.to_thread(thread.close, CLOSE_TIMEOUT_S):
                 log.warning(
                     "outputs did not write their queue within %.0f s: %d items given up",
@@ -193,3 +202,8 @@ class DeviceOutputs:
     def status(self, status: Status) -> None:
         if self.outputs is not None:
             self.outputs.status(self.device, status)
+
+    @property
+    def dropped(self) -> int:
+        """This device's predictions the outputs dropped because they fell behind."""
+        return self.outputs.dropped_of(self.device) if self.outputs is not None else 0

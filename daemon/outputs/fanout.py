@@ -48,6 +48,9 @@ class OutputThread:
         self.handle = handle
         self.max_items = FRAMES_PER_DEVICE * max(1, devices)
         self.dropped = 0  # predictions the outputs never saw because they fell behind
+        # The same, per device: each device's health reports its own. Written by
+        # ``submit`` only, so read it from the thread that submits (the event loop).
+        self._dropped_of: collections.Counter[str] = collections.Counter()
         self.abandoned = 0  # items still queued when ``close`` gave up waiting
         self.failed = 0  # items whose ``handle`` raised (the outputs count their own)
         self._items: collections.deque[Item] = collections.deque()
@@ -65,6 +68,10 @@ class OutputThread:
                 self._log_drop()
             self._items.append(item)
             self._wake.notify()
+
+    def dropped_of(self, device: str) -> int:
+        """The predictions of ``device`` that were dropped (see ``dropped``)."""
+        return self._dropped_of[device]
 
     def close(self, timeout_s: float) -> bool:
         """Write what is queued, then end the thread; False if it did not end in time.
@@ -104,6 +111,7 @@ class OutputThread:
             if queued.prediction is not None:
                 del self._items[k]
                 self.dropped += 1
+                self._dropped_of[queued.device] += 1
                 return True
         return False  # only statuses queued: they all stay (there are few)
 
