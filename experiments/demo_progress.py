@@ -11,8 +11,8 @@ and, per repeated action of the script, prints:
   share of repetitions whose predictions reach below 0.2 and above 0.8);
 - progress MSE against the labels;
 - repetitions the daemon's counter (daemon/repetitions.py, fed the predicted
-  action and progress like the pipeline) counts, beside what the same counter
-  counts on the labels.
+  action and progress like the pipeline) completes, beside what the same
+  counter completes on the labels.
 
 Then a strip of the first squats: predicted progress against the label, one
 character per frame. The demo scene is not in the training corpus (its own
@@ -44,12 +44,21 @@ def strip(values: np.ndarray) -> str:
 
 
 def count(actions: np.ndarray, progress: np.ndarray) -> int:
-    """What the daemon's counter says at the end of this stretch."""
+    """Repetitions the daemon's counter completes over this stretch.
+
+    Every increment counts, also across a reset: the stretch joins the
+    script's sets of one action, and the counter starts over at each (the
+    action changed in between), so its value at the end would only be the
+    last set's.
+    """
     counter = RepetitionCounter()
-    n = 0
+    completed, last = 0, 0
     for a, p in zip(actions.tolist(), progress.tolist(), strict=True):
         n = counter.update(int(a), float(p))
-    return n
+        if n > last:
+            completed += n - last
+        last = max(n, 0)
+    return completed
 
 
 def reaches(progress: np.ndarray, truth: np.ndarray) -> float:
