@@ -39,7 +39,10 @@ def training_block(checkpoint: Path) -> dict[str, Any] | None:
     return {
         "epochs": epochs,
         "best_epoch": last.get("best_epoch"),
-        "status": last.get("status", "running"),
+        # A run whose last record has no status ended without a decision: its time
+        # budget (--max-minutes) ran out first (or it is still going).
+        "status": last.get("status")
+        or f"time budget (--max-minutes), {last.get('stale_epochs', 0)} epochs since the best",
         "train_seconds": sum(float(e["seconds"] or 0) for e in epochs),
         "command": command.read_text().strip() if command.is_file() else None,
     }
