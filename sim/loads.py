@@ -74,9 +74,9 @@ _COP_FLAT_LANDING: Final = 0.55
 # over a heel or forefoot rocker, so the COP follows the COM back towards the
 # heel pad, down to this far along. With the walking floor (0.30) a squat's
 # COM, which starts 0.33-0.41 along the foot and moves ~0.09 back as the hips
-# go back, pinned the COP at 0.30 for 57-100 % of every repetition: depth
-# then left no trace in the pressure maps and squat progress could not be
-# read from them. Walking never has both feet flat at once (the trailing heel
+# go back, pinned the COP at 0.30 for 57-100 % of each squat in 6 of 8
+# drawn people: depth then left no trace in the pressure maps and squat
+# progress could not be read from them. Walking never has both feet flat at once (the trailing heel
 # is up before the leading forefoot lands), so its calibration is untouched.
 _COP_BOTH_FLAT_FLOOR: Final = 0.15
 # Toes-only contact: on the metatarsal heads through push-off, rolling toward

@@ -132,8 +132,8 @@ async def _stop_after_frames(state: ViewState, duration: float, stop: asyncio.Ev
     before anything was shown. With no frame in ``FIRST_FRAME_LIMIT_S`` the
     demo stops anyway (the summary says 0 frames shown).
     """
-    await wait_event(state.first_pose, FIRST_FRAME_LIMIT_S)
-    await wait_event(stop, duration)
+    if await wait_event(state.first_pose, FIRST_FRAME_LIMIT_S):
+        await wait_event(stop, duration)
     stop.set()
 
 
