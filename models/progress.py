@@ -24,6 +24,22 @@ Choices the paper leaves open, fixed here:
   mid-hip height: for them h is its negative, so a step-up runs floor (0) ->
   on the step (0.5) -> floor (1). With h = +height, K step-ups have K peaks
   (one per stand on the step) and were cut into K + 1 pieces.
+- A run that ends resting at the top (standing tall after the last squat,
+  back on the floor after the last step-up) is cut where that last rest
+  begins, like every rest before it: the final rest reads ~0, and the last
+  repetition is complete on arrival. Left in the trailing segment, the same
+  standing frames read 1 after the last repetition and 0 after every other
+  (12-37 % of the squared error of a trained model on squats, step-ups and
+  lunges was on such frames).
+- Walking in place is cut where both feet are down, not at the top of a
+  swing: h is minus the higher heel's height, so a step runs double support
+  (0) -> the swing's top (0.5) -> double support (1). The paper's +height
+  cuts at the swing's top, in the middle of single support, which the
+  pressure maps do not mark (on a simulated corpus those cuts fell 3.2
+  frames before the next foot strike with a spread of 0.9 frames; the
+  double-support cuts 1.1 frames after it, spread 0.4). Walking, side
+  walking and walking backward keep the paper's indicators: their cuts
+  already fall within a frame of a foot strike.
 - Peaks are found on h smoothed by a short moving average, with a minimum
   prominence (a share of the run's range, and an absolute floor in metres)
   and a minimum distance in frames (``PeakParams``). Values of p use raw h.
@@ -80,8 +96,11 @@ class PeakParams:
     # the peak's prominence (at least ``top_tolerance`` metres) of its height,
     # for ``min_pause_frames`` or more; the cut moves to the first of them.
     # Shorter tops are smooth turns, not rests: their cut stays at the peak.
-    top_share: float = 0.03
-    top_tolerance: float = 0.002
+    # The band is wide enough for the hips' sway on arrival (5-9 mm after a step down
+    # in the simulator): at 3 % / 2 mm a step-up's rest on the floor was cut half-way,
+    # its first half read ~1 and its second ~0, and a model could only answer 0.5.
+    top_share: float = 0.08
+    top_tolerance: float = 0.005
     min_pause_frames: int = 4
     min_distance: int = 4  # frames between two cuts: 0.25 s, faster than any step
     rel_prominence: float = 0.25  # share of the smoothed run's range
@@ -96,7 +115,8 @@ class ProgressLabels(NamedTuple):
 
 
 def progress_indicator(keypoints: npt.ArrayLike, action: int) -> FloatArray:
-    """The paper's indicator h(t) for one action: (N, 19, 3) metres -> (N,)."""
+    """The indicator h(t) for one action: (N, 19, 3) metres -> (N,); the paper's, with the
+    signs chosen in the module docstring."""
     k = _check_keypoints(keypoints)
     if not has_progress(action):
         shown = ACTIONS[action] if 0 <= action < NUM_ACTIONS else action
@@ -109,8 +129,8 @@ def progress_indicator(keypoints: npt.ArrayLike, action: int) -> FloatArray:
         return -mid_hip_z if name in ("jump", "step_up") else mid_hip_z
     if name in ("walking", "side_walking"):
         return np.asarray(np.linalg.norm(heels[:, 0] - heels[:, 1], axis=-1), np.float64)
-    if name == "in_place_walking":
-        return np.asarray(heels[:, :, 2].max(axis=1), np.float64)
+    if name == "in_place_walking":  # negated: cut with both feet down (module docstring)
+        return np.asarray(-heels[:, :, 2].max(axis=1), np.float64)
     # backward_walking: max over both heels of |heel(t) - heel(t - 5)|; the first
     # frames compare with frame 0, the oldest one available.
     earlier = np.maximum(np.arange(len(k)) - BACKWARD_LAG, 0)
@@ -139,12 +159,7 @@ def find_peaks(h: npt.ArrayLike, *, min_distance: int = 1, min_prominence: float
 
 def repetition_cuts(h: npt.ArrayLike, params: PeakParams = PeakParams()) -> IntArray:
     """Frames where a new repetition starts: the prominent peaks of smoothed h."""
-    x = _finite(np.asarray(h, dtype=np.float64))
-    smooth = _moving_average(x, params.smooth_frames)
-    span = float(smooth.max() - smooth.min()) if smooth.size else 0.0
-    min_prominence = max(params.abs_prominence, params.rel_prominence * span)
-    peaks = find_peaks(smooth, min_distance=params.min_distance, min_prominence=min_prominence)
-    return _pause_starts(smooth, peaks, params)
+    return _cuts(_finite(np.asarray(h, dtype=np.float64)), params)[0]
 
 
 def progress_from_indicator(
@@ -157,20 +172,28 @@ def progress_from_indicator(
     repetition = np.zeros(n, dtype=np.int64)
     if n == 0:
         return progress, repetition
-    cuts = repetition_cuts(x, params)
+    cuts, final_rest = _cuts(x, params)
     bounds = [0, *cuts.tolist(), n]
     first_complete = (int(cuts[0]), int(cuts[1])) if cuts.size >= 2 else None
     last_complete = (int(cuts[-2]), int(cuts[-1])) if cuts.size >= 2 else None
     for index, (start, end) in enumerate(itertools.pairwise(bounds)):
         repetition[start:end] = index
         leading, trailing = index == 0, index == len(bounds) - 2
+        mid = None  # the segment's minimum
         if not (leading or trailing):
             # Complete: from one cut up to and including the next.
             top, bottom = _extremes(x[start : end + 1])
+        elif trailing and final_rest:
+            # The run's last rest: the start of a repetition that never goes down.
+            # Its own sway is no bottom: the last repetition's extremes, and the
+            # descending branch throughout, so that it reads ~0 like every rest.
+            before = last_complete or (0, start)  # a lone repetition: the one before
+            top, bottom = _partial_extremes(x, start, end, before, bottom_seen=False)
+            mid = end - start - 1
         else:
             reference = first_complete if leading else last_complete
             top, bottom = _partial_extremes(x, start, end, reference)
-        progress[start:end] = _segment_progress(x[start:end], top, bottom)
+        progress[start:end] = _segment_progress(x[start:end], top, bottom, mid)
     return progress, repetition
 
 
@@ -275,6 +298,39 @@ def _pause_starts(x: FloatArray, peaks: IntArray, params: PeakParams) -> IntArra
     return cuts
 
 
+def _cuts(x: FloatArray, params: PeakParams) -> tuple[IntArray, bool]:
+    """Repetition cuts of a finite run, and whether the last one starts the run's final rest."""
+    smooth = _moving_average(x, params.smooth_frames)
+    span = float(smooth.max() - smooth.min()) if smooth.size else 0.0
+    min_prominence = max(params.abs_prominence, params.rel_prominence * span)
+    peaks = find_peaks(smooth, min_distance=params.min_distance, min_prominence=min_prominence)
+    cuts = _pause_starts(smooth, peaks, params)
+    final = _final_pause(smooth, cuts, params, min_prominence) if smooth.size else None
+    return (cuts, False) if final is None else (np.append(cuts, final), True)
+
+
+def _final_pause(
+    x: FloatArray, cuts: IntArray, params: PeakParams, min_prominence: float
+) -> int | None:
+    """First frame of the rest at the top that ends the run, if it ends in one.
+
+    A peak needs a descent after it, so a run's last rest is never one; it is
+    a rest all the same when the last ``min_pause_frames`` or more frames stay
+    within ``_pause_starts``'s band of the end, and the end stands at least
+    ``min_prominence`` above the lowest point since the last cut.
+    """
+    after = int(cuts[-1]) if cuts.size else 0
+    prominence = float(x[-1] - x[after:].min())
+    if prominence < min_prominence:
+        return None
+    level = x[-1] - max(params.top_tolerance, params.top_share * prominence)
+    start = x.size - 1
+    while start - 1 > after and x[start - 1] >= level:
+        start -= 1
+    long_enough = x.size - start >= params.min_pause_frames
+    return start if long_enough and start - after >= params.min_distance else None
+
+
 def _prominence(x: FloatArray, peak: int) -> float:
     height = x[peak]
     higher_left = np.flatnonzero(x[:peak] > height)
@@ -302,24 +358,33 @@ def _extremes(h: FloatArray) -> tuple[float, float]:
 
 
 def _partial_extremes(
-    x: FloatArray, start: int, end: int, reference: tuple[int, int] | None
+    x: FloatArray,
+    start: int,
+    end: int,
+    reference: tuple[int, int] | None,
+    bottom_seen: bool | None = None,
 ) -> tuple[float, float]:
-    """hmax/hmin of a segment cut off by the start or the end of the run."""
+    """hmax/hmin of a segment cut off by the start or the end of the run; its bottom
+    counts as seen (default) when its minimum lies strictly inside it."""
     own = x[start:end]
     top, bottom = _extremes(own)
     if reference is None:
         return top, bottom
     ref_top, ref_bottom = _extremes(x[reference[0] : reference[1] + 1])
-    bottom_seen = 0 < int(own.argmin()) < own.size - 1
+    if bottom_seen is None:
+        bottom_seen = 0 < int(own.argmin()) < own.size - 1
     return max(top, ref_top), bottom if bottom_seen else min(bottom, ref_bottom)
 
 
-def _segment_progress(h: FloatArray, top: float, bottom: float) -> FloatArray:
-    """The paper's two branches around the segment's minimum, clipped to [0, 1]."""
+def _segment_progress(
+    h: FloatArray, top: float, bottom: float, mid: int | None = None
+) -> FloatArray:
+    """The paper's two branches around ``mid`` (default: the segment's minimum), clipped
+    to [0, 1]."""
     span = top - bottom
     if span < FLAT_RANGE:
         return np.full(h.size, 0.5)
-    mid = int(h.argmin())
+    mid = int(h.argmin()) if mid is None else mid
     p = np.empty(h.size)
     p[: mid + 1] = 0.5 * (top - h[: mid + 1]) / span
     p[mid + 1 :] = 0.5 + 0.5 * (h[mid + 1 :] - bottom) / span

@@ -2,7 +2,7 @@
 
 For these four a repetition is one step (one foot's swing), as the progress
 labeller cuts them: by heel distance (walking, side walking), heel height
-(in place) or heel displacement (backward). Walking is built from a gait
+(in place: cut with both feet down) or heel displacement (backward). Walking is built from a gait
 cycle with stance 60 %, double support 2 x 10 %, the person's own touch-down
 (heel strike, flat foot or toes first, ``Traits.strike``) -> flat foot ->
 heel rise -> toe off; the pelvis follows the standing feet and its height
