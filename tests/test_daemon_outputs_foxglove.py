@@ -185,3 +185,31 @@ def test_two_devices_one_server_and_one_file_channels_per_device(
     assert frames == {"a/pose", "b/pose"}
     (devices,) = [m for m in metadata if m.name == "scotti.devices"]
     assert devices.metadata == {"a": "/a/", "b": "/b/"}
+
+
+class _FullDisk:
+    """Stands in for the MCAP writer at close: the disk filled up under the file."""
+
+    def __init__(self, real: Any) -> None:
+        self.real = real
+
+    def close(self) -> None:
+        self.real.close()
+        raise OSError(28, "No space left on device")
+
+
+def test_the_server_stops_and_frees_its_port_when_the_file_cannot_close(tmp_path: Path) -> None:
+    import socket
+
+    from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
+
+    output = FoxgloveOutput(mcap=tmp_path / "full.mcap", port=0)
+    port = output.port
+    assert port is not None
+    output._writer = _FullDisk(output._writer)  # type: ignore[assignment]
+    with pytest.raises(OSError, match="No space left"):
+        asyncio.run(output.close())  # the file's error still reaches Outputs.close's log
+    assert output.port is None
+    with socket.socket() as probe:  # the port is free again: a restart can take it
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        probe.bind(("127.0.0.1", port))

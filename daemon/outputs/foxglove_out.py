@@ -269,9 +269,14 @@ class FoxgloveOutput:
         self._stop_sinks()
 
     def _stop_sinks(self) -> None:
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
-        if self._server is not None:
-            self._server.stop()
-            self._server = None
+        """Close the MCAP file and stop the server. The server stops even when the
+        file's close fails (a full disk): its port is freed, and the file's error is
+        raised after, for ``Outputs.close`` to report."""
+        writer, self._writer = self._writer, None
+        server, self._server = self._server, None
+        try:
+            if writer is not None:
+                writer.close()
+        finally:
+            if server is not None:
+                server.stop()
