@@ -40,6 +40,9 @@ from scotti.models.runtime import ScottiRuntime
 
 log = logging.getLogger(__name__)
 
+# How long a device cancelled at the end of the stop budget gets to run its cleanup.
+CANCEL_GRACE_S = 2.0
+
 
 class Daemon:
     """One run of the service; ``await Daemon(settings, runtime).run()`` -> exit status."""
@@ -143,23 +146,37 @@ class Daemon:
         return await self._stop_devices(tasks)
 
     async def _stop_devices(self, tasks: list[asyncio.Task[int]]) -> int:
-        """Set ``stop`` and give the devices the stop budget; the worst exit status."""
+        """Set ``stop`` and give the devices the stop budget; the worst exit status.
+
+        A device still running at the end of the budget is cancelled and gets
+        ``CANCEL_GRACE_S`` to run its cleanup (its port, its MQTT client, its
+        recording) before the engine and the outputs close under it; one whose
+        cleanup hangs is left behind with a warning rather than hanging the stop.
+        """
         self._stop.set()
         if not tasks:
             return 0
         budget = 2 * self.settings.stop_timeout_s + 1  # the pipeline's, then the publisher's
-        all_done = asyncio.gather(*tasks, return_exceptions=True)
-        try:
-            results = await asyncio.wait_for(all_done, budget)
-        except TimeoutError:
-            log.warning("devices did not stop within %.1f s", budget)
-            results = [1]
-            for task in tasks:
+        _, late = await asyncio.wait(tasks, timeout=budget)
+        if late:
+            names = ", ".join(sorted(task.get_name() for task in late))
+            log.warning("devices did not stop within %.1f s, cancelled: %s", budget, names)
+            for task in late:
                 task.cancel()
-        for r in results:
-            if isinstance(r, BaseException):
-                log.error("device failed: %s", r)
-        return max((r if isinstance(r, int) else 1 for r in results), default=0)
+            _, stuck = await asyncio.wait(late, timeout=CANCEL_GRACE_S)
+            if stuck:
+                names = ", ".join(sorted(task.get_name() for task in stuck))
+                log.warning("devices still running %.1f s after cancel: %s", CANCEL_GRACE_S, names)
+        status = 0
+        for task in tasks:
+            if task in late or task.cancelled():
+                status = max(status, 1)
+            elif (error := task.exception()) is not None:
+                log.error("device failed: %s", error)
+                status = max(status, 1)
+            else:
+                status = max(status, task.result())
+        return status
 
     async def _close(self) -> bool:
         """Close what ``run`` opened, each part even when one before it failed (logged,

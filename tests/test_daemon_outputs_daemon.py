@@ -8,6 +8,7 @@ a run, a failure or a cancellation after the start included."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import re
@@ -430,3 +431,70 @@ def test_an_output_that_fails_to_close_leaves_none_of_the_others_open(
     assert [r.getMessage() for r in caplog.records if r.exc_info] == [
         "output failing did not close cleanly"
     ]
+
+
+def test_devices_cancelled_at_the_stop_budget_finish_their_cleanup_first(
+    tiny_model_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A device that ignores the stop is cancelled when the budget runs out; its
+    # cleanup (closing its port and client) must be over before ``_close`` closes
+    # the engine and the outputs under it.
+    settings = _settings(["--simulate", "demo", "--model", str(tiny_model_path)]).model_copy(
+        update={"stop_timeout_s": 0.1}
+    )  # budget 2 x 0.1 + 1 s
+    daemon = Daemon(settings, ScottiRuntime(tiny_model_path))
+    cleaned: list[str] = []
+
+    async def deaf(name: str, cleanup_s: float) -> int:
+        try:
+            await asyncio.sleep(3600)  # never looks at the stop event
+        except asyncio.CancelledError:
+            await asyncio.sleep(cleanup_s)  # closing its port, its client
+            cleaned.append(name)
+            raise
+        return 0
+
+    async def stop() -> int:
+        tasks = [asyncio.create_task(deaf(n, 0.3), name=n) for n in ("a", "b")]
+        return await daemon._stop_devices(tasks)
+
+    caplog.set_level(logging.WARNING, logger="scotti.daemon.app")
+    assert asyncio.run(stop()) == 1
+    assert sorted(cleaned) == ["a", "b"]  # both finished before _stop_devices returned
+    assert "did not stop within 1.2 s" in caplog.text
+
+
+def test_a_device_whose_cleanup_hangs_does_not_hang_the_stop(
+    tiny_model_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    settings = _settings(["--simulate", "demo", "--model", str(tiny_model_path)]).model_copy(
+        update={"stop_timeout_s": 0.1}
+    )
+    daemon = Daemon(settings, ScottiRuntime(tiny_model_path))
+
+    async def fine() -> int:
+        return 0
+
+    released: list[bool] = []
+
+    async def hangs() -> int:
+        while not released:  # swallows every cancellation, until the test lets it go
+            with contextlib.suppress(asyncio.CancelledError):
+                await asyncio.sleep(3600)
+        return 0
+
+    async def stop() -> tuple[int, float]:
+        tasks = [asyncio.create_task(fine(), name="ok"), asyncio.create_task(hangs(), name="hung")]
+        started = time.monotonic()
+        status = await asyncio.wait_for(daemon._stop_devices(tasks), 30)
+        took = time.monotonic() - started
+        released.append(True)  # let the loop end: the test's own cleanup
+        tasks[1].cancel()
+        await tasks[1]
+        return status, took
+
+    caplog.set_level(logging.WARNING, logger="scotti.daemon.app")
+    status, took = asyncio.run(stop())
+    assert status == 1
+    assert took < 10  # the budget (1.2 s) and the grace (2 s), not the hang
+    assert "still running 2.0 s after cancel: hung" in caplog.text
