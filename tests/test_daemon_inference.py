@@ -154,6 +154,15 @@ def test_standing_counts_nothing_and_a_short_flicker_to_it_does_not_reset() -> N
     assert [counter.update(squat, p) for p in wrap][-1] == 1
 
 
+def test_a_repetition_whose_progress_turns_down_before_the_top_still_counts() -> None:
+    # A step-up as a model unsure of the arrival predicts it: rest ~0, up to ~0.5 on
+    # the step, ~0.6 at most on the way down, then back to ~0 on the floor.
+    counter = RepetitionCounter()
+    one = [0.02] * 10 + [0.1, 0.2, 0.3, 0.4, 0.5] + [0.5] * 10 + [0.58, 0.6, 0.45, 0.25, 0.05]
+    got = [counter.update(ACTIONS.index("step_up"), p) for p in one * 3]
+    assert got[-1] == 3
+
+
 def test_noise_around_one_level_does_not_count() -> None:
     counter = RepetitionCounter()
     values = [0.5 + 0.15 * math.sin(i) for i in range(200)]
