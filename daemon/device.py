@@ -201,6 +201,7 @@ class Device:
             self.publisher,
             uptime_s=time.monotonic() - self.started_mono,
             outputs_dropped=self.outputs.dropped,
+            outputs_errors=self.outputs.errors,
         )
 
 

@@ -220,11 +220,16 @@ def dropped_packets(decoder: Mapping[str, int] | None) -> int:
 
 
 def health(
-    snapshot: Mapping[str, Any], publisher: Publisher, uptime_s: float, outputs_dropped: int = 0
+    snapshot: Mapping[str, Any],
+    publisher: Publisher,
+    uptime_s: float,
+    outputs_dropped: int = 0,
+    outputs_errors: Mapping[str, int] | None = None,
 ) -> Health:
     """``snapshot`` is ``Counters.snapshot()``; the publisher adds what it counted, and
     ``outputs_dropped`` is this device's predictions the outputs beside MQTT (MCAP,
-    Foxglove, LSL, web) dropped because they fell behind."""
+    Foxglove, LSL, web) dropped because they fell behind; ``outputs_errors`` how often
+    each of them failed on this device's messages (logged once, counted from then on)."""
     stats = publisher.stats
     latency = snapshot.get("latency_ms", {})
     return Health(
@@ -254,6 +259,9 @@ def health(
             # Under ``pipeline`` (free-form in the schema), not a top-level field: health's
             # schema forbids unknown fields, so a consumer validating against version 1
             # would refuse every health with a new one.
-            "outputs": {"dropped_queue_full": outputs_dropped},
+            "outputs": {
+                "dropped_queue_full": outputs_dropped,
+                "errors": dict(outputs_errors or {}),
+            },
         },
     )

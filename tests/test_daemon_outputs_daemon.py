@@ -319,7 +319,10 @@ def test_the_predictions_outputs_dropped_are_in_the_devices_health(
         )
     health = [h for h in payloads(final, "health") if h["predictions"] == made][-1]
     assert outputs.dropped > 0  # it did fall behind
-    assert health["pipeline"]["outputs"] == {"dropped_queue_full": outputs.dropped}
+    assert health["pipeline"]["outputs"] == {
+        "dropped_queue_full": outputs.dropped,
+        "errors": {"held": 0},
+    }
     assert held.predictions + outputs.dropped == made  # what the output never got
 
 
@@ -498,3 +501,55 @@ def test_a_device_whose_cleanup_hangs_does_not_hang_the_stop(
     assert status == 1
     assert took < 10  # the budget (1.2 s) and the grace (2 s), not the hang
     assert "still running 2.0 s after cancel: hung" in caplog.text
+
+
+class _BrokenOutput(_HeldOutput):
+    """An output whose every write fails (a disk gone, an outlet that raises)."""
+
+    name = "broken"
+
+    def prediction(self, device: str, p: Prediction, latency_ms: float) -> None:
+        msg = "the disk is gone"
+        raise OSError(msg)
+
+
+@pytest.mark.mosquitto
+def test_an_output_failing_on_every_prediction_is_counted_in_health(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
+) -> None:
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=60)
+    device_id = "outerrors"
+    settings = _settings(["--replay", str(session.path), "--speed", "max",
+                          "--broker", mosquitto.url, "--device-id", device_id])  # fmt: skip
+    runtime = ScottiRuntime(tiny_model_path)
+    broken = _BrokenOutput()
+    broken.gate.set()
+
+    async def run() -> tuple[Device, Outputs]:
+        (one,) = settings.device_list()
+        engine = InferenceEngine()
+        device = Device(settings, one, runtime, engine, ReplaySource(session.path, speed="max"),
+                        None)  # fmt: skip
+        outputs = Outputs([broken], [device.id])
+        device.outputs = outputs.of(device.id)
+        engine.start()
+        try:  # the device runs to the end of its replay: a failing output stops nothing
+            assert await device.run(asyncio.Event(), payload.info(settings, runtime, {})) == 0
+        finally:
+            await outputs.close()
+            await engine.stop()
+        return device, outputs
+
+    with collect(mosquitto, f"scotti/{device_id}/health") as got:
+        device, outputs = asyncio.run(run())
+        made = device.counters.predictions
+        final = got.wait_for(
+            lambda m: any(h["predictions"] == made for h in payloads(m, "health")), 5, "health"
+        )
+    health = [h for h in payloads(final, "health") if h["predictions"] == made][-1]
+    assert made > 0
+    # Health is built on the loop while the outputs' thread may still be writing:
+    # what it says is counted, and by the end every prediction handed over failed.
+    failed = health["pipeline"]["outputs"]["errors"]["broken"]
+    assert 0 < failed <= outputs.errors["broken"]
+    assert outputs.errors["broken"] + outputs.dropped == made

@@ -84,6 +84,11 @@ class Outputs:
         self.outputs = list(outputs)
         self.devices = tuple(devices)
         self.errors: dict[str, int] = {o.name: 0 for o in self.outputs}
+        # The same failures by device, for each device's ``health`` (written on the
+        # outputs' thread, read from the loop: a dict of ints, no lock needed).
+        self._errors_by_device: dict[str, dict[str, int]] = {
+            d: {o.name: 0 for o in self.outputs} for d in self.devices
+        }
         # No thread without outputs, nor without devices (what ``open`` closes on a failure).
         started = self.outputs and self.devices
         self._thread = OutputThread(self._handle, devices=len(devices)) if started else None
@@ -137,6 +142,10 @@ class Outputs:
         """The predictions of ``device`` among ``dropped``: its ``health`` reports them."""
         return self._thread.dropped_of(device) if self._thread is not None else 0
 
+    def errors_of(self, device: str) -> dict[str, int]:
+        """Times each output failed on one of ``device``'s predictions or statuses."""
+        return dict(self._errors_by_device.get(device, {}))
+
     def of(self, device: str) -> DeviceOutputs:
         """What one device calls."""
         return DeviceOutputs(self, device)
@@ -180,10 +189,12 @@ class Outputs:
                 elif item.status is not None:
                     output.status(item.device, item.status)
             except Exception:  # an output never kills the others, nor the daemon
-                self._failed(output)
+                self._failed(output, item.device)
 
-    def _failed(self, output: Output) -> None:
+    def _failed(self, output: Output, device: str) -> None:
         self.errors[output.name] += 1
+        by_output = self._errors_by_device.setdefault(device, {})
+        by_output[output.name] = by_output.get(output.name, 0) + 1
         if self.errors[output.name] == 1:
             log.warning("output %s failed (counted from now on)", output.name, exc_info=True)
 
@@ -207,3 +218,8 @@ class DeviceOutputs:
     def dropped(self) -> int:
         """This device's predictions the outputs dropped because they fell behind."""
         return self.outputs.dropped_of(self.device) if self.outputs is not None else 0
+
+    @property
+    def errors(self) -> dict[str, int]:
+        """Per output, times it failed on this device's predictions or statuses."""
+        return self.outputs.errors_of(self.device) if self.outputs is not None else {}
