@@ -282,6 +282,30 @@ class _HeldOutput:
         self.gate.set()
 
 
+def _replay_through(
+    output: _HeldOutput, settings: Settings, runtime: ScottiRuntime, session: Path
+) -> tuple[Device, Outputs]:
+    """One device as the daemon runs it (real replay at max speed, engine and broker),
+    its predictions handed to ``output`` alone; the device and the outputs after both stopped."""
+
+    async def run() -> tuple[Device, Outputs]:
+        (one,) = settings.device_list()
+        engine = InferenceEngine()
+        device = Device(settings, one, runtime, engine, ReplaySource(session, speed="max"), None)
+        outputs = Outputs([output], [device.id])
+        device.outputs = outputs.of(device.id)
+        engine.start()
+        try:
+            assert await device.run(asyncio.Event(), payload.info(settings, runtime, {})) == 0
+        finally:
+            output.gate.set()
+            await outputs.close()
+            await engine.stop()
+        return device, outputs
+
+    return asyncio.run(run())
+
+
 @pytest.mark.mosquitto
 def test_the_predictions_outputs_dropped_are_in_the_devices_health(
     mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
@@ -292,27 +316,11 @@ def test_the_predictions_outputs_dropped_are_in_the_devices_health(
     device_id = "outdrops"
     settings = _settings(["--replay", str(session.path), "--speed", "max",
                           "--broker", mosquitto.url, "--device-id", device_id])  # fmt: skip
-    runtime = ScottiRuntime(tiny_model_path)
     held = _HeldOutput()
-
-    async def run() -> tuple[Device, Outputs]:
-        (one,) = settings.device_list()
-        engine = InferenceEngine()
-        device = Device(settings, one, runtime, engine, ReplaySource(session.path, speed="max"),
-                        None)  # fmt: skip
-        outputs = Outputs([held], [device.id])
-        device.outputs = outputs.of(device.id)
-        engine.start()
-        try:
-            assert await device.run(asyncio.Event(), payload.info(settings, runtime, {})) == 0
-        finally:
-            held.gate.set()
-            await outputs.close()
-            await engine.stop()
-        return device, outputs
-
     with collect(mosquitto, f"scotti/{device_id}/health") as got:
-        device, outputs = asyncio.run(run())
+        device, outputs = _replay_through(
+            held, settings, ScottiRuntime(tiny_model_path), session.path
+        )
         made = device.counters.predictions
         final = got.wait_for(
             lambda m: any(h["predictions"] == made for h in payloads(m, "health")), 5, "health"
@@ -521,27 +529,13 @@ def test_an_output_failing_on_every_prediction_is_counted_in_health(
     device_id = "outerrors"
     settings = _settings(["--replay", str(session.path), "--speed", "max",
                           "--broker", mosquitto.url, "--device-id", device_id])  # fmt: skip
-    runtime = ScottiRuntime(tiny_model_path)
     broken = _BrokenOutput()
     broken.gate.set()
-
-    async def run() -> tuple[Device, Outputs]:
-        (one,) = settings.device_list()
-        engine = InferenceEngine()
-        device = Device(settings, one, runtime, engine, ReplaySource(session.path, speed="max"),
-                        None)  # fmt: skip
-        outputs = Outputs([broken], [device.id])
-        device.outputs = outputs.of(device.id)
-        engine.start()
-        try:  # the device runs to the end of its replay: a failing output stops nothing
-            assert await device.run(asyncio.Event(), payload.info(settings, runtime, {})) == 0
-        finally:
-            await outputs.close()
-            await engine.stop()
-        return device, outputs
-
     with collect(mosquitto, f"scotti/{device_id}/health") as got:
-        device, outputs = asyncio.run(run())
+        # The device runs to the end of its replay: a failing output stops nothing.
+        device, outputs = _replay_through(
+            broken, settings, ScottiRuntime(tiny_model_path), session.path
+        )
         made = device.counters.predictions
         final = got.wait_for(
             lambda m: any(h["predictions"] == made for h in payloads(m, "health")), 5, "health"
