@@ -283,15 +283,26 @@ class _HeldOutput:
 
 
 def _replay_through(
-    output: _HeldOutput, settings: Settings, runtime: ScottiRuntime, session: Path
-) -> tuple[Device, Outputs]:
+    output: _HeldOutput,
+    mosquitto: Mosquitto,
+    model: Path,
+    tmp_path: Path,
+    device_id: str,
+    frames: int,
+) -> tuple[Device, Outputs, dict[str, Any]]:
     """One device as the daemon runs it (real replay at max speed, engine and broker),
-    its predictions handed to ``output`` alone; the device and the outputs after both stopped."""
+    its predictions handed to ``output`` alone: the device and the outputs after both
+    stopped, and the last ``health`` it published."""
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=frames)
+    settings = _settings(["--replay", str(session.path), "--speed", "max",
+                          "--broker", mosquitto.url, "--device-id", device_id])  # fmt: skip
+    runtime = ScottiRuntime(model)
 
     async def run() -> tuple[Device, Outputs]:
         (one,) = settings.device_list()
         engine = InferenceEngine()
-        device = Device(settings, one, runtime, engine, ReplaySource(session, speed="max"), None)
+        source = ReplaySource(session.path, speed="max")
+        device = Device(settings, one, runtime, engine, source, None)
         outputs = Outputs([output], [device.id])
         device.outputs = outputs.of(device.id)
         engine.start()
@@ -303,7 +314,14 @@ def _replay_through(
             await engine.stop()
         return device, outputs
 
-    return asyncio.run(run())
+    with collect(mosquitto, f"scotti/{device_id}/health") as got:
+        device, outputs = asyncio.run(run())
+        made = device.counters.predictions
+        final = got.wait_for(
+            lambda m: any(h["predictions"] == made for h in payloads(m, "health")), 5, "health"
+        )
+    health = [h for h in payloads(final, "health") if h["predictions"] == made][-1]
+    return device, outputs, health
 
 
 @pytest.mark.mosquitto
@@ -312,20 +330,11 @@ def test_the_predictions_outputs_dropped_are_in_the_devices_health(
 ) -> None:
     # One device as the daemon runs it (real replay, engine and broker) with one output
     # that never keeps up, so the fan-out drops the oldest predictions.
-    session = write_synthetic_session(tmp_path / "s.scotti", frames=100)
-    device_id = "outdrops"
-    settings = _settings(["--replay", str(session.path), "--speed", "max",
-                          "--broker", mosquitto.url, "--device-id", device_id])  # fmt: skip
     held = _HeldOutput()
-    with collect(mosquitto, f"scotti/{device_id}/health") as got:
-        device, outputs = _replay_through(
-            held, settings, ScottiRuntime(tiny_model_path), session.path
-        )
-        made = device.counters.predictions
-        final = got.wait_for(
-            lambda m: any(h["predictions"] == made for h in payloads(m, "health")), 5, "health"
-        )
-    health = [h for h in payloads(final, "health") if h["predictions"] == made][-1]
+    device, outputs, health = _replay_through(
+        held, mosquitto, tiny_model_path, tmp_path, "outdrops", frames=100
+    )
+    made = device.counters.predictions
     assert outputs.dropped > 0  # it did fall behind
     assert health["pipeline"]["outputs"] == {
         "dropped_queue_full": outputs.dropped,
@@ -525,22 +534,13 @@ class _BrokenOutput(_HeldOutput):
 def test_an_output_failing_on_every_prediction_is_counted_in_health(
     mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
 ) -> None:
-    session = write_synthetic_session(tmp_path / "s.scotti", frames=60)
-    device_id = "outerrors"
-    settings = _settings(["--replay", str(session.path), "--speed", "max",
-                          "--broker", mosquitto.url, "--device-id", device_id])  # fmt: skip
     broken = _BrokenOutput()
     broken.gate.set()
-    with collect(mosquitto, f"scotti/{device_id}/health") as got:
-        # The device runs to the end of its replay: a failing output stops nothing.
-        device, outputs = _replay_through(
-            broken, settings, ScottiRuntime(tiny_model_path), session.path
-        )
-        made = device.counters.predictions
-        final = got.wait_for(
-            lambda m: any(h["predictions"] == made for h in payloads(m, "health")), 5, "health"
-        )
-    health = [h for h in payloads(final, "health") if h["predictions"] == made][-1]
+    # The device runs to the end of its replay: a failing output stops nothing.
+    device, outputs, health = _replay_through(
+        broken, mosquitto, tiny_model_path, tmp_path, "outerrors", frames=60
+    )
+    made = device.counters.predictions
     assert made > 0
     # Health is built on the loop while the outputs' thread may still be writing:
     # what it says is counted, and by the end every prediction handed over failed.

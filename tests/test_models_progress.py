@@ -153,34 +153,23 @@ def squats_with_pauses(pause: int) -> tuple[npt.NDArray[np.float64], list[int]]:
     return np.concatenate(parts), arrivals
 
 
-def test_a_pause_at_the_top_belongs_to_the_next_repetition() -> None:
+def test_every_rest_at_the_top_belongs_to_the_next_repetition() -> None:
     # Cut where the person arrives at the top, not in the pause's middle: the
     # pause reads ~0 throughout (nothing in the input tells one half from the other).
+    # The rest after the third squat, which ends the run, is cut like the two before
+    # it instead of reading 1 to the end of the run.
     h, arrivals = squats_with_pauses(pause=20)
     cuts = repetition_cuts(h)
     # Up to two frames early: the last frames of the rise are within 8 % of the top.
     assert cuts.size == 3
     assert all(a - 2 <= c <= a for c, a in zip(cuts, arrivals, strict=True)), cuts
     progress, repetition = progress_from_indicator(h)
-    for cut in cuts[:2]:
+    for cut in cuts:
         pause = progress[cut : cut + 20]
+        assert pause.size == 20
         assert pause.max() < 0.05, pause
-        assert progress[cut - 1] > 0.85  # the repetition ran to its end before it
+        assert progress[cut - 1] > 0.85  # the repetition ran to its end: complete on arrival
         assert repetition[cut] == repetition[cut - 1] + 1
-
-
-def test_the_rest_that_ends_a_run_reads_like_every_other_rest() -> None:
-    # The run ends standing tall after the third squat: that rest is cut where it
-    # begins, as the two before it, instead of reading 1 to the end of the run.
-    h, arrivals = squats_with_pauses(pause=20)
-    cuts = repetition_cuts(h)
-    assert cuts.size == 3
-    assert all(a - 2 <= c <= a for c, a in zip(cuts, arrivals, strict=True)), cuts
-    progress, repetition = progress_from_indicator(h)
-    final = progress[cuts[-1] :]
-    assert final.size >= 20
-    assert final.max() < 0.05, final
-    assert progress[cuts[-1] - 1] > 0.85  # the last squat ran to its end, complete on arrival
     assert repetition[-1] == 3
 
 
