@@ -1,9 +1,11 @@
 """Does progress sweep 0 -> 1 and does the daemon count repetitions, on the demo's scene?
 
     python experiments/demo_progress.py [--model models/scotti-default.onnx] [--scene demo]
+        [--session FILE] [--high H --low L]
 
 Renders the scene (``sim/scenes/demo.toml`` by default: the demo's walking,
-squats, lunges, ...) into a session file, replays it through the daemon's
+squats, lunges, ...) into a session file, or takes ``--session`` (a held-out
+subject of the corpus, say), replays it through the daemon's
 streaming path (``scotti.evaluation.replay_session``, as ``scotti eval`` does)
 and, per repeated action of the script, prints:
 
@@ -11,8 +13,9 @@ and, per repeated action of the script, prints:
   share of repetitions whose predictions reach below 0.2 and above 0.8);
 - progress MSE against the labels;
 - repetitions the daemon's counter (daemon/repetitions.py, fed the predicted
-  action and progress like the pipeline) completes, beside what the same
-  counter completes on the labels.
+  action and progress like the pipeline; ``--high``/``--low`` try other
+  thresholds) completes, beside what the daemon's counter completes on the
+  labels.
 
 Then a strip of the first squats: predicted progress against the label, one
 character per frame. The demo scene is not in the training corpus (its own
@@ -43,7 +46,9 @@ def strip(values: np.ndarray) -> str:
     return "".join(LEVELS[int(i)] for i in idx)
 
 
-def count(actions: np.ndarray, progress: np.ndarray) -> int:
+def count(
+    actions: np.ndarray, progress: np.ndarray, counter: RepetitionCounter | None = None
+) -> int:
     """Repetitions the daemon's counter completes over this stretch.
 
     Every increment counts, also across a reset: the stretch joins the
@@ -51,7 +56,7 @@ def count(actions: np.ndarray, progress: np.ndarray) -> int:
     action changed in between), so its value at the end would only be the
     last set's.
     """
-    counter = RepetitionCounter()
+    counter = counter or RepetitionCounter()
     completed, last = 0, 0
     for a, p in zip(actions.tolist(), progress.tolist(), strict=True):
         n = counter.update(int(a), float(p))
@@ -75,20 +80,39 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python experiments/demo_progress.py")
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "scotti-default.onnx")
     parser.add_argument("--scene", default="demo")
+    parser.add_argument("--session", type=Path, help="replay this session file instead")
+    parser.add_argument(
+        "--high", type=float, help="the counter's arming threshold (default: the daemon's)"
+    )
+    parser.add_argument(
+        "--low", type=float, help="the counter's counting threshold (default: the daemon's)"
+    )
     args = parser.parse_args(argv)
-    scene = resolve_scene(args.scene)
-    with tempfile.TemporaryDirectory() as tmp:
-        session = Path(tmp) / "scene.ses"
-        subprocess.run(
-            [sys.executable, "-m", "scotti.cli.main", "sim", str(scene), "-o", str(session)],
-            check=True,
-            cwd=ROOT,
-            stdout=subprocess.DEVNULL,
-        )
-        replay = replay_session(session, ScottiRuntime(args.model, threads=1))
+    runtime = ScottiRuntime(args.model, threads=1)
+    if args.session is not None:
+        name = args.session.name
+        replay = replay_session(args.session, runtime)
+    else:
+        scene = resolve_scene(args.scene)
+        name = scene.name
+        with tempfile.TemporaryDirectory() as tmp:
+            session = Path(tmp) / "scene.ses"
+            subprocess.run(
+                [sys.executable, "-m", "scotti.cli.main", "sim", str(scene), "-o", str(session)],
+                check=True,
+                cwd=ROOT,
+                stdout=subprocess.DEVNULL,
+            )
+            replay = replay_session(session, runtime)
+    default = RepetitionCounter()
+    high = default.high if args.high is None else args.high
+    low = default.low if args.low is None else args.low
     f = replay.frames
     progress = np.where(np.isfinite(f.progress_pred), f.progress_pred, np.nan)
-    print(f"{args.model.name} on {scene.name}: {len(f.action_true)} frames scored")
+    print(
+        f"{args.model.name} on {name}: {len(f.action_true)} frames scored;"
+        f" counter high {high}, low {low}"
+    )
     print(
         "action            frames  p5    p95   reps reaching <0.2 and >0.8  MSE    counted / labels"
     )
@@ -101,7 +125,9 @@ def main(argv: list[str] | None = None) -> int:
         ok = np.isfinite(truth) & np.isfinite(pred)
         mse = float(np.mean((pred[ok] - truth[ok]) ** 2)) if ok.any() else float("nan")
         p5, p95 = np.nanpercentile(pred, [5, 95]) if np.isfinite(pred).any() else (np.nan,) * 2
-        counted = count(f.action_pred[rows], np.nan_to_num(pred, nan=0.5))
+        counted = count(
+            f.action_pred[rows], np.nan_to_num(pred, nan=0.5), RepetitionCounter(high, low)
+        )
         labelled = count(f.action_true[rows], np.nan_to_num(truth, nan=0.5))
         print(
             f"{contract.ACTIONS[a]:17s} {rows.size:6d}  {p5:.2f}  {p95:.2f}  "

@@ -37,9 +37,10 @@ Choices the paper leaves open, fixed here:
   cuts at the swing's top, in the middle of single support, which the
   pressure maps do not mark (on a simulated corpus those cuts fell 3.2
   frames before the next foot strike with a spread of 0.9 frames; the
-  double-support cuts 1.1 frames after it, spread 0.4). Walking, side
-  walking and walking backward keep the paper's indicators: their cuts
-  already fall within a frame of a foot strike.
+  double-support cuts 1.1 frames after it, spread 0.4; `python
+  experiments/label_cuts.py`). Walking, side walking and walking backward
+  keep the paper's indicators: their cuts already fall within a frame of a
+  foot strike.
 - Peaks are found on h smoothed by a short moving average, with a minimum
   prominence (a share of the run's range, and an absolute floor in metres)
   and a minimum distance in frames (``PeakParams``). Values of p use raw h.
