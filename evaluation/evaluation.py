@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import resource
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -16,7 +17,7 @@ from typing import Any
 import numpy as np
 from scotti.daemon.pairing import PairingConfig
 from scotti.evaluation.errors import EvaluationError
-from scotti.evaluation.frames import FrameSet
+from scotti.evaluation.frames import FrameScores, FrameSet
 from scotti.evaluation.replay import (
     SessionReplay,
     replay_session,
@@ -26,11 +27,12 @@ from scotti.evaluation.replay import (
 from scotti.evaluation.sampling import window_timing
 from scotti.evaluation.scores import random_baseline, score, task_metrics
 from scotti.evaluation.segments import BATCH
-from scotti.models.ood import flag_shares
+from scotti.models.ood import shares_of
 from scotti.models.runtime import ScottiRuntime
 
 __all__ = [
     "EvaluationError",
+    "FrameScores",
     "FrameSet",
     "SessionReplay",
     "evaluate_models",
@@ -76,9 +78,12 @@ def evaluate_models(
     began, began_cpu = time.perf_counter(), time.process_time()
     for i, p in enumerate(paths):
         started = time.perf_counter()
-        per_session.append(
-            replay_session_models(p, runtimes, pairing, every=every, windows=windows, batch=batch)
+        replays = replay_session_models(
+            p, runtimes, pairing, every=every, windows=windows, batch=batch
         )
+        for replay in replays:
+            replay.drop_predictions()  # memory stays that of one session, however many
+        per_session.append(replays)
         if on_session is not None:
             on_session(i + 1, len(paths), Path(p), time.perf_counter() - started)
     seconds = time.perf_counter() - began
@@ -126,7 +131,7 @@ def _report(
     every: int,
     window_graph: ScottiRuntime | None,
 ) -> dict[str, Any]:
-    frames = FrameSet.concat([r.frames for r in replays])
+    frames = FrameScores.concat([r.scores for r in replays])
     report: dict[str, Any] = {
         "model": {
             "path": str(runtime.path),
@@ -137,7 +142,7 @@ def _report(
         },
         "every": every,
         "graph": "step" if window_graph is None else "window",
-        "sessions": [r.summary() | {"metrics": task_metrics(r.frames)} for r in replays],
+        "sessions": [r.summary() | {"metrics": task_metrics(r.scores)} for r in replays],
         "subjects": sorted({r.subject for r in replays}),
     }
     if window_graph is None and any(r.step_batches for r in replays):
@@ -166,5 +171,8 @@ def _report(
         batches = [b for r in replays for b in r.window_batches]
         report["window_ms_per_prediction"] = window_timing(batches)
     report |= score(frames)
-    report["ood"] = flag_shares([m.flags for r in replays for m in r.made])  # every prediction
+    flags: Counter[str] = Counter()
+    for r in replays:
+        flags.update(r.flags)
+    report["ood"] = shares_of(flags)  # every prediction
     return report

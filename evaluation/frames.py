@@ -1,8 +1,15 @@
-"""Predictions and labels of evaluated frames, aligned by row (``FrameSet``).
+"""Predictions and labels of evaluated frames, aligned by row (``FrameSet``), and
+what pooled scoring keeps of them (``FrameScores``).
 
 A prediction made from the frames t-T..t-1 is for time t: ``align`` matches
 each prediction to the label record of that time by unwrapped sequence
 number.
+
+Why two: a ``FrameSet`` holds both poses, about 500 bytes a frame; pooling a
+few held-out subjects' sessions that way (and the copies concatenation and
+per-action subsets make) took ``scotti eval`` to 1.6 GB. Every pooled figure
+needs only each frame's pose errors, so ``FrameScores`` keeps those: 48 bytes
+a frame, the same figures.
 """
 
 from __future__ import annotations
@@ -15,6 +22,7 @@ import numpy.typing as npt
 from scotti.evaluation.sampling import Prediction
 from scotti.firmware_protocol.session import LabelRecord
 from scotti.firmware_protocol.wrap import seq_delta
+from scotti.models import metrics
 from scotti.models.contract import NUM_KEYPOINTS, has_progress
 
 F32 = npt.NDArray[np.float32]
@@ -83,6 +91,58 @@ class FrameSet:
             self.progress_pred[keep],
             self.progress_true[keep],
         )
+
+
+@dataclass
+class FrameScores:
+    """Per-frame figures of N evaluated frames, aligned by row: all that pooled scoring
+    needs (``evaluation.scores``), without the poses."""
+
+    position_error_m: npt.NDArray[np.float64]  # (N,) mean keypoint distance, NaN: no keypoint
+    angle_error_deg: npt.NDArray[np.float64]  # (N,) mean joint angle error, NaN: no angle
+    action_pred: I64
+    action_true: I64
+    progress_pred: npt.NDArray[np.float64]
+    progress_true: npt.NDArray[np.float64]
+
+    _FIELDS = (
+        "position_error_m",
+        "angle_error_deg",
+        "action_pred",
+        "action_true",
+        "progress_pred",
+        "progress_true",
+    )
+
+    @classmethod
+    def of(cls, frames: FrameSet) -> FrameScores:
+        if not len(frames):
+            return cls.empty()
+        return cls(
+            metrics.position_error_m(frames.pose_pred, frames.pose_true),
+            metrics.angle_error_deg(frames.pose_pred, frames.pose_true),
+            frames.action_pred,
+            frames.action_true,
+            frames.progress_pred,
+            frames.progress_true,
+        )
+
+    @classmethod
+    def empty(cls) -> FrameScores:
+        none = np.zeros(0)
+        return cls(none, none, np.zeros(0, np.int64), np.zeros(0, np.int64), none, none)
+
+    @classmethod
+    def concat(cls, parts: Sequence[FrameScores]) -> FrameScores:
+        if not parts:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in cls._FIELDS))
+
+    def __len__(self) -> int:
+        return int(self.action_true.shape[0])
+
+    def subset(self, keep: npt.NDArray[np.bool_]) -> FrameScores:
+        return FrameScores(*(getattr(self, name)[keep] for name in self._FIELDS))
 
 
 def align(made: list[Prediction], labels: list[LabelRecord]) -> tuple[FrameSet, int]:

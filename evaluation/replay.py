@@ -22,6 +22,7 @@ No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +31,7 @@ from typing import Any
 from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.daemon.window import Window
 from scotti.evaluation.errors import EvaluationError
-from scotti.evaluation.frames import FrameSet, align
+from scotti.evaluation.frames import FrameScores, FrameSet, align
 from scotti.evaluation.sampling import Prediction, SampledTrack
 from scotti.evaluation.segments import BATCH, SegmentTrack
 from scotti.firmware_protocol.assembly import FrameAssembler
@@ -38,6 +39,7 @@ from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
 from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
 from scotti.firmware_protocol.wrap import seq_delta
+from scotti.models.ood import flag_counts
 from scotti.models.runtime import ScottiRuntime, load_pair
 
 
@@ -61,6 +63,15 @@ class SessionReplay:
     model_cpu_s: float = 0.0  # CPU time in the model's graph (this thread), for the rate
     frames: FrameSet = field(default_factory=FrameSet.empty, repr=False)
     made: list[Prediction] = field(default_factory=list, repr=False)  # in time order
+    # What pooling several sessions keeps once ``drop_predictions`` let the above go:
+    scores: FrameScores = field(default_factory=FrameScores.empty, repr=False)
+    flags: Counter[str] = field(default_factory=Counter, repr=False)  # models/ood.py flag_counts
+
+    def drop_predictions(self) -> None:
+        """Let the poses and predictions go, keep ``scores`` and ``flags``: a pooled
+        evaluation holds ~50 bytes a frame per session instead of ~1 kB."""
+        self.frames = FrameSet.empty()
+        self.made = []
 
     def summary(self) -> dict[str, Any]:
         keys = ("path", "subject", "labels", "pairs", "predictions", "evaluated", "unlabelled")
@@ -159,6 +170,8 @@ def replay_session_models(
         out.decode_errors = decoder.counters.errors
         out.frames, out.unlabelled = align(track.made, labels)
         out.evaluated = len(out.frames)
+        out.scores = FrameScores.of(out.frames)
+        out.flags = flag_counts(m.flags for m in out.made)
     return [t.out for t in tracks]
 
 

@@ -1,4 +1,4 @@
-"""Scores the paper's way over a ``FrameSet``: the four tasks overall and per action,
+"""Scores the paper's way over a ``FrameScores``: the four tasks overall and per action,
 the confusion matrix, the precision-margin curve and a random baseline."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any, Final
 
 import numpy as np
-from scotti.evaluation.frames import FrameSet
+from scotti.evaluation.frames import FrameScores
 from scotti.models import metrics
 from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS
 
@@ -14,13 +14,12 @@ RANDOM_SEED: Final = 0  # the random baseline's draws, fixed so that reruns agre
 TRANSITION: Final = "transition"  # per-action row of frames labelled NO_ACTION
 
 
-def task_metrics(frames: FrameSet) -> dict[str, float | int]:
+def task_metrics(frames: FrameScores) -> dict[str, float | int]:
     """The four tasks' figures (MPJPE and MPJAE for pose) over one set of frames."""
-    # Frames with any labelled keypoint; the metrics leave out missing ones (NaN).
-    pose_ok = np.any(np.all(np.isfinite(frames.pose_true), axis=2), axis=1)
+    # A frame without any labelled keypoint has NaN pose errors and is left out.
     return {
-        "mpjpe_mm": metrics.mpjpe_mm(frames.pose_pred, frames.pose_true, pose_ok),
-        "mpjae_deg": metrics.mpjae_deg(frames.pose_pred, frames.pose_true, pose_ok),
+        "mpjpe_mm": metrics.mean_where(frames.position_error_m, None) * 1000.0,
+        "mpjae_deg": metrics.mean_where(frames.angle_error_deg, None),
         "action_accuracy": metrics.action_accuracy(frames.action_pred, frames.action_true),
         "progress_mse": metrics.progress_mse(frames.progress_pred, frames.progress_true),
         "app": metrics.app(frames.progress_pred, frames.progress_true),
@@ -30,7 +29,7 @@ def task_metrics(frames: FrameSet) -> dict[str, float | int]:
     }
 
 
-def random_baseline(frames: FrameSet, seed: int = RANDOM_SEED) -> dict[str, float]:
+def random_baseline(frames: FrameScores, seed: int = RANDOM_SEED) -> dict[str, float]:
     """Uniform random progress (and action) on the same frames: the paper's chance row."""
     rng = np.random.default_rng(seed)
     progress = rng.uniform(0.0, 1.0, len(frames))
@@ -42,7 +41,7 @@ def random_baseline(frames: FrameSet, seed: int = RANDOM_SEED) -> dict[str, floa
     }
 
 
-def score(frames: FrameSet) -> dict[str, Any]:
+def score(frames: FrameScores) -> dict[str, Any]:
     """Overall and per-action figures, confusion matrix, precision-margin curve.
 
     Standing is scored like any action (accuracy, its row of the confusion

@@ -31,10 +31,19 @@ class PrecisionMargin:
 
 def mpjpe_mm(pred: npt.ArrayLike, true: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> float:
     """Mean per joint position error in millimetres; keypoints (..., 19, 3) in metres."""
+    distance = position_error_m(pred, true)
+    return _masked_mean(distance, _with_any(mask, distance)) * 1000.0
+
+
+def position_error_m(pred: npt.ArrayLike, true: npt.ArrayLike) -> FloatArray:
+    """(N,) each frame's mean keypoint distance in metres; NaN where no keypoint is labelled.
+
+    MPJPE is the mean of these over frames (``mpjpe_mm``): pooled scoring keeps
+    them instead of the poses (``evaluation.frames.FrameScores``).
+    """
     p, t = _pair_of_poses(pred, true)
     # A keypoint the label lacks (NaN, e.g. imported data) is left out on its own.
-    distance = _nan_row_mean(np.linalg.norm(p - t, axis=-1))  # (N,) metres
-    return _masked_mean(distance, _with_any(mask, distance)) * 1000.0
+    return _nan_row_mean(np.linalg.norm(p - t, axis=-1))
 
 
 def joint_angles_deg(keypoints: npt.ArrayLike) -> FloatArray:
@@ -54,9 +63,14 @@ def joint_angles_deg(keypoints: npt.ArrayLike) -> FloatArray:
 
 def mpjae_deg(pred: npt.ArrayLike, true: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> float:
     """Mean per joint angle error in degrees over ``contract.JOINT_ANGLES``."""
-    p, t = _pair_of_poses(pred, true)
-    error = _nan_row_mean(np.abs(joint_angles_deg(p) - joint_angles_deg(t)))  # (N,)
+    error = angle_error_deg(pred, true)
     return _masked_mean(error, _with_any(mask, error))
+
+
+def angle_error_deg(pred: npt.ArrayLike, true: npt.ArrayLike) -> FloatArray:
+    """(N,) each frame's mean joint angle error in degrees; NaN where no angle is labelled."""
+    p, t = _pair_of_poses(pred, true)
+    return _nan_row_mean(np.abs(joint_angles_deg(p) - joint_angles_deg(t)))
 
 
 def action_mask(true: npt.ArrayLike) -> npt.NDArray[np.bool_]:
@@ -147,6 +161,16 @@ def _with_any(mask: npt.ArrayLike | None, per_frame: FloatArray) -> npt.NDArray[
         msg = f"mask must have {ok.size} entries, got {m.size}"
         raise ModelInputError(msg)
     return np.asarray(m & ok)
+
+
+def mean_where(values: npt.ArrayLike, mask: npt.ArrayLike | None) -> float:
+    """Mean of ``values`` where ``mask`` holds and the value is finite; NaN over none.
+
+    With ``position_error_m`` or ``angle_error_deg`` this is MPJPE (in metres) or
+    MPJAE over the frames in ``mask``.
+    """
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    return _masked_mean(v, _with_any(mask, v))
 
 
 def _masked_mean(values: FloatArray, mask: npt.ArrayLike | None) -> float:

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import base64
 import json
-from collections.abc import Iterable, Sequence
+from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -44,14 +45,30 @@ def withheld(flags: Iterable[str]) -> str | None:
     return next((f for f in OOD_FLAGS if f in present), None)
 
 
-def flag_shares(flag_sets: Sequence[Iterable[str]]) -> dict[str, Any]:
+def flag_shares(flag_sets: Iterable[Iterable[str]]) -> dict[str, Any]:
     """Share of predictions carrying each OOD flag, and of those withheld at all."""
-    sets = [set(f) for f in flag_sets]
-    n = len(sets)
+    return shares_of(flag_counts(flag_sets))
+
+
+def flag_counts(flag_sets: Iterable[Iterable[str]]) -> Counter[str]:
+    """How many predictions carry each OOD flag (``any``: withheld at all) and how many
+    there are (``predictions``). Counts of several sessions add up (``Counter.update``);
+    shares would not."""
+    counts: Counter[str] = Counter(dict.fromkeys((*OOD_FLAGS, "any", "predictions"), 0))
+    for flags in flag_sets:
+        present = set(flags)
+        counts["predictions"] += 1
+        counts.update(name for name in OOD_FLAGS if name in present)
+        counts["any"] += withheld(present) is not None
+    return counts
+
+
+def shares_of(counts: Counter[str]) -> dict[str, Any]:
+    """``flag_counts`` as shares of the predictions (None where there are none)."""
+    n = counts["predictions"]
     shares: dict[str, Any] = {
-        name: (sum(name in s for s in sets) / n if n else None) for name in OOD_FLAGS
+        name: (counts[name] / n if n else None) for name in (*OOD_FLAGS, "any")
     }
-    shares["any"] = sum(withheld(s) is not None for s in sets) / n if n else None
     shares["predictions"] = n
     return shares
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scotti.cli.main import main
 from scotti.evaluation.evaluation import (
+    FrameScores,
     FrameSet,
     evaluate_models,
     evaluate_sessions,
@@ -20,6 +21,7 @@ from scotti.evaluation.evaluation import (
 )
 from scotti.firmware_protocol.packets import Foot
 from scotti.firmware_protocol.session import LabelRecord, read_session
+from scotti.models import metrics
 from scotti.models.contract import ACTIONS, NO_ACTION, NUM_ACTIONS, NUM_KEYPOINTS, STANDING
 from scotti.models.input_checks import UNLOADED_FRAMES
 from scotti.models.runtime import ScottiRuntime
@@ -72,7 +74,7 @@ def test_numbers_are_finite_and_labels_against_themselves_are_perfect(
         assert math.isfinite(m[key]), key
     assert sum(map(sum, report["confusion"]["matrix"])) == m["frames_action"]
 
-    perfect = score(FrameSet.from_labels(read_session(session).labels))["metrics"]
+    perfect = score(FrameScores.of(FrameSet.from_labels(read_session(session).labels)))["metrics"]
     assert perfect["mpjpe_mm"] == 0.0
     assert perfect["mpjae_deg"] == 0.0
     assert perfect["action_accuracy"] == 1.0
@@ -100,7 +102,7 @@ def test_standing_is_scored_as_an_action_and_its_progress_left_out() -> None:
         np.array([0.3, 0.6, 0.9, 0.1, 0.0]),
         truth.progress_true,
     )
-    report = score(predicted)
+    report = score(FrameScores.of(predicted))
     assert np.shape(report["confusion"]["matrix"]) == (NUM_ACTIONS, NUM_ACTIONS)
     assert report["confusion"]["matrix"][standing][standing] == 1
     assert report["confusion"]["matrix"][standing][squat] == 1
@@ -117,10 +119,28 @@ def test_standing_is_scored_as_an_action_and_its_progress_left_out() -> None:
 
 
 def test_random_baseline_is_near_chance(session: Path, runtime: ScottiRuntime) -> None:
-    frames = FrameSet.concat([replay_session(session, runtime).frames] * 40)
+    frames = FrameScores.concat([replay_session(session, runtime).scores] * 40)
     base = score(frames)["random_baseline"]
     assert 0.55 < base["app"] < 0.78  # 2/3 in expectation
     assert 0.0 < base["action_accuracy"] < 0.3  # 1/9 in expectation
+
+
+def test_pooled_figures_are_those_of_every_session_s_full_poses(
+    session: Path, runtime: ScottiRuntime, tmp_path: Path
+) -> None:
+    # Pooling keeps per-frame errors, not poses (FrameScores): the figures must not move.
+    other = write_session(tmp_path / "t.session", 70, subject="s2", drop_foot={(50, 0)})
+    report = evaluate_sessions([session, other], runtime)
+    full = FrameSet.concat([replay_session(p, runtime).frames for p in (session, other)])
+    pose_ok = np.any(np.all(np.isfinite(full.pose_true), axis=2), axis=1)
+    m = report["metrics"]
+    assert m["frames"] == len(full)
+    poses = (full.pose_pred, full.pose_true, pose_ok)
+    assert m["mpjpe_mm"] == pytest.approx(metrics.mpjpe_mm(*poses))
+    assert m["mpjae_deg"] == pytest.approx(metrics.mpjae_deg(*poses))
+    assert m["action_accuracy"] == metrics.action_accuracy(full.action_pred, full.action_true)
+    assert m["app"] == pytest.approx(metrics.app(full.progress_pred, full.progress_true))
+    assert report["ood"]["predictions"] == sum(s["predictions"] for s in report["sessions"])
 
 
 def test_cli_json_and_plots(
