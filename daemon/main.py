@@ -61,6 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     out.add_argument("--lsl", action="store_true", default=None, help="Lab Streaming Layer")
     out.add_argument("--web", type=int, metavar="PORT", help="browser live view on PORT")
+    p.add_argument(
+        "--processes", type=int, metavar="N",
+        help="share the [[devices]] among N worker processes (default 1; docs/performance.md)",
+    )  # fmt: skip
     p.add_argument("--log-level", metavar="LEVEL", help="debug, info, warning, error")
     p.add_argument("--config", type=Path, metavar="FILE", help="TOML config file")
     return p
@@ -88,6 +92,7 @@ _CLI_FIELDS: dict[str, tuple[str | None, str]] = {
     "lsl": ("outputs", "lsl"),
     "web": ("outputs", "web"),
     "log_level": (None, "log_level"),
+    "processes": (None, "processes"),
 }
 
 
@@ -105,8 +110,9 @@ def cli_overrides(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def configure_logging(level: str) -> None:
-    fmt = "%(levelname)s %(name)s: %(message)s"
+def configure_logging(level: str, prefix: str = "") -> None:
+    """``prefix``: a worker process's name before each of its lines (daemon/workers.py)."""
+    fmt = prefix + "%(levelname)s %(name)s: %(message)s"
     if sys.stderr.isatty():  # journald stamps its own time
         fmt = "%(asctime)s " + fmt
     logging.basicConfig(level=level.upper(), format=fmt, stream=sys.stderr, force=True)
@@ -128,6 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         return _fail("config error", str(exc))
     configure_logging(settings.log_level)
+    if settings.processes > 1 and len(settings.device_list()) > 1:
+        from scotti.daemon.workers import supervise  # no model here: the workers load it
+
+        return supervise(settings, model_path)
 
     # Imported here: onnxruntime takes a moment, and a config error should not wait.
     from scotti.daemon.app import Daemon

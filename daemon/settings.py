@@ -120,6 +120,9 @@ class Settings(BaseSettings):
     record: Path | None = None  # append the raw byte stream to this session file
     outputs: OutputSettings = OutputSettings()  # MCAP, Foxglove, LSL, web (daemon/outputs/)
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+    # Worker processes the devices are shared among (daemon/workers.py): each its own
+    # event loop and model. 1: every device in this process.
+    processes: Annotated[int, Field(ge=1, le=64)] = 1
     stop_timeout_s: Annotated[float, Field(gt=0, le=120)] = 5.0
 
     @field_validator("log_level", mode="before")
@@ -158,6 +161,12 @@ class Settings(BaseSettings):
         twice = sorted({i for i in ids if ids.count(i) > 1})
         if twice:
             msg = f"devices: id {twice[0]!r} given twice; each device needs its own id"
+            raise ValueError(msg)
+        if self.processes > 1 and self.outputs.any:
+            msg = (
+                "processes: the outputs (web, foxglove, record_mcap, lsl) serve every device "
+                "of one process; set processes = 1 to use them"
+            )
             raise ValueError(msg)
         if len(self.devices) > 1:
             unnamed = [d.id for d in self.devices if d.record is None]

@@ -9,9 +9,11 @@ measures what a consumer sees: receipt time minus the frame's last byte
 ``latency_ms`` (last byte -> publish) comes from the payload. The daemon's
 CPU (100 % = one core) and peak RSS are sampled with psutil. Each N runs with
 the batched engine (``inference.batch = true``) and, with ``--modes``, one
-model call per pair (``false``). A measurement, never a test.
+model call per pair (``false``), and with ``--processes`` over several worker
+processes (daemon/workers.py). A measurement, never a test.
 
     python -m scotti.daemon.tools.bench --pairs 1 2 4 8 16 32 64 [--seconds 20]
+    python -m scotti.daemon.tools.bench --pairs 32 --processes 1 2 --modes batch
     python -m scotti.daemon.tools.bench --step-batches 1 2 4 8 16 32 64   # the model alone
 """
 
@@ -165,22 +167,39 @@ def sample_process(
     warmup: float | threading.Event,
     others: tuple[int, ...] = (),
 ) -> tuple[float, float, float]:
-    """Mean CPU % (100 = one core) and peak RSS in MiB of ``pid`` over ``seconds`` after
-    ``warmup`` (seconds, or an event: once it is set), and the CPU % of ``others``
-    together (the bench's own load on the host)."""
+    """Mean CPU % (100 = one core) and peak RSS in MiB of ``pid`` and its children (a
+    daemon with ``processes`` > 1: the supervisor and its workers, RSS summed) over
+    ``seconds`` after ``warmup`` (seconds, or an event: once it is set), and the CPU %
+    of ``others`` together (the bench's own load on the host)."""
     proc = psutil.Process(pid)
     rest = [psutil.Process(p) for p in others]
     if isinstance(warmup, threading.Event):
         warmup.wait(READY_TIMEOUT_S + seconds)
     else:
         time.sleep(warmup)
-    for p in (proc, *rest):
+    tree = [proc, *proc.children(recursive=True)]  # workers are up once poses flow
+    for p in (*tree, *rest):
         p.cpu_percent(None)
     rss, end = 0, time.monotonic() + seconds
     while time.monotonic() < end:
         time.sleep(0.5)
-        rss = max(rss, proc.memory_info().rss)
-    return proc.cpu_percent(None), rss / 2**20, sum(p.cpu_percent(None) for p in rest)
+        rss = max(rss, sum(_rss(p) for p in tree))
+    cpu = sum(_cpu(p) for p in tree)
+    return cpu, rss / 2**20, sum(p.cpu_percent(None) for p in rest)
+
+
+def _rss(proc: psutil.Process) -> int:
+    try:
+        return int(proc.memory_info().rss)
+    except psutil.NoSuchProcess:  # a worker that died (it is started again)
+        return 0
+
+
+def _cpu(proc: psutil.Process) -> float:
+    try:
+        return float(proc.cpu_percent(None))
+    except psutil.NoSuchProcess:
+        return 0.0
 
 
 def _play_boards(links: list[str], seconds: float, ready: object, stop: object) -> None:
@@ -199,12 +218,13 @@ def _play_boards(links: list[str], seconds: float, ready: object, stop: object) 
 class Row:
     pairs: int
     batch: bool
+    processes: int  # the daemon's worker processes (1: all in one)
     published: int  # poses the subscriber got in the measured seconds
     seconds: float
     publish: dict[str, float | int]  # the daemon's latency_ms
     receipt: dict[str, float | int]  # last byte -> subscriber
-    cpu: float  # the daemon, % of one core
-    rss: float  # the daemon, MiB
+    cpu: float  # the daemon (and its workers), % of one core
+    rss: float  # the daemon (and its workers, summed), MiB
     bench_cpu: float  # the emulated boards, the subscriber and mosquitto, % of one core
     load: float  # 1-minute load average at the end
 
@@ -214,12 +234,15 @@ class Row:
         return self.published / self.seconds / self.pairs
 
 
-def config_text(links: list[Path], broker: Mosquitto, batch: bool, max_batch: int = 8) -> str:
+def config_text(
+    links: list[Path], broker: Mosquitto, batch: bool, max_batch: int = 8, processes: int = 1
+) -> str:
     tables = "".join(
         f'\n[[devices]]\nid = "pair{i:02d}"\nport = "{link}"\n' for i, link in enumerate(links)
     )
     return (
-        f'log_level = "warning"\n[inference]\nbatch = {str(batch).lower()}\n'
+        f'log_level = "warning"\nprocesses = {processes}\n'
+        f"[inference]\nbatch = {str(batch).lower()}\n"
         f"max_batch = {max_batch}\n"
         f'[mqtt]\nbroker = "{broker.url}"\n{tables}'
     )
@@ -233,11 +256,12 @@ def run_one(
     seconds: float,
     warmup: float,
     max_batch: int = 8,
+    processes: int = 1,
 ) -> Row:
     folder = Path(tempfile.mkdtemp(prefix="scotti-bench-"))
     links = [folder / f"tty{i:02d}" for i in range(pairs)]
     config = folder / "devices.toml"
-    config.write_text(config_text(links, broker, batch, max_batch))
+    config.write_text(config_text(links, broker, batch, max_batch, processes))
     ctx = multiprocessing.get_context("spawn")
     ready, stop = ctx.Event(), ctx.Event()
     boards = ctx.Process(
@@ -265,6 +289,7 @@ def run_one(
     return Row(
         pairs=pairs,
         batch=batch,
+        processes=processes,
         published=len(samples),
         seconds=seconds,
         publish=latency_summary([s["publish"] for s in samples]),
@@ -305,6 +330,8 @@ HEADER = (
 
 def table_row(r: Row) -> str:
     mode = "batched" if r.batch else "per pair"
+    if r.processes > 1:
+        mode += f", {r.processes} processes"
     p, s = r.publish, r.receipt
     return (
         f"| {r.pairs} | {mode} | {r.rate:.1f} | {p['p50']:.1f} / {p['p99']:.1f} "
@@ -328,12 +355,20 @@ def run(args: argparse.Namespace, model: Path) -> int:
     rows = []
     with Mosquitto() as broker:
         for pairs in args.pairs:
-            for batch in modes:
-                row = run_one(
-                    broker, model, pairs, batch, args.seconds, args.warmup, args.max_batch
-                )
-                rows.append(row)
-                print(table_row(row), flush=True)
+            for processes in args.processes:
+                for batch in modes:
+                    row = run_one(
+                        broker,
+                        model,
+                        pairs,
+                        batch,
+                        args.seconds,
+                        args.warmup,
+                        args.max_batch,
+                        processes,
+                    )
+                    rows.append(row)
+                    print(table_row(row), flush=True)
     return 0 if all(r.published for r in rows) else 1
 
 
@@ -383,15 +418,26 @@ def main(argv: list[str] | None = None) -> int:
         help="batched engine (batch) and/or one model call per pair (single)",
     )  # fmt: skip
     p.add_argument("--max-batch", type=int, default=8, help="inference.max_batch (default 8)")
+    p.add_argument(
+        "--processes", type=int, nargs="+", default=[1], metavar="N",
+        help="the daemon's worker processes, one run each (default 1: all pairs in one)",
+    )  # fmt: skip
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
     p.add_argument(
         "--step-batches", type=int, nargs="+", metavar="B",
         help="instead: time the model's step alone at these batch sizes (no daemon, no broker)",
     )  # fmt: skip
     args = p.parse_args(argv)
-    if min(args.pairs) < 1 or args.seconds <= 0 or args.warmup < 0 or args.max_batch < 1:
+    if (
+        min(args.pairs) < 1
+        or min(args.processes) < 1
+        or args.seconds <= 0
+        or args.warmup < 0
+        or args.max_batch < 1
+    ):
         print(
-            "bench: --pairs and --max-batch must be >= 1, --seconds > 0, --warmup >= 0",
+            "bench: --pairs, --processes and --max-batch must be >= 1, --seconds > 0, "
+            "--warmup >= 0",
             file=sys.stderr,
         )
         return 2

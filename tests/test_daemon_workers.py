@@ -1,0 +1,139 @@
+"""``processes = N``: the devices shared among worker processes (daemon/workers.py).
+
+Real ptys, a real mosquitto, real worker processes: a worker killed with
+SIGKILL (as the OOM killer does) is started again and its device comes back,
+while the device of the other worker keeps its rate throughout.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import pickle
+import re
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from scotti.daemon.settings import ConfigError, DeviceSettings, load_settings
+from scotti.daemon.tools.bench import board_records
+from scotti.daemon.tools.local_broker import Mosquitto
+from scotti.daemon.workers import share_devices, worker_settings
+
+from tests.support.broker import Received, collect, payloads, start_daemon
+
+
+def _devices(n: int) -> tuple[DeviceSettings, ...]:
+    return tuple(DeviceSettings(id=f"d{i}", port=f"/dev/ttyACM{i}") for i in range(n))
+
+
+def test_every_nth_device_goes_to_each_worker_and_none_is_empty() -> None:
+    shares = share_devices(_devices(5), 2)
+    assert [[d.id for d in s] for s in shares] == [["d0", "d2", "d4"], ["d1", "d3"]]
+    assert len(share_devices(_devices(2), 8)) == 2  # never a worker without a device
+    assert [len(s) for s in share_devices(_devices(3), 1)] == [3]
+
+
+def test_a_worker_s_settings_pickle_and_keep_everything_but_the_other_devices(
+    tmp_path: Path,
+) -> None:
+    config = tmp_path / "d.toml"
+    tables = "".join(f'[[devices]]\nid = "d{i}"\nport = "/dev/ttyACM{i}"\n' for i in range(3))
+    config.write_text(f'processes = 2\n[mqtt]\nbroker = "mqtt://broker:1884"\n{tables}')
+    settings = load_settings({}, config)  # a class made for this file: it does not pickle
+    share = share_devices(settings.device_list(), settings.processes)[1]
+    worker = pickle.loads(pickle.dumps(worker_settings(settings, share)))
+    assert [d.id for d in worker.device_list()] == ["d1"]
+    assert worker.processes == 1
+    assert worker.mqtt.broker == "mqtt://broker:1884"
+    assert worker.mqtt_for(share[0]).device_id == "d1"
+
+
+def test_processes_with_an_output_is_a_config_error() -> None:
+    devices = [{"id": "a", "port": "/dev/a"}, {"id": "b", "port": "/dev/b"}]
+    with pytest.raises(ConfigError, match="processes"):
+        load_settings({"processes": 2, "devices": devices, "outputs": {"web": 0}})
+    load_settings({"processes": 2, "devices": devices})  # without: fine
+
+
+def _poses_at(msgs: list[Received], device: str) -> list[float]:
+    return [m.at for m in msgs if m.topic == f"scotti/{device}/pose"]
+
+
+def _statuses(msgs: list[Received], device: str) -> list[dict[str, Any]]:
+    return payloads([m for m in msgs if m.topic.startswith(f"scotti/{device}/")], "status")
+
+
+@pytest.mark.mosquitto
+@pytest.mark.slow
+def test_a_killed_worker_comes_back_and_the_other_keeps_its_rate(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path, board_factory: Any
+) -> None:
+    records = board_records(12.0)
+    names = ("steady", "victim", "third")  # worker 0: steady, third; worker 1: victim
+    boards = {n: board_factory(records, loop=True, link=tmp_path / n) for n in names}
+    tables = "".join(f'\n[[devices]]\nid = "{n}"\nport = "{boards[n].link}"\n' for n in names)
+    config = tmp_path / "workers.toml"
+    config.write_text(
+        f'log_level = "info"\nprocesses = 2\n[mqtt]\nbroker = "{mosquitto.url}"\n'
+        f"health_interval_s = 0.5\n{tables}"
+    )
+    with collect(mosquitto, "scotti/#") as got:
+        daemon = start_daemon(
+            ["--config", str(config), "--model", str(tiny_model_path)], tmp_path / "daemon.log"
+        )
+        try:
+            got.wait_for(
+                lambda m: all(len(_poses_at(m, n)) >= 8 for n in names), 60, "poses from all three"
+            )
+            found = re.search(r"worker 1 \(pid (\d+)\): victim", daemon.log)
+            assert found, daemon.log[-3000:]
+            victim_pid = int(found.group(1))
+            assert victim_pid != daemon.proc.pid
+            start = time.monotonic()
+            os.kill(victim_pid, signal.SIGKILL)
+            # The broker says so for it (its client's last will), then it is back.
+            got.wait_for(
+                lambda m: any(
+                    x.at > start and json.loads(x.payload)["state"] == "offline"
+                    for x in m
+                    if x.topic == "scotti/victim/status"
+                ),
+                20,
+                "the killed worker's device offline",
+            )
+            got.wait_for(
+                lambda m: len([t for t in _poses_at(m, "victim") if t > start + 1.0]) >= 8,
+                60,
+                "poses from the restarted worker",
+            )
+            steady = [t for t in _poses_at(got.snapshot(), "steady") if t >= start]
+        finally:
+            assert daemon.stop() == 0, daemon.log[-3000:]
+        msgs = got.snapshot()
+
+    assert "worker 1 (victim) died (signal SIGKILL)" in daemon.log
+    pids = re.findall(r"worker 1 \(pid (\d+)\): victim", daemon.log)
+    assert pids[0] == str(victim_pid)
+    assert len(set(pids)) == len(pids) == 2, pids  # started again, as a new process
+    # The other worker's device never waited for the killed one: its rate throughout.
+    span = steady[-1] - steady[0]
+    assert len(steady) >= 14 * span, f"{len(steady)} poses in {span:.1f} s"
+    assert max(b - a for a, b in itertools.pairwise(steady)) < 0.5
+    for name in names:  # every worker stopped gracefully: each device says offline last
+        assert _statuses(msgs, name)[-1]["state"] == "offline", name
+
+
+def test_a_model_that_does_not_load_stops_every_worker_with_78(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not a model")
+    tables = "".join(f'\n[[devices]]\nid = "d{i}"\nport = "/dev/null{i}"\n' for i in range(2))
+    config = tmp_path / "bad.toml"
+    config.write_text(f'processes = 2\n[mqtt]\nbroker = "mqtt://127.0.0.1:1"\n{tables}')
+    daemon = start_daemon(["--config", str(config), "--model", str(bad)], tmp_path / "bad.log")
+    assert daemon.wait(60) == 78
+    assert "model error" in daemon.log
+    assert "Traceback" not in daemon.log
