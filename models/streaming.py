@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 from scotti.models.errors import ModelError, ModelInputError
-from scotti.models.input_checks import FrameChecks
+from scotti.models.input_checks import FrameCheck, FrameChecks, check_frames
 from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON
 from scotti.models.runtime import ScottiRuntime, StepResult
 
@@ -127,10 +127,13 @@ class StreamingWindow:
         self._seen = 0
         self.reasons = ()
 
-    def _accept(self, frame: npt.ArrayLike, result: StepResult) -> StepResult | None:
-        """Take one step's result for ``frame`` into the cache and the input checks."""
+    def _accept(
+        self, frame: npt.ArrayLike, result: StepResult, check: FrameCheck | None = None
+    ) -> StepResult | None:
+        """Take one step's result for ``frame`` into the cache and the input checks
+        (``check``: the frame's, made with other frames' in one pass)."""
         self._cache.push(result.embedding)
-        verdict = self._checks.push(frame)
+        verdict = self._checks.push(frame) if check is None else self._checks.push_check(check)
         self._seen += 1
         if self.warming:
             return None
@@ -168,4 +171,5 @@ def push_many(
     stacked = np.stack(arrays)  # (B, H, 2W)
     past = np.stack([w._cache.past() for w in windows])  # (B, T-1, E)
     results = runtime.step_batch(stacked, past)
-    return [w._accept(f, r) for w, f, r in zip(windows, arrays, results, strict=True)]
+    checks = check_frames(stacked)  # one numpy pass for all: per frame, the calls cost most
+    return [w._accept(f, r, c) for w, f, r, c in zip(windows, arrays, results, checks, strict=True)]
