@@ -253,14 +253,19 @@ class Publisher:
         # paho at once and go out in one write: one at a time, each would wait for its
         # own turn of the loop, and on a loaded host those turns, not the broker,
         # bound how many predictions go out.
-        publishes = [
-            self._publish_frame(
-                self.settings.topic(name), LatencySlot.encode(payload, self._fmt), origin
-            )
+        messages = [
+            (self.settings.topic(name), LatencySlot.encode(payload, self._fmt))
             for name, payload in batch.render(0.0)
         ]
         try:
-            await self._unless_lost(asyncio.gather(*publishes))
+            # All but the last go straight into paho's queue; awaiting the last one's
+            # write (aiomqtt) awaits theirs too: paho writes its queue in order. One
+            # await per prediction, not a task, an event and a timeout per message
+            # (a tenth of the event loop's time at 16 pairs, py-spy).
+            for topic, slot in messages[:-1]:
+                self._queue_frame(topic, slot, origin)
+            if messages:
+                await self._unless_lost(self._publish_frame(*messages[-1], origin))
         except aiomqtt.MqttError:
             self.stats.dropped_error += 1
             raise
@@ -269,6 +274,16 @@ class Publisher:
         # health's end_to_end: up to the write to the socket (aiomqtt returns from a
         # QoS 0 publish once paho has written it).
         self.stats.latency_ms.add((time.monotonic_ns() - origin) / 1e6)
+
+    def _queue_frame(self, topic: str, slot: LatencySlot, origin_ns: int) -> None:
+        """Hand one per-frame message to paho without waiting for its write (QoS 0)."""
+        latency_ms = (time.monotonic_ns() - origin_ns) / 1e6
+        paho_client: paho.Client = self._client._client  # aiomqtt 2.x keeps paho here
+        info = paho_client.publish(
+            topic, slot.fill(latency_ms), qos=FRAME_QOS, retain=False, properties=self._frame_props
+        )
+        if info.rc != paho.MQTT_ERR_SUCCESS:  # not connected: as aiomqtt's publish says it
+            raise aiomqtt.MqttCodeError(info.rc, "Could not publish message")
 
     async def _publish_frame(self, topic: str, slot: LatencySlot, origin_ns: int) -> None:
         latency_ms = (time.monotonic_ns() - origin_ns) / 1e6
