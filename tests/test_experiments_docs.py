@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from scotti.evaluation.evaluation import FrameSet, score, task_metrics
+from scotti.evaluation.evaluation import FrameScores, FrameSet, score, task_metrics
 from scotti.models.contract import NUM_ACTIONS, has_progress
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
@@ -82,11 +82,11 @@ def _frames(n: int, seed: int, quality: float) -> FrameSet:
 
 
 def _report(frames: FrameSet, variant: str, name: str) -> dict[str, Any]:
-    report = score(frames)
+    report = score(FrameScores.of(frames))
     report["variant"] = variant
     report["model"] = {"path": f"runs/tables/models/{name}.onnx"}
     report["sessions"] = [
-        {"subject": "s", "evaluated": len(frames), "metrics": task_metrics(frames)}
+        {"subject": "s", "evaluated": len(frames), "metrics": task_metrics(FrameScores.of(frames))}
     ]
     report["subjects"] = ["s"]
     return report
