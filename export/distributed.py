@@ -163,3 +163,10 @@ def wrap(module: torch.nn.Module, ctx: DistContext, device: torch.device) -> tor
 
     ids = [device.index] if device.type == "cuda" else None
     return DistributedDataParallel(module, device_ids=ids)
+
+
+def unwrap(module: torch.nn.Module) -> torch.nn.Module:
+    """The module inside ``wrap``'s DDP (``module`` itself when it is not one)."""
+    from torch.nn.parallel import DistributedDataParallel
+
+    return module.module if isinstance(module, DistributedDataParallel) else module
