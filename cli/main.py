@@ -24,6 +24,10 @@ VERBS: dict[str, tuple[str, str]] = {
     "train-history": ("scotti.export.history", "draw a training run's history.jsonl into a PNG"),
     "export": ("scotti.export.export_cli", "export a checkpoint to ONNX (needs [train])"),
     "eval": ("scotti.evaluation.cli", "evaluate a model on session files"),
+    "calibrate": (
+        "scotti.evaluation.calibrate_cli",
+        "fit a model's progress calibration on held-out subjects' sessions",
+    ),
 }
 # "verb action" pairs implemented outside the verb's room: ``session export`` runs the
 # model, which firmware_protocol (the owner of ``session``) must not import.

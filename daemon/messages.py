@@ -182,6 +182,7 @@ def info(
             "threads": runtime.threads,
             "card": runtime.card,
             "ood": runtime.ood_info(),
+            "progress_calibration": runtime.progress_calibration_info(),
             "input_checks": input_check_thresholds(),
         },
         keypoints=list(KEYPOINTS),

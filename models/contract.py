@@ -171,3 +171,6 @@ META_CARD: Final = "scotti.card"  # JSON model card (training data, metrics, ...
 # Optional: statistics of the pooled vectors over training windows and the calibrated
 # threshold of the unfamiliar score (JSON, models/ood.py ``OodStats``).
 META_OOD: Final = "scotti.ood"
+# Optional: a monotone map per action from the progress head's output to calibrated
+# progress, fitted on held-out subjects (JSON, models/progress_calibration.py).
+META_PROGRESS_CALIBRATION: Final = "scotti.progress_calibration"

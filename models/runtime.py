@@ -27,6 +27,7 @@ from scotti.models.graph_checks import (
     sha256_of,
 )
 from scotti.models.ood import UNFAMILIAR, OodStats
+from scotti.models.progress_calibration import ProgressCalibration
 
 F32 = npt.NDArray[np.float32]
 
@@ -114,7 +115,11 @@ def softmax(logits: npt.ArrayLike, axis: int = -1) -> F32:
 class ScottiRuntime:
     """One SCOTTI graph (step or window) in an onnxruntime CPU session."""
 
-    def __init__(self, path: str | Path, threads: int = 1) -> None:
+    def __init__(
+        self, path: str | Path, threads: int = 1, *, calibrate_progress: bool = True
+    ) -> None:
+        """``calibrate_progress`` False: the progress head's output as it is, whatever the
+        metadata holds (what ``scotti calibrate`` fits a calibration on)."""
         self._path = Path(path)
         if threads < 1:
             msg = f"threads must be at least 1, got {threads}"
@@ -127,6 +132,8 @@ class ScottiRuntime:
             self._graph, self._window, self._embed_dim, self._card = check_metadata(meta)
             self._has_pooled = check_io(self._session, self._graph, self._window, self._embed_dim)
             self._ood = ood_stats(meta, self._embed_dim, self._has_pooled)
+            text = meta.get(c.META_PROGRESS_CALIBRATION)
+            calibration = ProgressCalibration.from_json(text) if text is not None else None
         except ModelContractError as exc:
             msg = f"{self._path.name}: {exc}"
             raise ModelContractError(msg) from None
@@ -136,6 +143,8 @@ class ScottiRuntime:
         if self._has_pooled:
             self._outputs.append(c.OUTPUT_POOLED)
         self._frame_shape = (c.FRAME_ROWS, 2 * c.FRAME_COLS)
+        self._progress_calibration = calibration if calibrate_progress else None
+        self._carries_calibration = calibration is not None
 
     # --- what was loaded -----------------------------------------------------
 
@@ -176,6 +185,19 @@ class ScottiRuntime:
     def ood(self) -> OodStats | None:
         """The training data's pooled-vector statistics (None: not calibrated)."""
         return self._ood
+
+    @property
+    def progress_calibration(self) -> ProgressCalibration | None:
+        """The map applied to every progress output (None: the head's output as it is)."""
+        return self._progress_calibration
+
+    def progress_calibration_info(self) -> dict[str, Any]:
+        """What ``info`` says about progress: calibrated (and on what) or not."""
+        cal = self._progress_calibration
+        if cal is None:
+            why = "switched off" if self._carries_calibration else "the model carries none"
+            return {"calibrated": False, "reason": why}
+        return {"calibrated": True, "summary": cal.summary}
 
     def ood_info(self) -> dict[str, Any]:
         """What ``info`` says about the unfamiliar score: calibrated or why not."""
@@ -238,7 +260,14 @@ class ScottiRuntime:
         score = ood.score(pooled) if pooled is not None and ood is not None else None
         threshold = ood.threshold if ood is not None else None
         return StepBatch(
-            pose, logits, softmax(logits), progress, embedding, pooled, score, threshold
+            pose,
+            logits,
+            softmax(logits),
+            self._calibrated(progress, logits),
+            embedding,
+            pooled,
+            score,
+            threshold,
         )
 
     def run_windows(self, frames: npt.ArrayLike, batch_size: int = 32) -> WindowResult:
@@ -273,7 +302,12 @@ class ScottiRuntime:
         ood = self._ood
         score = ood.score(pooled) if pooled is not None and ood is not None else None
         threshold = ood.threshold if ood is not None else None
+        progress = self._calibrated(progress, logits)
         return WindowResult(pose, logits, softmax(logits), progress, pooled, score, threshold)
+
+    def _calibrated(self, progress: F32, logits: F32) -> F32:
+        cal = self._progress_calibration
+        return progress if cal is None else cal.apply(progress, np.argmax(logits, axis=-1))
 
     # --- files -------------------------------------------------------------------
 
