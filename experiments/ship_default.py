@@ -192,6 +192,7 @@ def card_md(card: dict[str, Any]) -> str:
     else:
         lines.append("Not evaluated.")
     lines += ood_markdown(card.get("ood"))
+    lines += calibration_markdown(card.get("progress_calibration"))
     lat = card["latency"]
     lines += [
         "",
@@ -227,6 +228,23 @@ def card_md(card: dict[str, Any]) -> str:
     if card.get("shipped_note"):
         lines += [card["shipped_note"], ""]
     return "\n".join(lines)
+
+
+def calibration_markdown(info: dict[str, Any] | None) -> list[str]:
+    """The card's words on the progress calibration (models/progress_calibration.py)."""
+    if not info or not info.get("calibrated"):
+        return ["", "## Progress calibration", "", "None: the progress head's output as it is."]
+    s = info["summary"]
+    return [
+        "",
+        "## Progress calibration",
+        "",
+        f"Progress goes through a monotone map per predicted action ({s['method']}), "
+        f"fitted with `scotti calibrate` on the held-out validation subjects "
+        f"{', '.join(s['fitted_on'])} ({sum(s['frames'].values())} frames; progress MSE "
+        f"{s['mse_before']:.4f} -> {s['mse_after']:.4f} on them). The held-out figures "
+        "above are of the calibrated model, on other subjects.",
+    ]
 
 
 def embed_card(src: Path, dst: Path, card: dict[str, Any]) -> None:
@@ -342,6 +360,7 @@ def main(argv: list[str] | None = None) -> int:
             "by_threads": measured["latency"],
         },
         "flops": {"step": measured["step_flops"], "window": measured["window_flops"]},
+        "progress_calibration": ScottiRuntime(step).progress_calibration_info(),
     }
     out = args.out_dir
     out.mkdir(parents=True, exist_ok=True)
