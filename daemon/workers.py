@@ -137,7 +137,7 @@ class Supervisor:
         self.settings = settings
         self.model_path = model_path
         self.notifier = notifier or Notifier()
-        self.restarts = 0
+        self.restarts = 0  # workers started again after they died, in this run
         self._context = multiprocessing.get_context("spawn")  # no inherited threads or loop
         self._stopping = False
         self.workers = [
@@ -161,10 +161,6 @@ class Supervisor:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
             self.notifier.close()
-
-    def stop(self) -> None:
-        """Ask the supervision to end (what SIGTERM does)."""
-        self._stopping = True
 
     # --- the loop -----------------------------------------------------------------------
 
@@ -193,6 +189,7 @@ class Supervisor:
             if now >= worker.restart_at and not self._stopping:
                 self.restarts += 1
                 self._start(worker)
+                self.notifier.status(self._status())
             return
         process = worker.process
         if process is None or process.is_alive():
@@ -263,7 +260,10 @@ class Supervisor:
     def _status(self) -> str:
         up = sum(1 for w in self.workers if self._running(w) and w.process and w.process.is_alive())
         devices = len(self.settings.device_list())
-        return f"{up} of {len(self.workers)} worker processes running, {devices} devices"
+        return (
+            f"{up} of {len(self.workers)} worker processes running, {devices} devices, "
+            f"{self.restarts} restarts"
+        )
 
 
 def _describe_exit(code: int) -> str:
