@@ -13,6 +13,8 @@ import os
 import pickle
 import re
 import signal
+import socket
+import struct
 import time
 from pathlib import Path
 from typing import Any
@@ -24,6 +26,7 @@ from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.daemon.workers import share_devices, worker_settings
 
 from tests.support.broker import Received, collect, payloads, start_daemon
+from tests.support.export_sessions import write_session
 
 
 def _devices(n: int) -> tuple[DeviceSettings, ...]:
@@ -137,3 +140,42 @@ def test_a_model_that_does_not_load_stops_every_worker_with_78(tmp_path: Path) -
     assert daemon.wait(60) == 78
     assert "model error" in daemon.log
     assert "Traceback" not in daemon.log
+
+
+@pytest.mark.mosquitto
+def test_only_the_supervisor_talks_to_systemd(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
+) -> None:
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(tmp_path / "notify"))
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_PASSCRED, 1)  # each datagram's sender pid
+    sock.settimeout(60)
+    tables = "".join(
+        f'\n[[devices]]\nid = "r{i}"\nreplay = "{write_session(tmp_path / f"r{i}.scotti", 80)}"\n'
+        for i in range(2)
+    )
+    config = tmp_path / "replays.toml"
+    config.write_text(
+        f'processes = 2\n[source]\nspeed = "max"\n[mqtt]\nbroker = "{mosquitto.url}"\n{tables}'
+    )
+    env = {"NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "200000"}
+    daemon = start_daemon(
+        ["--config", str(config), "--model", str(tiny_model_path)], tmp_path / "d.log", env
+    )
+    got: list[tuple[int, str]] = []
+    try:
+        while not any("STOPPING=1" in text for _, text in got):
+            data, ancillary, _, _ = sock.recvmsg(4096, socket.CMSG_SPACE(12))
+            pid = next(
+                struct.unpack("3i", bytes(cdata))[0]
+                for level, kind, cdata in ancillary
+                if level == socket.SOL_SOCKET and kind == socket.SCM_CREDENTIALS
+            )
+            got.append((pid, data.decode()))
+    finally:
+        sock.close()
+    assert daemon.wait(60) == 0, daemon.log[-3000:]  # both replays ended: the whole ends
+    assert {pid for pid, _ in got} == {daemon.proc.pid}  # never a worker
+    texts = [text for _, text in got]
+    assert texts[0] == "READY=1\nSTATUS=2 of 2 worker processes running, 2 devices, 0 restarts"
+    assert "WATCHDOG=1" in texts
