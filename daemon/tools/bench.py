@@ -372,39 +372,6 @@ def run(args: argparse.Namespace, model: Path) -> int:
     return 0 if all(r.published for r in rows) else 1
 
 
-def step_costs(model: Path, sizes: list[int], repeats: int = 15) -> int:
-    """The model's step alone: ms per frame at each batch size, sizes interleaved so
-    that a busy host weighs on all of them alike."""
-    from scotti.models.runtime import ScottiRuntime
-
-    runtime = ScottiRuntime(model)
-    rng = np.random.default_rng(0)
-    inputs = {
-        b: (
-            rng.integers(0, MAX_COUNT // 3, (b, *runtime.frame_shape)).astype(np.float32),
-            rng.normal(size=(b, runtime.window - 1, runtime.embed_dim)).astype(np.float32),
-        )
-        for b in sizes
-    }
-    for frames, past in inputs.values():  # onnxruntime plans each new shape once
-        runtime.step_batch(frames, past)
-    per_frame: dict[int, list[float]] = {b: [] for b in sizes}
-    for _ in range(repeats):
-        for b, (frames, past) in inputs.items():
-            start = time.perf_counter()
-            runtime.step_batch(frames, past)
-            per_frame[b].append((time.perf_counter() - start) * 1e3 / b)
-    print(
-        f"model step {model.name}, 1 thread, {repeats} rounds, "
-        f"load average {os.getloadavg()[0]:.1f}"
-    )
-    print("| frames per call | ms per frame, min | median |")
-    print("|---|---|---|")
-    for b, values in per_frame.items():
-        print(f"| {b} | {min(values):.2f} | {float(np.median(values)):.2f} |")
-    return 0
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.bench")
     p.add_argument("--pairs", type=int, nargs="+", default=[1], help="insole pairs, e.g. 1 8 32")
@@ -450,6 +417,8 @@ def main(argv: list[str] | None = None) -> int:
         if min(args.step_batches) < 1:
             print("bench: --step-batches must be >= 1", file=sys.stderr)
             return 2
+        from scotti.daemon.tools.step_costs import step_costs
+
         return step_costs(model, args.step_batches)
     return run(args, model)
 
