@@ -138,6 +138,10 @@ def main(argv: list[str] | None = None) -> int:
         from scotti.daemon.workers import supervise  # no model here: the workers load it
 
         return supervise(settings, model_path)
+    if settings.processes > 1:
+        logging.getLogger("scotti.daemon.workers").info(
+            "processes = %d: one device, it runs in this process", settings.processes
+        )
 
     # Imported here: onnxruntime takes a moment, and a config error should not wait.
     from scotti.daemon.app import Daemon

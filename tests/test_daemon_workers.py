@@ -179,3 +179,16 @@ def test_only_the_supervisor_talks_to_systemd(
     texts = [text for _, text in got]
     assert texts[0] == "READY=1\nSTATUS=2 of 2 worker processes running, 2 devices, 0 restarts"
     assert "WATCHDOG=1" in texts
+
+
+@pytest.mark.mosquitto
+def test_one_device_runs_in_the_daemon_s_own_process(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
+) -> None:
+    session = write_session(tmp_path / "one.scotti", 60)
+    args = ["--replay", str(session), "--speed", "max", "--processes", "2"]
+    args += ["--broker", mosquitto.url, "--model", str(tiny_model_path)]
+    daemon = start_daemon(args, tmp_path / "one.log")
+    assert daemon.wait(60) == 0, daemon.log[-3000:]
+    assert "processes = 2: one device, it runs in this process" in daemon.log
+    assert "worker 0" not in daemon.log
