@@ -81,8 +81,24 @@ def card_markdown(card: dict[str, Any]) -> str:
         lines += ["", "## int8 drift against fp32 (measured, not bounded)", ""]
         lines += [f"- {line}" for line in format_report(card["int8_drift_max_abs"])]
     lines += ood_markdown(card.get("ood"))
+    lines += progress_markdown(card.get("progress_calibration"))
     lines += ["", "## Tools", "", ", ".join(f"{k} {v}" for k, v in card["tools"].items()), ""]
     return "\n".join(lines)
+
+
+def progress_markdown(progress: dict[str, Any] | None) -> list[str]:
+    """The card's section on the progress calibration (models/progress_calibration.py)."""
+    lines = ["", "## Progress calibration", ""]
+    if not progress or not progress.get("calibrated"):
+        why = (progress or {}).get("reason", "export --calibrate, or scotti calibrate")
+        return [*lines, f"None: the progress head's output as it is ({why})."]
+    return [
+        *lines,
+        f"A monotone map per predicted action ({progress['method']}) for "
+        f"{', '.join(progress['frames'])}, fitted on {progress['windows']} windows of the "
+        f"held-out subjects {', '.join(progress['fitted_on'])}: progress MSE "
+        f"{progress['mse_before']:.4f} -> {progress['mse_after']:.4f} on them.",
+    ]
 
 
 def ood_markdown(ood: dict[str, Any] | None) -> list[str]:

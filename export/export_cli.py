@@ -6,7 +6,8 @@ after onnxruntime agreed with torch; prints the differences it measured.
 With ``--calibrate``, the unfamiliar score is calibrated on those session
 files (the checkpoint's training subjects for the statistics, its held-out
 subjects for the threshold; export/ood_calibration.py) and both graphs carry
-the statistics. Exit 0 on success, 2 for a bad checkpoint or argument, 1
+the statistics; the same held-out subjects fit the progress calibration
+(export/progress_fit.py). Exit 0 on success, 2 for a bad checkpoint or argument, 1
 when a proof fails.
 """
 
@@ -63,6 +64,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="windows per side (training, held out) for the calibration (default 4000)",
     )
     parser.add_argument(
+        "--progress-windows",
+        type=int,
+        default=20000,
+        help="held-out windows the progress calibration is fitted on (default 20000; 0: none)",
+    )
+    parser.add_argument(
         "--cache-dir", type=Path, default=None, help="decoded-session cache (as scotti train)"
     )
 
@@ -73,8 +80,15 @@ def run(args: argparse.Namespace) -> int:
         if not 50.0 <= args.ood_percentile < 100.0:
             print("scotti export: --ood-percentile must be in [50, 100)", file=sys.stderr)
             return 2
+        if args.progress_windows < 0:
+            print("scotti export: --progress-windows must be >= 0", file=sys.stderr)
+            return 2
         calibration = Calibration(
-            tuple(args.calibrate), args.ood_percentile, args.ood_windows, args.cache_dir
+            tuple(args.calibrate),
+            args.ood_percentile,
+            args.ood_windows,
+            args.cache_dir,
+            progress_windows=args.progress_windows,
         )
     try:
         result = export_checkpoint(
@@ -112,6 +126,14 @@ def run(args: argparse.Namespace) -> int:
         )
     else:
         print("unfamiliar score: not calibrated (give --calibrate SESSIONS)")
+    progress = card.get("progress_calibration") or {}
+    if progress.get("calibrated"):
+        print(
+            f"progress calibration: {', '.join(progress['frames'])} on {progress['windows']} "
+            f"held-out windows, MSE {progress['mse_before']:.4f} -> {progress['mse_after']:.4f}"
+        )
+    elif args.calibrate:
+        print(f"progress calibration: none ({progress.get('reason', 'not asked for')})")
     if result.int8_drift:
         print("int8 drift against fp32 (max abs, measured, not bounded):")
         for line in format_report(result.int8_drift):

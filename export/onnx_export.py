@@ -39,10 +39,12 @@ from scotti.export.parity import (
     drift,
     prove,
 )
+from scotti.export.progress_fit import fit_progress
 from scotti.export.quantize import quantize_int8
 from scotti.models import contract
 from scotti.models.input_checks import input_check_thresholds
 from scotti.models.ood import OodStats
+from scotti.models.progress_calibration import ProgressCalibration
 from torch import nn
 
 OPSET = 20
@@ -243,7 +245,12 @@ def export_graph(
 
 
 def write_metadata(
-    path: Path, graph: str, cfg: ScottiConfig, card: dict[str, Any], ood: OodStats | None = None
+    path: Path,
+    graph: str,
+    cfg: ScottiConfig,
+    card: dict[str, Any],
+    ood: OodStats | None = None,
+    progress: ProgressCalibration | None = None,
 ) -> None:
     """Set the contract's metadata_props (contract.META_*) on a saved graph."""
     proto = onnx.load(str(path))
@@ -260,6 +267,8 @@ def write_metadata(
     }
     if ood is not None:
         values[contract.META_OOD] = ood.to_json()
+    if progress is not None:
+        values[contract.META_PROGRESS_CALIBRATION] = progress.to_json()
     del proto.metadata_props[:]
     for key, value in values.items():
         entry = proto.metadata_props.add()
@@ -320,12 +329,13 @@ def export_model(
         write_metadata(staged.step, "step", cfg, card)
         write_metadata(staged.window, "window", cfg, card)
         parity = prove(model, staged.step, staged.window, threads, tol)
-        ood = None
+        ood, progress = None, None
         if calibration is not None and sets is not None:
             ood = calibrate(staged.window, sets, calibration, threads)
-            card = {**card, "ood": ood_card(ood)}
-            write_metadata(staged.step, "step", cfg, card, ood)
-            write_metadata(staged.window, "window", cfg, card, ood)
+            progress = fit_progress(staged.window, sets.held_out, calibration, threads)
+            card = {**card, "ood": ood_card(ood), "progress_calibration": progress_card(progress)}
+            write_metadata(staged.step, "step", cfg, card, ood, progress)
+            write_metadata(staged.window, "window", cfg, card, ood, progress)
         else:
             card = {**card, "ood": {"calibrated": False}}
         files = {"step": file_entry(staged.step), "window": file_entry(staged.window)}
@@ -337,8 +347,9 @@ def export_model(
                 (staged.window, staged.int8_window, "window"),
             ):
                 quantize_int8(src, dst)
-                # The fp32 statistics, as a first guess: int8 drift moves the pooled vector.
-                write_metadata(dst, graph, cfg, int8_card, ood)
+                # The fp32 statistics and progress map, as a first guess: int8 drift moves
+                # the pooled vector and the heads' outputs.
+                write_metadata(dst, graph, cfg, int8_card, ood, progress)
             int8_drift = drift(
                 cfg, (staged.step, staged.window), (staged.int8_step, staged.int8_window), threads
             )
@@ -358,6 +369,13 @@ def export_model(
             if src.exists():
                 os.replace(src, getattr(paths, kind))
     return ExportResult(paths=paths, card=full_card, parity=parity, int8_drift=int8_drift)
+
+
+def progress_card(progress: ProgressCalibration | None) -> dict[str, Any]:
+    """The card's progress calibration section: what it was fitted on, or why none."""
+    if progress is None:
+        return {"calibrated": False, "reason": "no action predicted on enough held-out windows"}
+    return {"calibrated": True, **progress.summary}
 
 
 def ood_card(ood: OodStats) -> dict[str, Any]:

@@ -42,6 +42,11 @@ class Calibration:
     percentile: float = 99.0  # of held-out window scores: the threshold
     max_windows: int = 4000  # per side (training, held out), thinned evenly
     cache_dir: Path | None = None  # decoded-session cache (training's --cache-dir)
+    # The progress calibration (export/progress_fit.py) on the held-out subjects'
+    # windows, thinned evenly to this many (0: none); an action predicted on fewer
+    # than ``progress_min_windows`` of them keeps the head's output as it is.
+    progress_windows: int = 20000
+    progress_min_windows: int = 500
 
 
 def split_subjects(training_data: Any) -> tuple[list[str], list[str], str]:

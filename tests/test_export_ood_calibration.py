@@ -14,6 +14,7 @@ from scotti.export.errors import ExportError
 from scotti.export.make_tiny import build_tiny
 from scotti.export.onnx_export import Checkpoint, export_model
 from scotti.export.ood_calibration import Calibration, split_subjects
+from scotti.export.progress_fit import fit_progress
 from scotti.export.validation import three_way_split
 from scotti.models.contract import META_OOD, OUTPUT_POOLED
 from scotti.models.runtime import ScottiRuntime, load_pair
@@ -43,7 +44,8 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
         write_session(sessions / f"{subject}.ses", 160, subject=subject)
     ckpt = Checkpoint(model=build_tiny().eval(), training_data=SPLIT)
     out = tmp / "models" / "cal.onnx"
-    request = Calibration((sessions,), percentile=95.0, max_windows=60)
+    # Small sessions: an action with 10 held-out windows gets its progress map.
+    request = Calibration((sessions,), percentile=95.0, max_windows=60, progress_min_windows=10)
     export_model(ckpt, out, calibration=request)
     return out, sessions
 
@@ -89,6 +91,33 @@ def test_step_and_window_graph_score_the_same_window_alike(calibrated: tuple[Pat
     batch = window.run_windows(frames[None])
     assert batch.unfamiliar_score is not None
     assert result.unfamiliar_score == pytest.approx(float(batch.unfamiliar_score[0]), rel=1e-4)
+
+
+@pytest.mark.slow
+def test_the_held_out_subjects_also_fit_the_progress_calibration(
+    calibrated: tuple[Path, Path],
+) -> None:
+    out, sessions = calibrated
+    step, window = load_pair(out)
+    for runtime in (step, window):
+        assert runtime.progress_calibration is not None
+        assert runtime.progress_calibration_info()["summary"]["fitted_on"] == ["c"]
+    card = step.card["progress_calibration"]
+    assert card["calibrated"] is True
+    assert card["mse_after"] <= card["mse_before"]
+    assert "## Progress calibration" in out.with_suffix(".card.md").read_text()
+    # Both graphs map the same window's progress alike (the step graph streaming).
+    frames = np.random.default_rng(1).uniform(0, 1500, (step.window, *step.frame_shape))
+    streaming = StreamingWindow(step)
+    for f in frames.astype(np.float32):
+        result = streaming.push(f)
+    assert result is not None
+    batch = window.run_windows(frames[None].astype(np.float32))
+    assert result.progress == pytest.approx(float(batch.progress[0]), abs=1e-4)
+    # Asked for none: none.
+    held = [load_session(sessions / "c.ses")]
+    none = Calibration((sessions,), progress_windows=0)
+    assert fit_progress(out.with_name("cal.window.onnx"), held, none) is None
 
 
 def test_an_uncalibrated_export_still_runs_and_says_why() -> None:
