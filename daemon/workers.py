@@ -88,6 +88,8 @@ def run_worker(settings: Settings, model_path: Path, index: int) -> None:
     from scotti.daemon.main import PROG, configure_logging
 
     configure_logging(settings.log_level, prefix=f"worker {index}: ")
+    import asyncio
+
     from scotti.daemon.app import Daemon
     from scotti.daemon.errors import DaemonError
     from scotti.models.errors import ModelError
@@ -98,8 +100,6 @@ def run_worker(settings: Settings, model_path: Path, index: int) -> None:
     except ModelError as exc:
         print(f"{PROG}: model error: {exc}", file=sys.stderr)
         sys.exit(EX_CONFIG)
-    import asyncio
-
     try:
         code = asyncio.run(Daemon(settings, runtime, Notifier({})).run())
     except DaemonError as exc:

@@ -19,7 +19,6 @@ import numpy as np
 from scotti.export.data import SessionArrays
 from scotti.export.ood_calibration import Calibration
 from scotti.export.windows import WindowDataset
-from scotti.models import metrics
 from scotti.models.progress_calibration import ProgressCalibration, fit
 from scotti.models.runtime import ScottiRuntime
 
@@ -55,10 +54,5 @@ def fit_progress(
     calibration = fit(p, t, a, min_frames=request.progress_min_windows)
     if not calibration.knots:
         return None
-    calibration.summary.update(
-        fitted_on=sorted({s.subject for s in held_out}),
-        windows=int(p.size),
-        mse_before=metrics.progress_mse(p, t),
-        mse_after=metrics.progress_mse(calibration.apply(p, a), t),
-    )
+    calibration.summary.update(fitted_on=sorted({s.subject for s in held_out}), windows=int(p.size))
     return calibration

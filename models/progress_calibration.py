@@ -102,11 +102,22 @@ def fit(
             continue
         knots[index] = _isotonic_knots(p[rows], t[rows], bins)
         frames[ACTIONS[index]] = int(rows.sum())
-    summary = {
-        "method": f"isotonic per predicted action, {bins} quantile bins of the output",
-        "frames": frames,
-    }
-    return ProgressCalibration(knots, summary)
+    calibration = ProgressCalibration(
+        knots,
+        {
+            "method": f"isotonic per predicted action, {bins} quantile bins of the output",
+            "frames": frames,
+        },
+    )
+    # How much it buys on the frames it was fitted on (callers add which frames those were).
+    calibration.summary["mse_before"] = _mse(p, t)
+    calibration.summary["mse_after"] = _mse(calibration.apply(p, a), t)
+    return calibration
+
+
+def _mse(output: npt.ArrayLike, label: npt.NDArray[np.float64]) -> float:
+    rows = np.isfinite(label)
+    return float(np.mean((np.asarray(output, np.float64)[rows] - label[rows]) ** 2))
 
 
 def _isotonic_knots(
