@@ -57,6 +57,7 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
     per = [
         {
             "partition": r.get("partition"),  # set by the sweep: which partition scored it
+            "model": (r.get("model") or {}).get("path"),
             "subjects": r["subjects"],
             "frames": r["metrics"]["frames"],
             **{k: r["metrics"][k] for k in KEYS},
@@ -141,9 +142,17 @@ def card_md(card: dict[str, Any]) -> str:
     ]
     if ev:
         over = ev["partitions"] if ev["spread_over"] == "partitions" else ev["per_subject"]
+        # One model per partition (the same recipe on each): every line names its model.
+        named = len({p.get("model") for p in ev["partitions"]}) > 1
         lines += [
             f"Mean ± standard deviation over {len(over)} {ev['spread_over']} (pooled figures "
-            "per evaluation below).",
+            "per evaluation below)."
+            + (
+                " Each partition is scored with its own model (named below), trained on that "
+                "partition's training subjects only; the shipped weights are one of them."
+                if named
+                else ""
+            ),
             "",
             "| metric | value |",
             "|---|---|",
@@ -163,7 +172,9 @@ def card_md(card: dict[str, Any]) -> str:
             f"How: {ev['how']}.",
             "",
             *(
-                f"- {p.get('partition') or 'held out'}: {', '.join(p['subjects'])} "
+                f"- {p.get('partition') or 'held out'}"
+                + (f" (model `{p['model']}`)" if named else "")
+                + f": {', '.join(p['subjects'])} "
                 f"({p['frames']} frames scored), pooled: MPJPE "
                 f"{p['mpjpe_mm']:.1f} mm, MPJAE {p['mpjae_deg']:.2f} deg, accuracy "
                 f"{100 * p['action_accuracy']:.2f} %, progress MSE {p['progress_mse']:.4f}, "
@@ -289,10 +300,21 @@ def export_calibrated(args: argparse.Namespace) -> Path:
     report.parent.mkdir(parents=True, exist_ok=True)
     command = ["eval", *files, "--json", "--every", str(args.every)]
     report.write_text(run(scotti_command(*command, "--model", out)))
-    args.eval = [report]
+    args.eval = [str(report)]
     quoted = " ".join(_from_root(a) for a in [*command[1:], "--model", out])
     args.eval_command.append(f"scotti eval {quoted}")
     return out
+
+
+def load_reports(specs: list[str]) -> list[dict[str, Any]]:
+    """``[PARTITION=]REPORT`` -> the reports, each named by its partition where given."""
+    reports = []
+    for spec in specs:
+        name, sep, path = spec.rpartition("=")
+        value = json.loads(Path(path).read_text())
+        for report in value if isinstance(value, list) else [value]:
+            reports.append(report | {"partition": name} if sep else report)
+    return reports
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -315,7 +337,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache-dir", type=Path, default=ROOT / "data" / "cache")
     parser.add_argument("--int8", action="store_true", help="ship the int8 copies")
     parser.add_argument(
-        "--eval", type=Path, nargs="+", action="extend", default=[], help="scotti eval --json files"
+        "--eval",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="[PARTITION=]REPORT",
+        help="scotti eval --json files; PARTITION= names the partition it scored "
+        "(another partition's model: the card names it)",
     )
     parser.add_argument("--eval-command", action="append", default=[], help="quoted in the card")
     parser.add_argument("--data", required=True, help="what it was trained on, in words")
@@ -340,8 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     step = base.with_name(f"{stem}.int8.onnx") if args.int8 else base
     window = base.with_name(f"{stem}.int8.window.onnx" if args.int8 else f"{stem}.window.onnx")
     export_card = json.loads(base.with_name(f"{stem}.card.json").read_text())
-    reports = [json.loads(p.read_text()) for p in args.eval]
-    reports = [r for rep in reports for r in (rep if isinstance(rep, list) else [rep])]
+    reports = load_reports(args.eval)
 
     measured = describe([step], [1, 2], steps=400)[str(step)]
     card = {k: v for k, v in export_card.items() if k not in ("files",)}

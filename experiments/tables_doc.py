@@ -266,7 +266,9 @@ def per_action(multi: list[dict[str, Any]]) -> list[str]:
         cells += [fmt([_num(p[k]) for p in per], d, s) for k, _, d, s, _ in METRICS]
         rows.append(cells)
     return [
-        *table(["action", "frames (3 partitions)", *(c for _, c, _, _, _ in METRICS)], rows),
+        *table(
+            ["action", f"frames ({len(multi)} partitions)", *(c for _, c, _, _, _ in METRICS)], rows
+        ),
         "",
         "Accuracy per action is the share of that action's frames classified correctly",
         "(recall). Progress is not labelled while standing.",

@@ -22,6 +22,7 @@ sys.path.insert(0, str(EXPERIMENTS))
 
 import common  # noqa: E402
 import corpus  # noqa: E402
+import partition_table  # noqa: E402
 import ship_default  # noqa: E402
 import sweep_doc  # noqa: E402
 import tables_doc  # noqa: E402
@@ -321,3 +322,94 @@ def test_the_shipped_card_carries_every_partition(tmp_path: Path) -> None:
     assert standing["frames"] == sum(frames) > 0
     recall = [r["per_action"]["standing"]["action_accuracy"] for r in reports]
     assert min(recall) <= standing["action_accuracy"] <= max(recall)
+
+
+def test_the_card_names_each_partitions_own_model(tmp_path: Path) -> None:
+    paths = []
+    for k, p in enumerate(PARTS):
+        report = _report(_frames(300, 40 + k, 0.6), "multi", f"run-{p}")
+        paths.append(tmp_path / f"{p}.json")
+        paths[-1].write_text(json.dumps(report))
+    reports = ship_default.load_reports(
+        [f"{p}={path}" for p, path in zip(PARTS, paths, strict=True)]
+    )
+    assert [r["partition"] for r in reports] == list(PARTS)
+    block = ship_default.evaluation_block(reports, ["scotti eval a"])
+    assert [p["model"] for p in block["partitions"]] == [
+        f"runs/tables/models/run-{p}.onnx" for p in PARTS
+    ]
+    lines = [ln for ln in _card_lines(block) if ln.startswith("- p")]
+    assert [ln.split(" (model ")[0] for ln in lines] == [f"- {p}" for p in PARTS]
+    assert all(
+        f"`runs/tables/models/run-{p}.onnx`" in ln for p, ln in zip(PARTS, lines, strict=True)
+    )
+    # Without a name the report keeps the sweep's own partition key (none here).
+    assert "partition" not in ship_default.load_reports([str(paths[0])])[0]
+
+
+def _card_lines(block: dict[str, Any]) -> list[str]:
+    """The held-out section of card_md, cut out of a card built around ``block``."""
+    text = ship_default.card_md(
+        {
+            "name": "n",
+            "model": "m",
+            "contract_version": 2,
+            "precision": "fp32",
+            "parameters": 1,
+            "shipped_utc": "now",
+            "config": {
+                k: 1
+                for k in ("window", "embed_dim", "layers", "heads", "conv_channels", "head_hidden")
+            },
+            "normalisation": "x",
+            "timing": "t",
+            "shipped_data": "d",
+            "evaluation": block,
+            "latency": {"measured_utc": "now", "machine": "m", "by_threads": {}},
+            "flops": {"step": 1, "window": 1},
+            "files": {},
+            "parity": {"tolerance": {"atol": 1e-4}},
+            "shipped_from": "c",
+        }
+    )
+    start = text.index("## Held-out metrics")
+    return text[start : text.index("## What it does not know", start)].splitlines()
+
+
+def test_the_partition_table_scores_each_partition_and_refuses_a_seen_subject(
+    tmp_path: Path,
+) -> None:
+    specs = []
+    for k, p in enumerate(PARTS):
+        report = _report(_frames(300, 60 + k, 0.5 + 0.2 * k), "multi", f"run-{p}")
+        report["random_baseline"] = {"action_accuracy": 0.1, "progress_mse": 0.2, "app": 0.65}
+        report["ood"] = {"unloaded": 0.01 * k, "out_of_range": 0.0, "unfamiliar": 0.002}
+        (tmp_path / f"{p}.json").write_text(json.dumps([report]))
+        specs.append(f"{p}={tmp_path / p}.json")
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"head\n{partition_table.BEGIN}\nold\n{partition_table.END}\ntail\n")
+    assert partition_table.main([*specs, "--write", str(doc)]) == 0
+    text = doc.read_text()
+    assert text.startswith("head\n")
+    assert text.endswith(f"{partition_table.END}\ntail\n")
+    assert "old" not in text
+    rows = [ln for ln in text.splitlines() if ln.startswith(("| p1 ", "| p2 ", "| p3 "))]
+    assert [r.split(" | ")[0] for r in rows] == ["| p1", "| p2", "| p3"]
+    assert "| 0.00 % / 0.00 % / 0.20 % |" in rows[0]
+    assert "| 2.00 % / 0.00 % / 0.20 % |" in rows[2]
+    accs = []
+    for p in PARTS:
+        accs.append(
+            json.loads((tmp_path / f"{p}.json").read_text())[0]["metrics"]["action_accuracy"]
+        )
+    ours = next(ln for ln in text.splitlines() if ln.startswith("| SCOTTI, ours"))
+    assert common.fmt(accs, 2, 100) in ours
+    # A model that trained on a subject it is scored on is refused.
+    graph = tmp_path / "seen.onnx"
+    report = _report(_frames(50, 1, 0.5), "multi", "seen") | {"subjects": ["subject-007"]}
+    report["model"] = {"path": str(graph)}
+    (tmp_path / "seen.card.json").write_text(
+        json.dumps({"training_data": {"subjects": ["subject-001", "subject-007"]}})
+    )
+    (tmp_path / "seen.json").write_text(json.dumps(report))
+    assert partition_table.main([f"p1={tmp_path / 'seen.json'}"]) == 1

@@ -1,0 +1,171 @@
+"""Held-out figures over the subject-wise partitions, one model per partition.
+
+    python experiments/partition_table.py p1=runs/v7c-p1/eval/ship.json \\
+        p2=runs/v9-p2/eval/test.json p3=runs/v9-p3/eval/test.json \\
+        --run p1=runs/v7-p1 --run p2=runs/v9-p2 --run p3=runs/v9-p3 \\
+        [--write docs/evaluation.md]
+
+Each REPORT is what ``scotti eval --json`` printed for one partition's model on
+that partition's held-out subjects (a list when several ``--model`` were
+scored: the first model is taken, ``--pick`` chooses another by a piece of its
+path). Prints Markdown: one row per partition, the mean ± SD over partitions
+beside the random baseline and the paper, accuracy and progress per action
+(`standing` included), and how each model's run ended (``--run NAME=RUN_DIR``:
+the run's ``history.jsonl``). ``--write DOC`` puts the same text between the
+``<!-- partitions:begin -->`` and ``<!-- partitions:end -->`` lines of DOC.
+
+A model whose card (``NAME.card.json`` beside the graph) lists a held-out
+subject among its training or validation subjects is refused: the figure
+would not be a held-out one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from card_training import training_block
+from common import ROOT, ExperimentError, fmt, table, utc_now
+from tables_doc import METRICS, per_action, table1
+
+BEGIN, END = "<!-- partitions:begin -->", "<!-- partitions:end -->"
+FLAGS = ("unloaded", "out_of_range", "unfamiliar")
+
+
+def _pairs(items: list[str], what: str) -> dict[str, Path]:
+    out = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise ExperimentError(f"{what} {item!r}: expected NAME=PATH")
+        out[name] = Path(path)
+    return out
+
+
+def load_report(path: Path, pick: str) -> dict[str, Any]:
+    """One model's report from a ``scotti eval --json`` file."""
+    value = json.loads(path.read_text())
+    reports = value if isinstance(value, list) else [value]
+    chosen = [r for r in reports if pick in str(r["model"]["path"])] if pick else reports[:1]
+    if not chosen:
+        raise ExperimentError(f"{path}: no model whose path contains {pick!r}")
+    return chosen[0]
+
+
+def check_held_out(name: str, report: dict[str, Any]) -> None:
+    """Refuse a model that trained or validated on a subject it is scored on."""
+    graph = ROOT / report["model"]["path"]
+    card_path = graph.with_name(graph.name.removesuffix(".onnx") + ".card.json")
+    if not card_path.is_file():
+        return
+    seen = set(json.loads(card_path.read_text())["training_data"].get("subjects", []))
+    overlap = sorted(seen & set(report["subjects"]))
+    if overlap:
+        raise ExperimentError(
+            f"{name}: {report['model']['path']} trained or validated on {', '.join(overlap)}, "
+            "which it is scored on"
+        )
+
+
+def partition_rows(reports: dict[str, dict[str, Any]]) -> list[str]:
+    header = ["partition", "model", "held out", "frames"]
+    header += [c for _, c, _, _, _ in METRICS]
+    header += [
+        "random accuracy (%)",
+        "random APP",
+        "flagged (unloaded / out of range / unfamiliar)",
+    ]
+    rows = []
+    for name, r in reports.items():
+        m, rnd, ood = r["metrics"], r["random_baseline"], r.get("ood") or {}
+        cells = [name, f"`{r['model']['path']}`", ", ".join(s[-3:] for s in r["subjects"])]
+        cells.append(str(m["frames"]))
+        cells += [fmt([m[k]], d, s).split(" ")[0] for k, _, d, s, _ in METRICS]
+        cells += [f"{100 * rnd['action_accuracy']:.2f}", f"{rnd['app']:.4f}"]
+        cells.append(" / ".join(f"{100 * (ood.get(f) or 0):.2f} %" for f in FLAGS))
+        rows.append(cells)
+    return table(header, rows)
+
+
+def run_lines(runs: dict[str, Path]) -> list[str]:
+    lines = []
+    for name, run_dir in runs.items():
+        block = training_block(run_dir / "best.pt")
+        if block is None:
+            raise ExperimentError(f"--run {name}: {run_dir} has no history.jsonl")
+        best = next(e for e in block["epochs"] if e["epoch"] == block["best_epoch"])
+        v = best["val"]
+        lines.append(
+            f"- {name}: `{run_dir.as_posix()}`, {len(block['epochs'])} epochs, "
+            f"{block['train_seconds'] / 60:.0f} min of epochs; stopped: {block['status']}; "
+            f"best epoch {block['best_epoch']} (validation loss {v['loss']:.3f}, accuracy "
+            f"{100 * v['action_accuracy']:.1f} %, progress MSE {v['progress_mse']:.4f}, "
+            f"APP {v['app']:.4f})"
+        )
+    return lines
+
+
+def markdown(reports: dict[str, dict[str, Any]], runs: dict[str, Path], command: str) -> str:
+    multi = list(reports.values())
+    lines = [
+        f"Written by `{command}` ({utc_now()}) from the `scotti eval --json` reports named",
+        "there: each partition's own model, scored on that partition's held-out subjects",
+        "through the daemon's streaming path.",
+        "",
+        *partition_rows(reports),
+        "",
+        f"Mean ± sample SD over the {len(multi)} partitions:",
+        "",
+        *table1(multi, []),
+        "",
+        "Per action, pooled frames; figures are the mean ± SD over the partitions:",
+        "",
+        *per_action(multi),
+    ]
+    if runs:
+        lines += ["", "How each model's training ended (validation subjects only):", ""]
+        lines += run_lines(runs)
+    return "\n".join(lines) + "\n"
+
+
+def write_between_markers(doc: Path, text: str) -> None:
+    content = doc.read_text()
+    start, end = content.find(BEGIN), content.find(END)
+    if start < 0 or end < start:
+        raise ExperimentError(f"{doc}: no {BEGIN} ... {END} section to write into")
+    doc.write_text(content[: start + len(BEGIN)] + "\n" + text + content[end:])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/partition_table.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("reports", nargs="+", metavar="NAME=REPORT")
+    parser.add_argument("--run", action="append", default=[], metavar="NAME=RUN_DIR")
+    parser.add_argument("--pick", default="", help="the model whose path contains this")
+    parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
+    args = parser.parse_args(argv)
+    command = "python experiments/partition_table.py " + " ".join(
+        argv if argv is not None else sys.argv[1:]
+    )
+    try:
+        reports = {n: load_report(p, args.pick) for n, p in _pairs(args.reports, "report").items()}
+        for name, report in reports.items():
+            check_held_out(name, report)
+        text = markdown(reports, _pairs(args.run, "--run"), command)
+        if args.write:
+            write_between_markers(args.write, text)
+    except (ExperimentError, OSError, KeyError, ValueError) as exc:
+        print(f"partition_table: {exc}", file=sys.stderr)
+        return 1
+    print(text, end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
