@@ -16,6 +16,7 @@ ROW_NAMES = {
     "transition": "transition (between actions)",
 }
 
+KEEP_BEGIN, KEEP_END = "<!-- kept:begin -->", "<!-- kept:end -->"
 PAPER = {"mpjpe_mm": 96.63, "action_accuracy": 0.9006, "app": 0.8952, "progress_mse": 0.0223}
 METRICS = (  # key, column, digits, scale, lower is better
     ("mpjpe_mm", "MPJPE (mm)", 1, 1.0, True),
@@ -71,6 +72,7 @@ def write_evaluation_doc(
     lines = [
         "# Evaluation: SCOTTI on the simulated corpus, the paper's way",
         "",
+        *kept_section(doc),
         f"Written by `{invocation}` ({written}); every number below was printed by",
         "`scotti eval` on the held-out subjects of each partition. **These are simulated",
         "subjects from `scotti sim corpus`, not the paper's recordings**: the figures show",
@@ -140,6 +142,19 @@ def write_evaluation_doc(
     ]
     doc.parent.mkdir(parents=True, exist_ok=True)
     doc.write_text("\n".join(lines))
+
+
+def kept_section(doc: Path) -> list[str]:
+    """The doc's hand-kept part (between KEEP_BEGIN and KEEP_END) that a rewrite carries over.
+
+    docs/evaluation.md keeps the current corpus's figures there (written by
+    experiments/partition_table.py) above the tables this module writes.
+    """
+    text = doc.read_text() if doc.is_file() else ""
+    start, end = text.find(KEEP_BEGIN), text.find(KEEP_END)
+    if start < 0 or end < start:
+        return []
+    return [*text[start : end + len(KEEP_END)].splitlines(), ""]
 
 
 def budget_section(plans: dict[tuple[str, str], dict[str, Any]]) -> list[str]:

@@ -122,6 +122,9 @@ def test_the_evaluation_doc_holds_the_tables_and_figures(tmp_path: Path) -> None
         for v in training.VARIANTS
     }
     doc = tmp_path / "evaluation.md"
+    # A hand-kept section survives the rewrite; the rest is replaced.
+    kept = f"{tables_doc.KEEP_BEGIN}\nfigures of the current corpus\n{tables_doc.KEEP_END}"
+    doc.write_text(f"# old title\n\n{kept}\n\nold tables\n")
     tables_doc.write_evaluation_doc(
         doc,
         tmp_path / "img",
@@ -142,6 +145,9 @@ def test_the_evaluation_doc_holds_the_tables_and_figures(tmp_path: Path) -> None
         written="now",
     )
     text = doc.read_text()
+    assert kept in text
+    assert "old tables" not in text
+    assert text.index(kept) < text.index("## Table 1")
     multi = [r[0] for r in results.values()]
     accuracy = common.fmt([r["metrics"]["action_accuracy"] for r in multi], 2, 100)
     assert "| SCOTTI, ours (multi-task) | " in text
