@@ -22,6 +22,7 @@ sys.path.insert(0, str(EXPERIMENTS))
 
 import common  # noqa: E402
 import corpus  # noqa: E402
+import partition_runs  # noqa: E402
 import partition_table  # noqa: E402
 import ship_default  # noqa: E402
 import sweep_doc  # noqa: E402
@@ -419,3 +420,34 @@ def test_the_partition_table_scores_each_partition_and_refuses_a_seen_subject(
     )
     (tmp_path / "seen.json").write_text(json.dumps(report))
     assert partition_table.main([f"p1={tmp_path / 'seen.json'}"]) == 1
+
+
+def test_a_partition_run_never_gives_its_test_subjects_to_training(tmp_path: Path) -> None:
+    corpus = tmp_path / "corpus"
+    for part, ids in (("realistic", range(15)), ("extra", range(15, 33))):
+        (corpus / part).mkdir(parents=True)
+        for i in ids:
+            (corpus / part / f"subject-{i:03d}.ses").write_bytes(b"")
+    p2 = next(p for p in common.load_partitions() if p.name == "p2")
+    job = partition_runs.PartitionRun("p2", p2.train, p2.test, tmp_path / "run")
+    opts = partition_runs.argparse.Namespace(
+        config="small", epochs=8, stride=16, lr=1e-3, max_minutes=30, cache="c"
+    )
+    cmd = [str(x) for x in job.train_command(corpus, opts)]
+    stems = {Path(w).stem for w in cmd if w.endswith(".ses")}
+    assert not stems & set(p2.test)
+    assert stems == set(p2.train) | {f"subject-{i:03d}" for i in range(15, 33)}
+    val = cmd[cmd.index("--val-subjects") + 1 : cmd.index("--test-fraction")]
+    assert val == [*p2.train[-2:], "subject-031", "subject-032"]
+    assert cmd[cmd.index("--loss-weights") + 1] == "0.01,1,3"
+    assert "--resume" not in cmd
+    assert not job.finished(8)
+    job.run_dir.mkdir()
+    (job.run_dir / "last.pt").write_bytes(b"")
+    assert "--resume" in [str(x) for x in job.train_command(corpus, opts)]
+    history = job.run_dir / "history.jsonl"
+    history.write_text('{"epoch": 1}\n{"epoch": 2}\n')
+    assert not job.finished(8)  # --max-minutes stopped it: it resumes
+    history.write_text('{"epoch": 1}\n{"epoch": 2, "status": "plateau"}\n')
+    assert job.finished(8)
+    assert partition_runs.main(["p9"]) == 1

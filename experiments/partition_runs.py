@@ -1,0 +1,154 @@
+"""The shipped model's recipe on each subject-wise partition, to its plateau, then scored.
+
+    nice -n 5 python experiments/partition_runs.py p2 p3 --max-minutes 112   # side by side
+    python experiments/partition_runs.py p2 p3 --max-minutes 60             # goes on from there
+    python experiments/partition_runs.py p1 --variant progress              # Table 3's variants
+
+Per partition of experiments/partitions.json, in runs/GROUP-PARTITION[-VARIANT]:
+
+1. ``scotti train`` on the partition's training subjects of the current corpus
+   plus the 18 people of ``extra`` (none of them in any partition's test set),
+   validated on the last two training subjects and subject-031/032 (for p1
+   the shipped model's validation subjects), with the shipped model's loss
+   weights, until the plateau rule or ``--epochs`` ends it. A run that
+   ``--max-minutes`` stopped resumes from last.pt on the next call (several
+   partitions train side by side, one process and thread each).
+2. When its training has ended: ``scotti export --calibrate`` (the unfamiliar
+   score), ``scotti calibrate`` on the validation subjects (the progress map,
+   fitted as the shipped model's was) and ``scotti eval --json`` on the
+   partition's held-out subjects into eval/test.json.
+
+Then ``experiments/partition_table.py`` puts the reports side by side. The
+test subjects are never given to ``scotti train``: not for training, not for
+validation, not for the calibrations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from common import ROOT, RUNS, ExperimentError, load_partitions, run, run_parallel, scotti_command
+
+CORPUS = ROOT / "data" / "corpus7"
+EXTRA_VALIDATION = ("subject-031", "subject-032")
+# The shipped model's loss weights (pose, action, progress) and Table 3's single tasks.
+LOSS_WEIGHTS = {"multi": "0.01,1,3", "pose": "0.01,0,0", "action": "0,1,0", "progress": "0,0,1"}
+
+
+@dataclass(frozen=True)
+class PartitionRun:
+    partition: str
+    train: tuple[str, ...]  # the partition's training subjects (data/corpus7/realistic)
+    test: tuple[str, ...]
+    run_dir: Path
+    variant: str = "multi"
+
+    @property
+    def validation(self) -> tuple[str, ...]:
+        return (*self.train[-2:], *EXTRA_VALIDATION)
+
+    def files(self, corpus: Path, subjects: tuple[str, ...] = ()) -> list[Path]:
+        """Session files: these subjects, or all the run may see (training and validation)."""
+        if subjects:
+            return [_session(corpus, s) for s in subjects]
+        extra = sorted((corpus / "extra").glob("subject-*.ses"))
+        return [*(_session(corpus, s) for s in self.train), *extra]
+
+    def train_command(self, corpus: Path, opts: argparse.Namespace) -> list[str]:
+        resume = ["--resume"] if (self.run_dir / "last.pt").is_file() else []
+        return scotti_command(
+            "train", *self.files(corpus), "-o", self.run_dir, "--config", opts.config,
+            "--val-subjects", *self.validation, "--test-fraction", "0",
+            "--epochs", str(opts.epochs), "--patience", "3", "--stride", str(opts.stride),
+            "--val-stride", "8", "--lr", str(opts.lr),
+            "--loss-weights", LOSS_WEIGHTS[self.variant], "--threads", "1",
+            "--max-minutes", str(opts.max_minutes), "--cache", opts.cache, *resume,
+        )  # fmt: skip
+
+    def finished(self, epochs: int) -> bool:
+        """Training has ended: the plateau rule stopped it or its epochs are done."""
+        path = self.run_dir / "history.jsonl"
+        if not path.is_file():
+            return False
+        records = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+        return bool(records) and (records[-1].get("status") == "plateau" or len(records) >= epochs)
+
+
+def _session(corpus: Path, subject: str) -> Path:
+    for part in ("realistic", "extra"):
+        path = corpus / part / f"{subject}.ses"
+        if path.is_file():
+            return path
+    raise ExperimentError(f"no session file for {subject} under {corpus}: see export/TRAINING.md")
+
+
+def score(job: PartitionRun, corpus: Path, cache: str) -> Path:
+    """Export with both calibrations, then the held-out evaluation; the report's path."""
+    model = job.run_dir / "models" / "scotti-ship.onnx"
+    log = job.run_dir / "score.log"
+    export = ["export", job.run_dir / "best.pt", "-o", model, "--calibrate"]
+    run(scotti_command(*export, *job.files(corpus), "--cache-dir", cache), log)
+    run(scotti_command("calibrate", model, *job.files(corpus, job.validation)), log)
+    report = job.run_dir / "eval" / "test.json"
+    out = run(scotti_command("eval", *job.files(corpus, job.test), "--model", model, "--json"), log)
+    report.parent.mkdir(parents=True, exist_ok=True)
+    report.write_text(out)
+    return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/partition_runs.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("partitions", nargs="+", help="p1, p2, p3")
+    parser.add_argument("--variant", choices=sorted(LOSS_WEIGHTS), default="multi")
+    parser.add_argument("--group", default="v9", help="runs/GROUP-PARTITION[-VARIANT]")
+    parser.add_argument("--corpus", type=Path, default=CORPUS, help="with realistic/ and extra/")
+    parser.add_argument("--cache", default="data/cache7", help="scotti train --cache")
+    parser.add_argument("--config", default="small")
+    parser.add_argument("--epochs", type=int, default=8, help="the cosine schedule's length")
+    parser.add_argument("--stride", type=int, default=16)
+    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--max-minutes", type=float, default=112, help="per run, this call")
+    args = parser.parse_args(argv)
+    try:
+        known = {p.name: p for p in load_partitions()}
+        unknown = sorted(set(args.partitions) - set(known))
+        if unknown:
+            raise ExperimentError(f"unknown partitions {', '.join(unknown)}: {', '.join(known)}")
+        suffix = "" if args.variant == "multi" else f"-{args.variant}"
+        jobs = [
+            PartitionRun(
+                n, known[n].train, known[n].test, RUNS / f"{args.group}-{n}{suffix}", args.variant
+            )
+            for n in args.partitions
+        ]
+        training = [j for j in jobs if not j.finished(args.epochs)]
+        for job in training:
+            job.run_dir.mkdir(parents=True, exist_ok=True)
+        commands = [j.train_command(args.corpus, args) for j in training]
+        if commands:
+            run_parallel(commands, RUNS / f"{args.group}-train.log")
+        for job in jobs:
+            if not job.finished(args.epochs):
+                print(f"{job.run_dir}: training goes on at the next call (--max-minutes ran out)")
+                continue
+            report = job.run_dir / "eval" / "test.json"
+            if not report.is_file():
+                report = score(job, args.corpus, args.cache)
+            run_dir = job.run_dir.relative_to(ROOT)
+            print(f"{job.partition}={report.relative_to(ROOT)} --run {job.partition}={run_dir}")
+    except ExperimentError as exc:
+        print(f"partition_runs: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
