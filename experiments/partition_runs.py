@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,14 +89,24 @@ def _session(corpus: Path, subject: str) -> Path:
 
 
 def score(job: PartitionRun, corpus: Path, cache: str) -> Path:
-    """Export with both calibrations, then the held-out evaluation; the report's path."""
+    """Export with both calibrations, then the held-out evaluation; the report's path.
+
+    The report holds two models scored in one replay: the calibrated graphs first
+    (what partition_table.py takes), then the same weights with the export's progress
+    map instead of the one ``scotti calibrate`` fits, to show what that refit buys.
+    """
     model = job.run_dir / "models" / "scotti-ship.onnx"
     log = job.run_dir / "score.log"
     export = ["export", job.run_dir / "best.pt", "-o", model, "--calibrate"]
     run(scotti_command(*export, *job.files(corpus), "--cache-dir", cache), log)
+    before = job.run_dir / "models" / "export-fit"
+    before.mkdir(exist_ok=True)
+    for graph in (model, model.with_name("scotti-ship.window.onnx")):
+        shutil.copy2(graph, before / graph.name)
     run(scotti_command("calibrate", model, *job.files(corpus, job.validation)), log)
     report = job.run_dir / "eval" / "test.json"
-    out = run(scotti_command("eval", *job.files(corpus, job.test), "--model", model, "--json"), log)
+    models = ["--model", model, "--model", before / model.name]
+    out = run(scotti_command("eval", *job.files(corpus, job.test), *models, "--json"), log)
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text(out)
     return report
@@ -138,12 +150,14 @@ def main(argv: list[str] | None = None) -> int:
         for job in jobs:
             if not job.finished(args.epochs):
                 print(f"{job.run_dir}: training goes on at the next call (--max-minutes ran out)")
-                continue
-            report = job.run_dir / "eval" / "test.json"
-            if not report.is_file():
-                report = score(job, args.corpus, args.cache)
+        done = [j for j in jobs if j.finished(args.epochs)]
+        todo = [j for j in done if not (j.run_dir / "eval" / "test.json").is_file()]
+        with ThreadPoolExecutor(max_workers=2) as pool:  # one core each
+            list(pool.map(lambda j: score(j, args.corpus, args.cache), todo))
+        for job in done:
+            report = (job.run_dir / "eval" / "test.json").relative_to(ROOT)
             run_dir = job.run_dir.relative_to(ROOT)
-            print(f"{job.partition}={report.relative_to(ROOT)} --run {job.partition}={run_dir}")
+            print(f"{job.partition}={report} --run {job.partition}={run_dir}")
     except ExperimentError as exc:
         print(f"partition_runs: {exc}", file=sys.stderr)
         return 1
