@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from card_training import training_block
-from common import ROOT, ExperimentError, fmt, table, utc_now
+from common import ROOT, ExperimentError, fmt, from_root, table, utc_now
 from tables_doc import METRICS, per_action, table1
 
 BEGIN, END = "<!-- partitions:begin -->", "<!-- partitions:end -->"
@@ -64,9 +64,9 @@ def check_held_out(name: str, report: dict[str, Any]) -> None:
     seen = set(json.loads(card_path.read_text())["training_data"].get("subjects", []))
     overlap = sorted(seen & set(report["subjects"]))
     if overlap:
+        model = from_root(report["model"]["path"])
         raise ExperimentError(
-            f"{name}: {report['model']['path']} trained or validated on {', '.join(overlap)}, "
-            "which it is scored on"
+            f"{name}: {model} trained or validated on {', '.join(overlap)}, which it is scored on"
         )
 
 
@@ -81,7 +81,11 @@ def partition_rows(reports: dict[str, dict[str, Any]]) -> list[str]:
     rows = []
     for name, r in reports.items():
         m, rnd, ood = r["metrics"], r["random_baseline"], r.get("ood") or {}
-        cells = [name, f"`{r['model']['path']}`", ", ".join(s[-3:] for s in r["subjects"])]
+        cells = [
+            name,
+            f"`{from_root(r['model']['path'])}`",
+            ", ".join(s[-3:] for s in r["subjects"]),
+        ]
         cells.append(str(m["frames"]))
         cells += [fmt([m[k]], d, s).split(" ")[0] for k, _, d, s, _ in METRICS]
         cells += [f"{100 * rnd['action_accuracy']:.2f}", f"{rnd['app']:.4f}"]
@@ -99,7 +103,7 @@ def run_lines(runs: dict[str, Path]) -> list[str]:
         best = next(e for e in block["epochs"] if e["epoch"] == block["best_epoch"])
         v = best["val"]
         lines.append(
-            f"- {name}: `{run_dir.as_posix()}`, {len(block['epochs'])} epochs, "
+            f"- {name}: `{from_root(run_dir)}`, {len(block['epochs'])} epochs, "
             f"{block['train_seconds'] / 60:.0f} min of epochs; stopped: {block['status']}; "
             f"best epoch {block['best_epoch']} (validation loss {v['loss']:.3f}, accuracy "
             f"{100 * v['action_accuracy']:.1f} %, progress MSE {v['progress_mse']:.4f}, "

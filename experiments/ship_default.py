@@ -38,7 +38,17 @@ from typing import Any
 
 import onnx
 from card_training import training_block, training_markdown
-from common import ROOT, ExperimentError, fmt, mean_sd, run, scoring, scotti_command, utc_now
+from common import (
+    ROOT,
+    ExperimentError,
+    fmt,
+    from_root,
+    mean_sd,
+    run,
+    scoring,
+    scotti_command,
+    utc_now,
+)
 from measure import describe
 from scotti.export.card import ood_markdown
 from scotti.models.contract import META_CARD
@@ -57,7 +67,7 @@ def evaluation_block(reports: list[dict[str, Any]], commands: list[str]) -> dict
     per = [
         {
             "partition": r.get("partition"),  # set by the sweep: which partition scored it
-            "model": (r.get("model") or {}).get("path"),
+            "model": from_root(r["model"]["path"]) if r.get("model") else None,
             "subjects": r["subjects"],
             "frames": r["metrics"]["frames"],
             **{k: r["metrics"][k] for k in KEYS},
@@ -270,13 +280,6 @@ def embed_card(src: Path, dst: Path, card: dict[str, Any]) -> None:
     onnx.save(proto, str(dst))
 
 
-def _from_root(arg: object) -> str:
-    """A path as the card quotes it: from the repository root, the way a reader reruns it."""
-    if isinstance(arg, Path) and arg.is_absolute() and arg.is_relative_to(ROOT):
-        return str(arg.relative_to(ROOT))
-    return str(arg)
-
-
 def export_calibrated(args: argparse.Namespace) -> Path:
     """``scotti export --calibrate``, then ``scotti eval`` on the held-out subjects."""
     # The verbs run from the repository root: paths as given here, made absolute.
@@ -301,7 +304,9 @@ def export_calibrated(args: argparse.Namespace) -> Path:
     command = ["eval", *files, "--json", "--every", str(args.every)]
     report.write_text(run(scotti_command(*command, "--model", out)))
     args.eval = [str(report)]
-    quoted = " ".join(_from_root(a) for a in [*command[1:], "--model", out])
+    quoted = " ".join(
+        from_root(a) if isinstance(a, Path) else str(a) for a in [*command[1:], "--model", out]
+    )
     args.eval_command.append(f"scotti eval {quoted}")
     return out
 
