@@ -35,13 +35,18 @@ def training_block(checkpoint: Path) -> dict[str, Any] | None:
         for r in records
     ]
     last = records[-1]
+    status = last.get("status")
+    if status is None and last.get("lr") == 0.0:
+        # Runs from before scotti train wrote "epochs done": the cosine reaches 0 only
+        # at the last step of the last epoch.
+        status = "epochs done"
     command = run / "command.txt"
     return {
         "epochs": epochs,
         "best_epoch": last.get("best_epoch"),
         # A run whose last record has no status ended without a decision: its time
         # budget (--max-minutes) ran out first (or it is still going).
-        "status": last.get("status")
+        "status": status
         or f"time budget (--max-minutes), {last.get('stale_epochs', 0)} epochs since the best",
         "train_seconds": sum(float(e["seconds"] or 0) for e in epochs),
         "command": command.read_text().strip() if command.is_file() else None,

@@ -282,6 +282,8 @@ class Trainer:
             record["stale_epochs"] = where.stale_epochs
             if where.reached:
                 record["status"] = "plateau"
+        if "status" not in record and st.epoch + 1 >= self.opts.epochs:
+            record["status"] = "epochs done"  # the schedule's end, not a time budget
         self.last_metrics = record
         st.history.append(record)
         st.epoch += 1

@@ -111,6 +111,20 @@ def test_a_run_stops_on_its_plateau_and_says_so(
     assert torch.load(tmp_path / "run" / "best.pt", weights_only=True)["epoch"] == 1
 
 
+def test_a_run_that_ends_its_epochs_says_so(tmp_path: Path) -> None:
+    a = load_session(write_session(tmp_path / "a.scotti", 60, subject="a"))
+    b = load_session(write_session(tmp_path / "b.scotti", 40, subject="b", first_seq=7))
+    torch.manual_seed(0)
+    model = Scotti(ScottiConfig.from_dict(TINY))
+    opts = TrainOptions(epochs=2, batch=16, chunk=4, patience=0, progress_bar=False)
+    run = tmp_path / "run"
+    run.mkdir()
+    Trainer(model, WindowDataset([a], 8), WindowDataset([b], 8), opts, run_dir=run).fit()
+    history = [json.loads(x) for x in (run / "history.jsonl").read_text().splitlines()]
+    # Only the last epoch carries it: a reader tells the schedule's end from a time budget.
+    assert [r.get("status") for r in history] == [None, "epochs done"]
+
+
 @pytest.mark.slow
 def test_cli_three_way_split_and_an_old_runs_resume(
     ten_subjects: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
