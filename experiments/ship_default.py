@@ -312,13 +312,14 @@ def export_calibrated(args: argparse.Namespace) -> Path:
 
 
 def load_reports(specs: list[str]) -> list[dict[str, Any]]:
-    """``[PARTITION=]REPORT`` -> the reports, each named by its partition where given."""
+    """``[PARTITION=]REPORT`` -> the reports; a named partition's is its report's first model
+    (partition_runs.py scores a second, uncalibrated copy beside it)."""
     reports = []
     for spec in specs:
         name, sep, path = spec.rpartition("=")
         value = json.loads(Path(path).read_text())
-        for report in value if isinstance(value, list) else [value]:
-            reports.append(report | {"partition": name} if sep else report)
+        listed = value if isinstance(value, list) else [value]
+        reports += [listed[0] | {"partition": name}] if sep else listed
     return reports
 
 

@@ -336,7 +336,8 @@ def test_the_card_names_each_partitions_own_model(tmp_path: Path) -> None:
     for k, p in enumerate(PARTS):
         report = _report(_frames(300, 40 + k, 0.6), "multi", f"run-{p}")
         paths.append(tmp_path / f"{p}.json")
-        paths[-1].write_text(json.dumps(report))
+        other = report | {"model": {"path": "runs/tables/models/other.onnx"}}
+        paths[-1].write_text(json.dumps([report, other]))  # only the first is the partition's
     reports = ship_default.load_reports(
         [f"{p}={path}" for p, path in zip(PARTS, paths, strict=True)]
     )
@@ -351,7 +352,9 @@ def test_the_card_names_each_partitions_own_model(tmp_path: Path) -> None:
         f"`runs/tables/models/run-{p}.onnx`" in ln for p, ln in zip(PARTS, lines, strict=True)
     )
     # Without a name the report keeps the sweep's own partition key (none here).
-    assert "partition" not in ship_default.load_reports([str(paths[0])])[0]
+    unnamed = ship_default.load_reports([str(paths[0])])
+    assert len(unnamed) == 2
+    assert "partition" not in unnamed[0]
 
 
 def _card_lines(block: dict[str, Any]) -> list[str]:
