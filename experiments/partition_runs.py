@@ -26,14 +26,22 @@ validation, not for the calibrations.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from common import ROOT, RUNS, ExperimentError, load_partitions, run, run_parallel, scotti_command
+from common import (
+    ROOT,
+    RUNS,
+    ExperimentError,
+    last_history,
+    load_partitions,
+    run,
+    run_parallel,
+    scotti_command,
+)
 
 CORPUS = ROOT / "data" / "corpus7"
 EXTRA_VALIDATION = ("subject-031", "subject-032")
@@ -73,11 +81,8 @@ class PartitionRun:
 
     def finished(self, epochs: int) -> bool:
         """Training has ended: the plateau rule stopped it or its epochs are done."""
-        path = self.run_dir / "history.jsonl"
-        if not path.is_file():
-            return False
-        records = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
-        return bool(records) and (records[-1].get("status") == "plateau" or len(records) >= epochs)
+        last = last_history(self.run_dir)
+        return bool(last) and (last.get("status") == "plateau" or int(last["epoch"]) >= epochs)
 
 
 def _session(corpus: Path, subject: str) -> Path:
