@@ -35,7 +35,7 @@ BEGIN, END = "<!-- partitions:begin -->", "<!-- partitions:end -->"
 FLAGS = ("unloaded", "out_of_range", "unfamiliar")
 
 
-def _pairs(items: list[str], what: str) -> dict[str, Path]:
+def pairs(items: list[str], what: str) -> dict[str, Path]:
     out = {}
     for item in items:
         name, sep, path = item.partition("=")
@@ -135,12 +135,12 @@ def markdown(reports: dict[str, dict[str, Any]], runs: dict[str, Path], command:
     return "\n".join(lines) + "\n"
 
 
-def write_between_markers(doc: Path, text: str) -> None:
+def write_between_markers(doc: Path, text: str, begin: str = BEGIN, end: str = END) -> None:
     content = doc.read_text()
-    start, end = content.find(BEGIN), content.find(END)
-    if start < 0 or end < start:
-        raise ExperimentError(f"{doc}: no {BEGIN} ... {END} section to write into")
-    doc.write_text(content[: start + len(BEGIN)] + "\n" + text + content[end:])
+    start, stop = content.find(begin), content.find(end)
+    if start < 0 or stop < start:
+        raise ExperimentError(f"{doc}: no {begin} ... {end} section to write into")
+    doc.write_text(content[: start + len(begin)] + "\n" + text + content[stop:])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -158,10 +158,10 @@ def main(argv: list[str] | None = None) -> int:
         argv if argv is not None else sys.argv[1:]
     )
     try:
-        reports = {n: load_report(p, args.pick) for n, p in _pairs(args.reports, "report").items()}
+        reports = {n: load_report(p, args.pick) for n, p in pairs(args.reports, "report").items()}
         for name, report in reports.items():
             check_held_out(name, report)
-        text = markdown(reports, _pairs(args.run, "--run"), command)
+        text = markdown(reports, pairs(args.run, "--run"), command)
         if args.write:
             write_between_markers(args.write, text)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from common import Partition, fmt, mean_sd, scoring, table
+from tables_doc import kept_section
 
 TASKS = (  # key, lower is better
     ("mpjpe_mm", True),
@@ -205,6 +206,7 @@ def write_sweep_doc(
     lines = [
         "# What accuracy costs in time",
         "",
+        *kept_section(doc),  # the current corpus's measurements, written by other commands
         f"Written by `{invocation}` ({written}). Every number was printed by the commands",
         "listed at the end, on this shared 2-core machine. Simulated subjects, not the paper's",
         "data (docs/evaluation.md has the paper's tables on the same partitions).",

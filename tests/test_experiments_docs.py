@@ -284,6 +284,10 @@ def test_the_sweep_doc_shows_mean_and_spread(tmp_path: Path) -> None:
     assert choice is not None
     parts = [common.Partition(p, ("a", "b"), (f"{p}-t1", f"{p}-t2")) for p in PARTS]
     doc = tmp_path / "doc.md"
+    kept = (
+        f"{tables_doc.KEEP_BEGIN}\nfp32 against int8 on the current corpus\n{tables_doc.KEEP_END}"
+    )
+    doc.write_text(f"# old title\n\n{kept}\n\nold sweep table\n")
     sweep_doc.write_sweep_doc(
         doc,
         tmp_path / "img",
@@ -309,6 +313,8 @@ def test_the_sweep_doc_shows_mean_and_spread(tmp_path: Path) -> None:
     assert "2.5 min of budget per run" in text
     assert "**The default** (`models/scotti-default.onnx`): **B fp32**" in text
     assert "scotti eval x --model y --every 8" in text
+    assert kept in text  # a rewrite keeps the hand-kept section
+    assert "old sweep table" not in text
 
 
 def test_the_shipped_card_carries_every_partition(tmp_path: Path) -> None:

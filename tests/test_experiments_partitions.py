@@ -1,0 +1,131 @@
+"""The per-partition comparisons: multi- against single-task, fp32 against int8."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from scotti.models.runtime import ScottiRuntime, window_graph_for
+
+from tests.support.export_sessions import write_session
+from tests.test_experiments_docs import EXPERIMENTS, _frames, _report
+
+sys.path.insert(0, str(EXPERIMENTS))
+
+import common
+import partition_precision
+import task_table
+
+
+def _write(path: Path, report: dict[str, Any]) -> str:
+    path.write_text(json.dumps([report]))
+    return str(path)
+
+
+def test_the_task_table_pairs_each_single_task_with_its_partitions_multi_task_model(
+    tmp_path: Path,
+) -> None:
+    reports = {
+        key: _report(_frames(400, seed, quality), "x", key.replace(":", "-"))
+        for seed, (key, quality) in enumerate(
+            [
+                ("multi:p1", 0.9),
+                ("progress:p1", 0.6),
+                ("action:p1", 0.5),
+                ("multi:p2", 0.8),
+                ("progress:p2", 0.7),
+            ]
+        )
+    }
+    specs = [
+        f"{k}={_write(tmp_path / (k.replace(':', '-') + '.json'), r)}" for k, r in reports.items()
+    ]
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"head\n{task_table.BEGIN}\nold\n{task_table.END}\ntail\n")
+    assert task_table.main([*specs, "--write", str(doc)]) == 0
+    text = doc.read_text()
+    assert text.startswith("head\n")
+    assert text.endswith(f"{task_table.END}\ntail\n")
+    assert "old" not in text
+    rows = {
+        ln.split(" | ")[0][2:]: ln.removesuffix(" |").split(" | ")
+        for ln in text.splitlines()
+        if ln.startswith("| ")
+    }
+
+    def metric(key: str, who: str) -> list[float]:
+        parts = ["p1", "p2"] if who != "action" else ["p1"]
+        return [reports[f"{who}:{p}"]["metrics"][key] for p in parts]
+
+    mse = rows["progress MSE"]
+    assert mse[1] == "p1, p2"  # paired over both partitions
+    assert mse[2] == common.fmt(metric("progress_mse", "progress"), 4)
+    assert mse[3] == common.fmt(metric("progress_mse", "multi"), 4)
+    delta = [
+        m - s
+        for s, m in zip(
+            metric("progress_mse", "progress"), metric("progress_mse", "multi"), strict=True
+        )
+    ]
+    assert mse[4] == common.fmt(delta, 4)
+    accuracy = rows["accuracy (%)"]
+    assert accuracy[1] == "p1"  # action-only exists on p1 alone
+    better = metric("action_accuracy", "multi")[0] > metric("action_accuracy", "action")[0]
+    verdict = next(ln for ln in text.splitlines() if ln.startswith("- accuracy (%)"))
+    assert ("the multi-task model better" in verdict) == better
+    assert "one partition, no spread" in verdict
+    assert "MPJPE (mm)" not in rows  # no pose-only model was given
+    # Per action: the action-only model's recall beside the multi-task model's.
+    assert "accuracy (%), action-only" in text
+    # Without a multi-task model of the same partition there is nothing to compare.
+    assert task_table.main([specs[1]]) == 1
+    assert task_table.main([f"shape:p1={tmp_path / 'multi-p1.json'}"]) == 1
+
+
+def test_int8_copies_are_scored_on_the_fp32_reports_sessions_and_timed(
+    tmp_path: Path, tiny_model_path: Path
+) -> None:
+    model_dir = tmp_path / "run" / "models"
+    model_dir.mkdir(parents=True)
+    model = model_dir / "m.onnx"
+    shutil.copy2(tiny_model_path, model)
+    shutil.copy2(window_graph_for(tiny_model_path), model_dir / "m.window.onnx")
+    session = write_session(tmp_path / "s1.ses", 120)
+    report = tmp_path / "run" / "eval" / "test.json"
+    report.parent.mkdir()
+    fp32 = common.run(
+        common.scotti_command("eval", session, "--model", model, "--json"), quote=False
+    )
+    report.write_text(fp32)
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"{partition_precision.BEGIN}\n{partition_precision.END}\n")
+    args = [f"p1={report}", "--steps", "5", "--write", str(doc)]
+    assert partition_precision.main(args) == 0
+
+    int8 = model_dir / "int8" / "m.onnx"
+    assert int8.is_file()
+    assert (model_dir / "int8" / "m.window.onnx").is_file()
+    assert ScottiRuntime(int8).window == ScottiRuntime(model).window  # metadata carried over
+    scored = json.loads((report.parent / "int8.json").read_text())  # one model: not a list
+    assert Path(scored["model"]["path"]).resolve() == int8.resolve()
+    assert [s["path"] for s in scored["sessions"]] == [str(session)]
+    text = doc.read_text()
+    rows = [ln for ln in text.splitlines() if ln.split(" | ")[0] in ("| p1", "| fp32", "| int8")]
+    assert [r.split(" | ")[:2] for r in rows[:2]] == [["| p1", "fp32"], ["| p1", "int8"]]
+    assert [r.split(" | ")[0] for r in rows[2:]] == ["| fp32", "| int8"]  # the latency rows
+    assert rows[2].split(" | ")[7] == "1.00x"  # fp32 against itself
+    paired = next(ln for ln in text.splitlines() if ln.startswith("| int8 - fp32 (paired) |"))
+    before_after = [json.loads(report.read_text()), scored]
+    drop = [
+        before_after[1]["metrics"]["action_accuracy"]
+        - before_after[0]["metrics"]["action_accuracy"]
+    ]
+    assert paired.split(" | ")[4] == common.fmt(drop, 3, 100)  # one digit more than the figures
+    # A second call reuses the int8 report instead of replaying again.
+    before = (report.parent / "int8.json").stat().st_mtime_ns
+    assert partition_precision.main(args) == 0
+    assert (report.parent / "int8.json").stat().st_mtime_ns == before
+    assert partition_precision.main([f"p1={tmp_path / 'missing.json'}"]) == 1
