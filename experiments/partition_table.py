@@ -12,7 +12,9 @@ path). Prints Markdown: one row per partition, the mean ± SD over partitions
 beside the random baseline and the paper, accuracy and progress per action
 (`standing` included), and how each model's run ended (``--run NAME=RUN_DIR``:
 the run's ``history.jsonl``). ``--write DOC`` puts the same text between the
-``<!-- partitions:begin -->`` and ``<!-- partitions:end -->`` lines of DOC.
+``<!-- partitions:begin -->`` and ``<!-- partitions:end -->`` lines of DOC;
+``--img DIR`` draws the confusion matrix (partitions summed) and each
+partition's precision-margin curve there and links them.
 
 A model whose card (``NAME.card.json`` beside the graph) lists a held-out
 subject among its training or validation subjects is refused: the figure
@@ -23,13 +25,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
 
 from card_training import training_block
 from common import ROOT, ExperimentError, fmt, from_root, table, utc_now
-from tables_doc import METRICS, per_action, table1
+from tables_doc import METRICS, per_action, plot_confusion, plot_curves, table1
 
 BEGIN, END = "<!-- partitions:begin -->", "<!-- partitions:end -->"
 FLAGS = ("unloaded", "out_of_range", "unfamiliar")
@@ -112,7 +115,29 @@ def run_lines(runs: dict[str, Path]) -> list[str]:
     return lines
 
 
-def markdown(reports: dict[str, dict[str, Any]], runs: dict[str, Path], command: str) -> str:
+def figures(reports: dict[str, dict[str, Any]], img: Path, doc_dir: Path) -> list[str]:
+    """The confusion matrix (partitions summed) and the precision-margin curves, as PNGs."""
+    img.mkdir(parents=True, exist_ok=True)
+    multi = list(reports.values())
+    confusion = plot_confusion(multi, img, "partitions-confusion.png", " (each partition's model)")
+    curves = plot_curves(multi, img, "partitions-precision-margin.png", list(reports))
+    return [
+        f"![confusion matrix, partitions summed]({_relative(confusion, doc_dir)})",
+        "",
+        f"![precision-margin curves, one per partition]({_relative(curves, doc_dir)})",
+    ]
+
+
+def _relative(path: Path, start: Path) -> str:
+    return os.path.relpath(path.resolve(), start.resolve())
+
+
+def markdown(
+    reports: dict[str, dict[str, Any]],
+    runs: dict[str, Path],
+    command: str,
+    pictures: list[str] | None = None,
+) -> str:
     multi = list(reports.values())
     lines = [
         f"Written by `{command}` ({utc_now()}) from the `scotti eval --json` reports named",
@@ -129,6 +154,8 @@ def markdown(reports: dict[str, dict[str, Any]], runs: dict[str, Path], command:
         "",
         *per_action(multi),
     ]
+    if pictures:
+        lines += ["", *pictures]
     if runs:
         lines += ["", "How each model's training ended (validation subjects only):", ""]
         lines += run_lines(runs)
@@ -153,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", action="append", default=[], metavar="NAME=RUN_DIR")
     parser.add_argument("--pick", default="", help="the model whose path contains this")
     parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
+    parser.add_argument("--img", type=Path, help="draw the confusion matrix and curves here")
     args = parser.parse_args(argv)
     command = "python experiments/partition_table.py " + " ".join(
         argv if argv is not None else sys.argv[1:]
@@ -161,7 +189,9 @@ def main(argv: list[str] | None = None) -> int:
         reports = {n: load_report(p, args.pick) for n, p in pairs(args.reports, "report").items()}
         for name, report in reports.items():
             check_held_out(name, report)
-        text = markdown(reports, pairs(args.run, "--run"), command)
+        doc_dir = args.write.parent if args.write else Path.cwd()
+        pictures = figures(reports, args.img, doc_dir) if args.img else None
+        text = markdown(reports, pairs(args.run, "--run"), command, pictures)
         if args.write:
             write_between_markers(args.write, text)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:

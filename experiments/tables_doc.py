@@ -325,7 +325,9 @@ def paper_comparison(multi: list[dict[str, Any]]) -> list[str]:
     ]
 
 
-def plot_confusion(multi: list[dict[str, Any]], img: Path) -> Path:
+def plot_confusion(
+    multi: list[dict[str, Any]], img: Path, name: str = "confusion.png", what: str = ""
+) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -353,25 +355,31 @@ def plot_confusion(multi: list[dict[str, Any]], img: Path) -> Path:
                 color="white" if x > 0.5 else "black",
             )
     ax.set(xlabel="predicted", ylabel="true")
-    ax.set_title("Action confusion, % of true frames (3 partitions summed)", fontsize=9)
+    title = f"Action confusion{what}, % of true frames ({len(multi)} partitions summed)"
+    ax.set_title(title, fontsize=9)
     fig.colorbar(image, ax=ax, fraction=0.046)
     fig.tight_layout()
-    out = img / "confusion.png"
+    out = img / name
     fig.savefig(out)
     plt.close(fig)
     return out
 
 
-def plot_curves(multi: list[dict[str, Any]], img: Path) -> Path:
+def plot_curves(
+    multi: list[dict[str, Any]],
+    img: Path,
+    name: str = "precision-margin.png",
+    labels: list[str] | None = None,
+) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(4.8, 3.8), dpi=120)
-    for r in multi:
+    for k, r in enumerate(multi):
         pm = r["precision_margin"]
-        part = Path(r["model"]["path"]).name.split("-")[0]
+        part = labels[k] if labels else Path(r["model"]["path"]).name.split("-")[0]
         ax.plot(pm["margins"], pm["precision"], label=f"{part}: APP {pm['app']:.3f}")
     m = [i / 100 for i in range(101)]
     chance = [1 - (1 - x) ** 2 for x in m]  # uniform guess against uniform labels: APP 2/3
@@ -380,7 +388,7 @@ def plot_curves(multi: list[dict[str, Any]], img: Path) -> Path:
     ax.set_title("Progress: precision-margin curve (multi-task)", fontsize=9)
     ax.legend(loc="lower right", fontsize=7)
     fig.tight_layout()
-    out = img / "precision-margin.png"
+    out = img / name
     fig.savefig(out)
     plt.close(fig)
     return out

@@ -404,8 +404,12 @@ def test_the_partition_table_scores_each_partition_and_refuses_a_seen_subject(
         specs.append(f"{p}={tmp_path / p}.json")
     doc = tmp_path / "doc.md"
     doc.write_text(f"head\n{partition_table.BEGIN}\nold\n{partition_table.END}\ntail\n")
-    assert partition_table.main([*specs, "--write", str(doc)]) == 0
+    img = tmp_path / "img"
+    assert partition_table.main([*specs, "--write", str(doc), "--img", str(img)]) == 0
     text = doc.read_text()
+    for name in ("partitions-confusion.png", "partitions-precision-margin.png"):
+        assert (img / name).read_bytes()[:8] == PNG
+        assert f"(img/{name})" in text  # linked relative to the doc
     assert text.startswith("head\n")
     assert text.endswith(f"{partition_table.END}\ntail\n")
     assert "old" not in text
