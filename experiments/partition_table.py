@@ -14,7 +14,10 @@ beside the random baseline and the paper, accuracy and progress per action
 the run's ``history.jsonl``). ``--write DOC`` puts the same text between the
 ``<!-- partitions:begin -->`` and ``<!-- partitions:end -->`` lines of DOC;
 ``--img DIR`` draws the confusion matrix (partitions summed) and each
-partition's precision-margin curve there and links them.
+partition's precision-margin curve there and links them. ``--clean
+NAME=REPORT`` adds the same models scored on copies of the held-out sessions
+made without the simulator's sensor and transport effects (``scotti sim corpus
+--effects none``, same seed): what those effects cost.
 
 A model whose card (``NAME.card.json`` beside the graph) lists a held-out
 subject among its training or validation subjects is refused: the figure
@@ -132,11 +135,24 @@ def _relative(path: Path, start: Path) -> str:
     return os.path.relpath(path.resolve(), start.resolve())
 
 
+def check_clean(reports: dict[str, dict[str, Any]], clean: dict[str, dict[str, Any]]) -> None:
+    """A clean report must score the same model on the same people as its partition's."""
+    for name, report in clean.items():
+        if name not in reports:
+            raise ExperimentError(f"--clean {name}: no report of that partition")
+        same_model = report["model"].get("sha256") == reports[name]["model"].get("sha256")
+        if not same_model or report["subjects"] != reports[name]["subjects"]:
+            raise ExperimentError(
+                f"--clean {name}: not the partition's model on its held-out subjects"
+            )
+
+
 def markdown(
     reports: dict[str, dict[str, Any]],
     runs: dict[str, Path],
     command: str,
     pictures: list[str] | None = None,
+    clean: dict[str, dict[str, Any]] | None = None,
 ) -> str:
     multi = list(reports.values())
     lines = [
@@ -148,7 +164,7 @@ def markdown(
         "",
         f"Mean ± sample SD over the {len(multi)} partitions:",
         "",
-        *table1(multi, []),
+        *table1(multi, list((clean or {}).values())),
         "",
         "Per action, pooled frames; figures are the mean ± SD over the partitions:",
         "",
@@ -181,6 +197,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pick", default="", help="the model whose path contains this")
     parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
     parser.add_argument("--img", type=Path, help="draw the confusion matrix and curves here")
+    parser.add_argument(
+        "--clean",
+        action="append",
+        default=[],
+        metavar="NAME=REPORT",
+        help="the same model on clean copies of the held-out sessions (no sensor effects)",
+    )
     args = parser.parse_args(argv)
     command = "python experiments/partition_table.py " + " ".join(
         argv if argv is not None else sys.argv[1:]
@@ -191,7 +214,9 @@ def main(argv: list[str] | None = None) -> int:
             check_held_out(name, report)
         doc_dir = args.write.parent if args.write else Path.cwd()
         pictures = figures(reports, args.img, doc_dir) if args.img else None
-        text = markdown(reports, pairs(args.run, "--run"), command, pictures)
+        clean = {n: load_report(p, args.pick) for n, p in pairs(args.clean, "--clean").items()}
+        check_clean(reports, clean)
+        text = markdown(reports, pairs(args.run, "--run"), command, pictures, clean)
         if args.write:
             write_between_markers(args.write, text)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:

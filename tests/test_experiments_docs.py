@@ -405,7 +405,11 @@ def test_the_partition_table_scores_each_partition_and_refuses_a_seen_subject(
     doc = tmp_path / "doc.md"
     doc.write_text(f"head\n{partition_table.BEGIN}\nold\n{partition_table.END}\ntail\n")
     img = tmp_path / "img"
-    assert partition_table.main([*specs, "--write", str(doc), "--img", str(img)]) == 0
+    clean_report = json.loads((tmp_path / "p1.json").read_text())[0]
+    clean_report["metrics"] = clean_report["metrics"] | {"action_accuracy": 0.25}
+    (tmp_path / "p1-clean.json").write_text(json.dumps(clean_report))
+    clean = ["--clean", f"p1={tmp_path / 'p1-clean.json'}"]
+    assert partition_table.main([*specs, "--write", str(doc), "--img", str(img), *clean]) == 0
     text = doc.read_text()
     for name in ("partitions-confusion.png", "partitions-precision-margin.png"):
         assert (img / name).read_bytes()[:8] == PNG
@@ -422,8 +426,14 @@ def test_the_partition_table_scores_each_partition_and_refuses_a_seen_subject(
         accs.append(
             json.loads((tmp_path / f"{p}.json").read_text())[0]["metrics"]["action_accuracy"]
         )
-    ours = next(ln for ln in text.splitlines() if ln.startswith("| SCOTTI, ours"))
+    ours = next(ln for ln in text.splitlines() if ln.startswith("| SCOTTI, ours (multi"))
     assert common.fmt(accs, 2, 100) in ours
+    clean_row = next(ln for ln in text.splitlines() if "without sensor/transport" in ln)
+    assert "| 25.00 |" in clean_row  # one partition's clean copy: its figure, no spread
+    # A clean report of another model (or other people) is refused.
+    other = clean_report | {"subjects": ["subject-099"]}
+    (tmp_path / "p1-other.json").write_text(json.dumps(other))
+    assert partition_table.main([*specs, "--clean", f"p1={tmp_path / 'p1-other.json'}"]) == 1
     # A model that trained on a subject it is scored on is refused.
     graph = tmp_path / "seen.onnx"
     report = _report(_frames(50, 1, 0.5), "multi", "seen") | {"subjects": ["subject-007"]}
