@@ -81,6 +81,15 @@ def card_markdown(card: dict[str, Any]) -> str:
         lines += ["", "## int8 drift against fp32 (measured, not bounded)", ""]
         lines += [f"- {line}" for line in format_report(card["int8_drift_max_abs"])]
     lines += ood_markdown(card.get("ood"))
+    if card.get("int8_ood"):
+        int8 = card["int8_ood"]
+        lines += [
+            "",
+            "The int8 graphs carry statistics of their own pooled vectors (int8 moves them): "
+            f"threshold **{int8['threshold']:.2f}**, flagging {100 * int8['held_out_flagged']:.2f} "
+            f"% of the held-out windows and {100 * int8['train_flagged']:.2f} % of the training "
+            "windows.",
+        ]
     lines += progress_markdown(card.get("progress_calibration"))
     lines += ["", "## Tools", "", ", ".join(f"{k} {v}" for k, v in card["tools"].items()), ""]
     return "\n".join(lines)

@@ -124,6 +124,9 @@ def run(args: argparse.Namespace) -> int:
             f"of {ood['held_out_windows']} {ood['held_out_split']} windows), statistics of "
             f"{ood['train_windows']} training windows, shrinkage {ood['shrinkage']:.3f}"
         )
+        if card.get("int8_ood"):
+            int8_threshold = card["int8_ood"]["threshold"]
+            print(f"  int8 graphs: their own statistics, threshold {int8_threshold:.2f}")
     else:
         print("unfamiliar score: not calibrated (give --calibrate SESSIONS)")
     progress = card.get("progress_calibration") or {}

@@ -46,7 +46,7 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     out = tmp / "models" / "cal.onnx"
     # Small sessions: an action with 10 held-out windows gets its progress map.
     request = Calibration((sessions,), percentile=95.0, max_windows=60, progress_min_windows=10)
-    export_model(ckpt, out, calibration=request)
+    export_model(ckpt, out, calibration=request, int8=True)
     return out, sessions
 
 
@@ -74,6 +74,27 @@ def test_the_graphs_carry_pooled_and_the_statistics_and_the_card_says_so(
     card = json.loads(out.with_suffix(".card.json").read_text())
     assert card["ood"]["threshold"] == pytest.approx(step.ood.threshold)  # type: ignore[union-attr]
     assert "unfamiliar" in out.with_suffix(".card.md").read_text()
+
+
+@pytest.mark.slow
+def test_the_int8_graphs_carry_statistics_of_their_own_pooled_vectors(
+    calibrated: tuple[Path, Path],
+) -> None:
+    out, _ = calibrated
+    fp32 = ScottiRuntime(out).ood
+    int8_step = ScottiRuntime(out.with_name("cal.int8.onnx")).ood
+    int8_window = ScottiRuntime(out.with_name("cal.int8.window.onnx")).ood
+    assert fp32 is not None
+    assert int8_step is not None
+    assert int8_window is not None
+    # Fitted on the int8 graph's pooled vectors, not copied from fp32 ...
+    assert not np.array_equal(int8_step.mean, fp32.mean)
+    # ... the same in both int8 graphs, and what the card says.
+    np.testing.assert_array_equal(int8_step.mean, int8_window.mean)
+    card = json.loads(out.with_suffix(".card.json").read_text())
+    assert card["int8_ood"]["threshold"] == pytest.approx(int8_step.threshold)
+    assert card["ood"]["threshold"] == pytest.approx(fp32.threshold)
+    assert f"threshold **{int8_step.threshold:.2f}**" in out.with_suffix(".card.md").read_text()
 
 
 @pytest.mark.slow
