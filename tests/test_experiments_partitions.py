@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import pytest
 from scotti.models.runtime import ScottiRuntime, window_graph_for
 
 from tests.support.export_sessions import write_session
@@ -16,6 +17,7 @@ from tests.test_experiments_docs import EXPERIMENTS, _frames, _report
 sys.path.insert(0, str(EXPERIMENTS))
 
 import common
+import effect_ablation
 import partition_precision
 import task_table
 
@@ -129,3 +131,40 @@ def test_int8_copies_are_scored_on_the_fp32_reports_sessions_and_timed(
     assert partition_precision.main(args) == 0
     assert (report.parent / "int8.json").stat().st_mtime_ns == before
     assert partition_precision.main([f"p1={tmp_path / 'missing.json'}"]) == 1
+
+
+def test_the_ablation_copies_differ_by_their_effects_alone() -> None:
+    scenes = effect_ablation.copies(2, 0.02)
+    drawn = [e["name"] for e in scenes["all effects"].effects]
+    assert len(drawn) >= 2
+    assert list(scenes) == ["all effects", "no effects", *(f"without {n}" for n in drawn)]
+    assert scenes["no effects"].effects == []
+    base = scenes["all effects"].model_dump(exclude={"effects"})
+    for name in drawn:
+        copy = scenes[f"without {name}"]
+        assert [e["name"] for e in copy.effects] == [n for n in drawn if n != name]
+        assert copy.model_dump(exclude={"effects"}) == base  # same person, motion, insole
+
+
+def test_the_ablation_scores_each_copy_and_reads_standing_as_squat_from_the_confusion(
+    tmp_path: Path, tiny_model_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    every = effect_ablation.copies(2, 0.02)
+    two = {k: every[k] for k in ("all effects", "no effects")}
+    monkeypatch.setattr(effect_ablation, "copies", lambda subject, minutes: two)
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"{effect_ablation.BEGIN}\n{effect_ablation.END}\n")
+    args = ["--subject", "2", "--model", str(tiny_model_path), "--out", str(tmp_path / "abl")]
+    assert effect_ablation.main([*args, "--every", "4", "--write", str(doc)]) == 0
+    assert sorted(p.name for p in (tmp_path / "abl").glob("*.ses")) == [
+        "all-effects.ses",
+        "no-effects.ses",
+    ]
+    rows = [ln.split(" | ") for ln in doc.read_text().splitlines() if ln.startswith("| all")]
+    report = json.loads((tmp_path / "abl" / "all-effects.json").read_text())
+    actions = report["confusion"]["actions"]
+    standing = report["confusion"]["matrix"][actions.index("standing")]
+    share = standing[actions.index("squat")] / max(1, sum(standing))
+    assert rows[0][3] == f"{100 * share:.1f}"
+    assert report["every"] == 4
+    assert effect_ablation.main(["--subject", "2", "--model", str(tmp_path / "none.onnx")]) == 1
