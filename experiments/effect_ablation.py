@@ -12,9 +12,10 @@ differ by their effects alone. Each copy is scored with ``scotti eval --every
 K --json``; the table gives accuracy, standing recall, the share of standing
 frames read as squat, squat progress MSE and the unfamiliar share. An effect
 whose removal brings the figures back to the clean copy's is one the failure
-needs. Copies and reports go to runs/ablation/subject-NNN/ and are reused
-when there. ``--write DOC`` puts the table between ``<!-- ablation:begin -->``
-and ``<!-- ablation:end -->`` of DOC.
+needs (``--leave-out EFFECT ...``: only those copies). Copies and reports go
+to runs/ablation/subject-NNN/ and are reused when there. ``--write DOC`` puts
+the table between ``<!-- ablation:begin -->`` and ``<!-- ablation:end -->``
+of DOC.
 """
 
 from __future__ import annotations
@@ -33,8 +34,9 @@ CORPUS_SEED = 1  # data/corpus7/realistic: scotti sim corpus --seed 1
 MINUTES_PER_ACTION = 4.0  # its --minutes-per-action
 
 
-def copies(subject: int, minutes: float) -> dict[str, Any]:
-    """Name -> the subject's scene with all its effects, none, and each one left out."""
+def copies(subject: int, minutes: float, leave_out: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Name -> the subject's scene with all its effects, none, and each one left out
+    (only those named in ``leave_out`` when given)."""
     from scotti.sim.corpus import subject_scene
     from scotti.sim.subjects import draw_subjects
 
@@ -44,6 +46,8 @@ def copies(subject: int, minutes: float) -> dict[str, Any]:
     )
     out = {"all effects": scene, "no effects": scene.model_copy(update={"effects": []})}
     for effect in scene.effects:
+        if leave_out and effect["name"] not in leave_out:
+            continue
         kept = [e for e in scene.effects if e["name"] != effect["name"]]
         out[f"without {effect['name']}"] = scene.model_copy(update={"effects": kept})
     return out
@@ -107,6 +111,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, required=True, help="a streaming step graph")
     parser.add_argument("--every", type=int, default=4, help="scotti eval --every")
     parser.add_argument("--minutes-per-action", type=float, default=MINUTES_PER_ACTION)
+    parser.add_argument(
+        "--leave-out", nargs="+", default=(), metavar="EFFECT", help="only these (default: each)"
+    )
     parser.add_argument("--out", type=Path, help="default runs/ablation/subject-NNN")
     parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
     args = parser.parse_args(argv)
@@ -119,7 +126,9 @@ def main(argv: list[str] | None = None) -> int:
             raise ExperimentError(f"{args.model}: no such model")
         out.mkdir(parents=True, exist_ok=True)
         rows = []
-        for name, scene in copies(args.subject, args.minutes_per_action).items():
+        for name, scene in copies(
+            args.subject, args.minutes_per_action, tuple(args.leave_out)
+        ).items():
             session = render(scene, out / (name.replace(" ", "-") + ".ses"))
             rows.append(row(name, score(session, args.model, args.every)))
         text = markdown(rows, command)

@@ -144,6 +144,8 @@ def test_the_ablation_copies_differ_by_their_effects_alone() -> None:
         copy = scenes[f"without {name}"]
         assert [e["name"] for e in copy.effects] == [n for n in drawn if n != name]
         assert copy.model_dump(exclude={"effects"}) == base  # same person, motion, insole
+    one = effect_ablation.copies(2, 0.02, (drawn[1],))
+    assert list(one) == ["all effects", "no effects", f"without {drawn[1]}"]
 
 
 def test_the_ablation_scores_each_copy_and_reads_standing_as_squat_from_the_confusion(
@@ -151,7 +153,7 @@ def test_the_ablation_scores_each_copy_and_reads_standing_as_squat_from_the_conf
 ) -> None:
     every = effect_ablation.copies(2, 0.02)
     two = {k: every[k] for k in ("all effects", "no effects")}
-    monkeypatch.setattr(effect_ablation, "copies", lambda subject, minutes: two)
+    monkeypatch.setattr(effect_ablation, "copies", lambda subject, minutes, leave_out: two)
     doc = tmp_path / "doc.md"
     doc.write_text(f"{effect_ablation.BEGIN}\n{effect_ablation.END}\n")
     args = ["--subject", "2", "--model", str(tiny_model_path), "--out", str(tmp_path / "abl")]
