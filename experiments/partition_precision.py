@@ -33,6 +33,7 @@ from common import (
     fmt,
     from_root,
     run,
+    scoring,
     scotti_command,
     table,
     utc_now,
@@ -146,18 +147,13 @@ def markdown(
     command: str,
 ) -> str:
     lead = next(iter(pairs_))
-    scored = next(iter(pairs_.values()))[0]
-    how = (
-        "every frame through the streaming step graph"
-        if scored.get("every", 1) == 1
-        else (f"every {scored['every']}th prediction time through the window graph")
-    )
+    every = int(next(iter(pairs_.values()))[0].get("every", 1))
     lines = [
         f"Written by `{command}` ({utc_now()}).",
         "",
         "Accuracy: each partition's own model (fp32) and the same graphs quantized to int8",
         "(MatMul/Gemm weights, as `scotti export --int8`), scored on that partition's held-out",
-        f"subjects, {how}, in separate replays of the same session files:",
+        f"subjects ({scoring(every)}), in separate replays of the same session files:",
         "",
         *accuracy_rows(pairs_),
         "",
