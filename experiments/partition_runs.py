@@ -3,6 +3,7 @@
     nice -n 5 python experiments/partition_runs.py p2 p3 --max-minutes 112   # side by side
     python experiments/partition_runs.py p2 p3 --max-minutes 60             # goes on from there
     python experiments/partition_runs.py p1 --variant progress              # Table 3's variants
+    python experiments/partition_runs.py p3 --arch E128-L2-T20              # the sweep's configs
 
 Per partition of experiments/partitions.json, in runs/GROUP-PARTITION[-VARIANT]:
 
@@ -18,6 +19,11 @@ Per partition of experiments/partitions.json, in runs/GROUP-PARTITION[-VARIANT]:
    fitted as the shipped model's was) and ``scotti eval --json`` on the
    partition's held-out subjects into eval/test.json.
 
+``--arch NAME`` trains one of the configurations of experiments/configs.py
+instead of ``small`` (with that width's learning rate unless ``--lr`` says
+otherwise), into runs/GROUP-PARTITION-NAME; a model whose window is not the
+contract's 40 is calibrated and scored through experiments/any_window.py.
+
 Then ``experiments/partition_table.py`` puts the reports side by side. The
 test subjects are never given to ``scotti train``: not for training, not for
 validation, not for the calibrations.
@@ -26,6 +32,7 @@ validation, not for the calibrations.
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -42,7 +49,9 @@ from common import (
     run_parallel,
     scotti_command,
 )
+from configs import CONFIGS, CONTRACT_WINDOW, learning_rate, window_of
 
+HERE = Path(__file__).resolve().parent
 CORPUS = ROOT / "data" / "corpus7"
 EXTRA_VALIDATION = ("subject-031", "subject-032")
 # The shipped model's loss weights (pose, action, progress) and Table 3's single tasks.
@@ -56,6 +65,7 @@ class PartitionRun:
     test: tuple[str, ...]
     run_dir: Path
     variant: str = "multi"
+    window: int = CONTRACT_WINDOW
 
     @property
     def validation(self) -> tuple[str, ...]:
@@ -93,6 +103,13 @@ def _session(corpus: Path, subject: str) -> Path:
     raise ExperimentError(f"no session file for {subject} under {corpus}: see export/TRAINING.md")
 
 
+def verb(window: int, *args: str | Path) -> list[str]:
+    """A ``scotti`` verb for a model of this window (see experiments/any_window.py)."""
+    if window == CONTRACT_WINDOW:
+        return scotti_command(*args)
+    return [sys.executable, str(HERE / "any_window.py"), str(window), *map(str, args)]
+
+
 def score(job: PartitionRun, corpus: Path, cache: str) -> Path:
     """Export with both calibrations, then the held-out evaluation; the report's path.
 
@@ -103,21 +120,48 @@ def score(job: PartitionRun, corpus: Path, cache: str) -> Path:
     model = job.run_dir / "models" / "scotti-ship.onnx"
     log = job.run_dir / "score.log"
     export = ["export", job.run_dir / "best.pt", "-o", model, "--calibrate"]
-    run(scotti_command(*export, *job.files(corpus), "--cache-dir", cache), log)
+    run(verb(job.window, *export, *job.files(corpus), "--cache-dir", cache), log)
     before = job.run_dir / "models" / "export-fit"
     before.mkdir(exist_ok=True)
     for graph in (model, model.with_name("scotti-ship.window.onnx")):
         shutil.copy2(graph, before / graph.name)
-    run(scotti_command("calibrate", model, *job.files(corpus, job.validation)), log)
+    run(verb(job.window, "calibrate", model, *job.files(corpus, job.validation)), log)
     report = job.run_dir / "eval" / "test.json"
     models = ["--model", model, "--model", before / model.name]
-    out = run(scotti_command("eval", *job.files(corpus, job.test), *models, "--json"), log)
+    out = run(verb(job.window, "eval", *job.files(corpus, job.test), *models, "--json"), log)
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text(out)
     return report
 
 
-def main(argv: list[str] | None = None) -> int:
+def plan(args: argparse.Namespace) -> list[PartitionRun]:
+    """The runs asked for; resolves ``--arch`` into ``--config``, ``--lr`` and the window."""
+    known = {p.name: p for p in load_partitions()}
+    unknown = sorted(set(args.partitions) - set(known))
+    if unknown:
+        raise ExperimentError(f"unknown partitions {', '.join(unknown)}: {', '.join(known)}")
+    suffix = "" if args.variant == "multi" else f"-{args.variant}"
+    window = CONTRACT_WINDOW
+    if args.arch:
+        args.config = json.dumps(CONFIGS[args.arch])
+        args.lr = args.lr or learning_rate(args.arch)
+        window = window_of(args.arch)
+        suffix += f"-{args.arch}"
+    args.lr = args.lr or 1e-3
+    return [
+        PartitionRun(
+            n,
+            known[n].train,
+            known[n].test,
+            RUNS / f"{args.group}-{n}{suffix}",
+            args.variant,
+            window,
+        )
+        for n in args.partitions
+    ]
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python experiments/partition_runs.py",
         description=__doc__,
@@ -128,24 +172,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--group", default="v9", help="runs/GROUP-PARTITION[-VARIANT]")
     parser.add_argument("--corpus", type=Path, default=CORPUS, help="with realistic/ and extra/")
     parser.add_argument("--cache", default="data/cache7", help="scotti train --cache")
-    parser.add_argument("--config", default="small")
+    parser.add_argument("--config", default="small", help="scotti train --config")
+    parser.add_argument("--arch", choices=sorted(CONFIGS), help="instead of --config")
     parser.add_argument("--epochs", type=int, default=8, help="the cosine schedule's length")
     parser.add_argument("--stride", type=int, default=16)
-    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--lr", type=float, help="default 1e-3, or the --arch's width's")
     parser.add_argument("--max-minutes", type=float, default=112, help="per run, this call")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     try:
-        known = {p.name: p for p in load_partitions()}
-        unknown = sorted(set(args.partitions) - set(known))
-        if unknown:
-            raise ExperimentError(f"unknown partitions {', '.join(unknown)}: {', '.join(known)}")
-        suffix = "" if args.variant == "multi" else f"-{args.variant}"
-        jobs = [
-            PartitionRun(
-                n, known[n].train, known[n].test, RUNS / f"{args.group}-{n}{suffix}", args.variant
-            )
-            for n in args.partitions
-        ]
+        jobs = plan(args)
         training = [j for j in jobs if not j.finished(args.epochs)]
         for job in training:
             job.run_dir.mkdir(parents=True, exist_ok=True)

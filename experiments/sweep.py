@@ -47,6 +47,7 @@ from common import (
     utc_now,
     write_json,
 )
+from configs import CONFIGS, CONTRACT_WINDOW, LEARNING_RATE, SWEEP_CONFIGS
 from measure import conv_int8, graph_flops
 from scotti.models.contract import NUM_ACTIONS
 from scotti.models.runtime import window_graph_for
@@ -55,18 +56,6 @@ from training import RunSpec, export, measure, train
 
 HERE = Path(__file__).resolve().parent
 LIMIT_P99_MS = 10.0
-CONTRACT_WINDOW = 40  # the daemon's T (models.contract.WINDOW)
-# Adam's step size by width: short budgets want it brisk, wide transformers want it gentler.
-LEARNING_RATE = {128: 1e-3, 256: 5e-4, 512: 3e-4}
-
-# name -> ScottiConfig fields (the rest from the paper's defaults: conv 16/32, dropout 0.1).
-CONFIGS: dict[str, dict[str, Any]] = {
-    "E128-L2-T40": {"embed_dim": 128, "layers": 2, "heads": 4, "head_hidden": 128},
-    "E128-L2-T20": {"embed_dim": 128, "layers": 2, "heads": 4, "head_hidden": 128, "window": 20},
-    "E256-L2-T40": {"embed_dim": 256, "layers": 2, "heads": 4, "head_hidden": 256},
-    "E256-L4-T40": {"embed_dim": 256, "layers": 4, "heads": 8, "head_hidden": 256},
-    "E512-L4-T40": {"embed_dim": 512, "layers": 4, "heads": 8, "head_hidden": 256},
-}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -74,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--budget-minutes", type=float, required=True, help="all training runs together"
     )
-    parser.add_argument("--configs", nargs="*", default=list(CONFIGS), choices=list(CONFIGS))
+    parser.add_argument("--configs", nargs="*", default=list(SWEEP_CONFIGS), choices=list(CONFIGS))
     parser.add_argument(
         "--partitions-used",
         nargs="*",

@@ -16,9 +16,12 @@ from tests.test_experiments_docs import EXPERIMENTS, _frames, _report
 
 sys.path.insert(0, str(EXPERIMENTS))
 
+import arch_table
 import common
+import configs
 import effect_ablation
 import partition_precision
+import partition_runs
 import task_table
 
 
@@ -170,3 +173,88 @@ def test_the_ablation_scores_each_copy_and_reads_standing_as_squat_from_the_conf
     assert rows[0][3] == f"{100 * share:.1f}"
     assert report["every"] == 4
     assert effect_ablation.main(["--subject", "2", "--model", str(tmp_path / "none.onnx")]) == 1
+
+
+def test_an_arch_run_trains_its_config_and_scores_through_its_window(tmp_path: Path) -> None:
+    parser = partition_runs.build_parser()
+    wide, short = (
+        partition_runs.plan(parser.parse_args(["p3", "--arch", name]))[0]
+        for name in ("E256-L2-T40", "E128-L2-T20")
+    )
+    assert wide.run_dir.name == "v9-p3-E256-L2-T40"
+    assert short.run_dir.name == "v9-p3-E128-L2-T20"
+    assert (wide.window, short.window) == (40, 20)
+    args = parser.parse_args(["p3", "--arch", "E256-L2-T40"])
+    partition_runs.plan(args)
+    assert json.loads(args.config) == configs.CONFIGS["E256-L2-T40"]
+    assert args.lr == configs.LEARNING_RATE[256]  # the width's, unless --lr says otherwise
+    args = parser.parse_args(["p3", "--arch", "E256-L2-T40", "--lr", "0.002"])
+    partition_runs.plan(args)
+    assert args.lr == 0.002
+    plain = parser.parse_args(["p3"])
+    (job,) = partition_runs.plan(plain)
+    assert (plain.config, plain.lr, job.window, job.run_dir.name) == ("small", 1e-3, 40, "v9-p3")
+    # The contract's window goes straight to scotti; another one through any_window.py.
+    assert partition_runs.verb(40, "eval", "x.ses")[1:3] == ["-m", "scotti.cli.main"]
+    assert partition_runs.verb(20, "eval", "x.ses")[1:] == [
+        str(EXPERIMENTS / "any_window.py"),
+        "20",
+        "eval",
+        "x.ses",
+    ]
+
+
+def _claiming(report: dict[str, Any], model: Path, embed_dim: int, window: int) -> dict[str, Any]:
+    return {**report, "model": {"path": str(model), "embed_dim": embed_dim, "window": window}}
+
+
+def test_the_arch_table_compares_each_config_with_the_baseline_on_shared_partitions(
+    tmp_path: Path, tiny_model_path: Path
+) -> None:
+    reports = {
+        key: _claiming(
+            _report(_frames(400, seed, quality), "x", key.replace(":", "-")),
+            tiny_model_path,
+            configs.CONFIGS[key.split(":")[0]]["embed_dim"],
+            configs.window_of(key.split(":")[0]),
+        )
+        for seed, (key, quality) in enumerate(
+            [
+                ("E128-L2-T40:p1", 0.8),
+                ("E128-L2-T40:p3", 0.7),
+                ("E128-L2-T20:p3", 0.6),
+                ("E256-L2-T40:p2", 0.9),
+            ]
+        )
+    }
+    specs = [
+        f"{k}={_write(tmp_path / (k.replace(':', '-') + '.json'), r)}" for k, r in reports.items()
+    ]
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"head\n{arch_table.BEGIN}\nold\n{arch_table.END}\n")
+    assert arch_table.main([*specs, "--steps", "3", "--write", str(doc)]) == 0
+    text = doc.read_text()
+    assert text.startswith("head\n")
+    assert "old" not in text
+    rows = [ln.removesuffix(" |").split(" | ") for ln in text.splitlines() if ln.startswith("| E")]
+    first = {r[0][2:]: r for r in rows[:3]}  # accuracy and cost, one row per config
+    assert list(first) == ["E128-L2-T40", "E128-L2-T20", "E256-L2-T40"]
+    assert first["E128-L2-T40"][1] == "p1, p3"
+    mse = [reports[f"E128-L2-T40:{p}"]["metrics"]["progress_mse"] for p in ("p1", "p3")]
+    assert first["E128-L2-T40"][5] == common.fmt(mse, 4)
+    assert first["E128-L2-T40"][-1] == "1.00x"  # the baseline against itself
+    paired = rows[3:]
+    # Only T20 shares a partition with the baseline; E256 (p2 alone) has nothing to pair.
+    assert [r[0][2:] for r in paired] == ["E128-L2-T20"]
+    delta = [
+        reports["E128-L2-T20:p3"]["metrics"]["action_accuracy"]
+        - reports["E128-L2-T40:p3"]["metrics"]["action_accuracy"]
+    ]
+    assert paired[0][1] == "p3"
+    assert paired[0][4] == common.fmt(delta, 2, 100)
+    # A report whose model is not the config it is filed under is refused.
+    wrong = _write(
+        tmp_path / "wrong.json", _claiming(reports["E128-L2-T20:p3"], tiny_model_path, 32, 40)
+    )
+    assert arch_table.main([f"E128-L2-T20:p3={wrong}", "--steps", "3"]) == 1
+    assert arch_table.main([f"E999:p3={specs[0].split('=')[1]}"]) == 1
