@@ -23,6 +23,8 @@ Per partition of experiments/partitions.json, in runs/GROUP-PARTITION[-VARIANT]:
 instead of ``small`` (with that width's learning rate unless ``--lr`` says
 otherwise), into runs/GROUP-PARTITION-NAME; a model whose window is not the
 contract's 40 is calibrated and scored through experiments/any_window.py.
+``--max-crosstalk X`` trains with crosstalk added per chunk and foot
+(export/augment.py), into runs/GROUP-PARTITION[-VARIANT]-xtX.
 
 Then ``experiments/partition_table.py`` puts the reports side by side. The
 test subjects are never given to ``scotti train``: not for training, not for
@@ -86,7 +88,8 @@ class PartitionRun:
             "--epochs", str(opts.epochs), "--patience", "3", "--stride", str(opts.stride),
             "--val-stride", "8", "--lr", str(opts.lr),
             "--loss-weights", LOSS_WEIGHTS[self.variant], "--threads", "1",
-            "--max-minutes", str(opts.max_minutes), "--cache", opts.cache, *resume,
+            "--max-minutes", str(opts.max_minutes), "--cache", opts.cache,
+            "--max-crosstalk", str(opts.max_crosstalk), *resume,
         )  # fmt: skip
 
     def finished(self, epochs: int) -> bool:
@@ -148,6 +151,8 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
         window = window_of(args.arch)
         suffix += f"-{args.arch}"
     args.lr = args.lr or 1e-3
+    if args.max_crosstalk > 0:
+        suffix += f"-xt{args.max_crosstalk:g}"
     return [
         PartitionRun(
             n,
@@ -178,6 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stride", type=int, default=16)
     parser.add_argument("--lr", type=float, help="default 1e-3, or the --arch's width's")
     parser.add_argument("--max-minutes", type=float, default=112, help="per run, this call")
+    parser.add_argument(
+        "--max-crosstalk", type=float, default=0.0, help="scotti train's augmentation (-xtX runs)"
+    )
     return parser
 
 

@@ -1,6 +1,7 @@
 """An epoch's plan (which windows, in which batches, with which shifts) and its tensors.
 
-Everything random in an epoch (window phase, chunk cuts, order, shifts) is
+Everything random in an epoch (window phase, chunk cuts, order, shifts, added
+crosstalk) is
 drawn from a generator seeded with (seed, epoch), so the plan is a pure
 function of (dataset, options, seed, epoch): a resumed run, a prefetch
 thread and every rank of a distributed run all see the same plan.
@@ -10,12 +11,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-from scotti.export.augment import draw_shifts, shift_feet
+from scotti.export.augment import add_crosstalk, draw_crosstalk, draw_shifts, shift_feet
 from scotti.export.evaluate import to_targets
 from scotti.export.losses import ScottiTargets
 from scotti.export.windows import Chunk, WindowDataset
@@ -28,6 +29,7 @@ if TYPE_CHECKING:
 class PlannedChunk:
     chunk: Chunk
     shifts: np.ndarray  # (2, 2) (rows, cols) per foot
+    crosstalk: np.ndarray = field(default_factory=lambda: np.zeros(2, dtype=np.float32))
 
 
 def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[list[PlannedChunk]]:
@@ -39,7 +41,14 @@ def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[l
     current: list[PlannedChunk] = []
     windows = 0
     for i in rng.permutation(len(chunks)):
-        current.append(PlannedChunk(chunks[i], draw_shifts(rng, opts.max_shift)))
+        shifts = draw_shifts(rng, opts.max_shift)
+        # Drawn only when asked for, so that runs without it keep their plans.
+        crosstalk = draw_crosstalk(rng, opts.max_crosstalk) if opts.max_crosstalk > 0 else None
+        current.append(
+            PlannedChunk(chunks[i], shifts)
+            if crosstalk is None
+            else PlannedChunk(chunks[i], shifts, crosstalk)
+        )
         windows += chunks[i].count
         if windows >= opts.batch:
             batches.append(current)
@@ -52,13 +61,17 @@ def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[l
 def batch_tensors(
     dataset: WindowDataset, batch: Sequence[PlannedChunk]
 ) -> tuple[list[torch.Tensor], ScottiTargets]:
-    """Shifted frames (float32 counts) per chunk and the batch's targets."""
+    """Augmented frames (float32 counts) per chunk and the batch's targets."""
     cols = dataset.sessions[0].frames.shape[2] // 2
-    frames = [
-        torch.from_numpy(shift_feet(dataset.frames(p.chunk), p.shifts, cols).astype(np.float32))
-        for p in batch
-    ]
+    frames = [torch.from_numpy(_augmented(dataset.frames(p.chunk), p, cols)) for p in batch]
     return frames, to_targets([dataset.targets(p.chunk) for p in batch])
+
+
+def _augmented(frames: np.ndarray, planned: PlannedChunk, cols: int) -> np.ndarray:
+    shifted = shift_feet(frames, planned.shifts, cols).astype(np.float32)
+    if not planned.crosstalk.any():
+        return shifted
+    return add_crosstalk(shifted, planned.crosstalk, cols)
 
 
 def warmup_cosine(total_steps: int, warmup_fraction: float) -> Callable[[int], float]:

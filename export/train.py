@@ -78,6 +78,7 @@ class TrainOptions:
     warmup_fraction: float = 0.05  # of all steps, linear warmup before the cosine decay
     grad_clip: float = 1.0  # max global gradient norm; 0 turns clipping off
     max_shift: int = 2  # taxels, random shift of each foot per chunk (0 = no augmentation)
+    max_crosstalk: float = 0.0  # crosstalk added per chunk and foot, up to this (augment.py)
     seed: int = 0
     max_minutes: float = 0.0  # stop (and checkpoint) after this much training; 0 = no limit
     progress_bar: bool = True

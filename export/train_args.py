@@ -63,6 +63,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr", type=float, default=d.lr)
     parser.add_argument("--weight-decay", type=float, default=d.weight_decay)
     parser.add_argument("--max-shift", type=int, default=d.max_shift, help="augmentation, taxels")
+    parser.add_argument(
+        "--max-crosstalk",
+        type=float,
+        default=d.max_crosstalk,
+        help="augmentation: add up to this row/column crosstalk per chunk and foot "
+        "(0 = off; the simulator's realistic insoles have 0.005-0.03)",
+    )
     w = d.loss_weights
     parser.add_argument(
         "--loss-weights",

@@ -96,6 +96,9 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         if getattr(args, name) < 0:
             msg = f"--{name} must be at least 0"
             raise TrainCliError(msg)
+    if not 0.0 <= args.max_crosstalk <= 0.5:
+        msg = f"--max-crosstalk must be between 0 and 0.5, got {args.max_crosstalk}"
+        raise TrainCliError(msg)
     if not args.min_delta >= 0.0:
         msg = f"--min-delta must be at least 0, got {args.min_delta}"
         raise TrainCliError(msg)
@@ -108,6 +111,7 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         lr=args.lr,
         weight_decay=args.weight_decay,
         max_shift=args.max_shift,
+        max_crosstalk=args.max_crosstalk,
         loss_weights=parse_loss_weights(args.loss_weights),
         seed=args.seed,
         max_minutes=args.max_minutes,
@@ -287,7 +291,7 @@ def _benchmark(
 ) -> None:
     """Print naive vs chunked (fp32, CPU) and fp32 vs bf16 (chunked, on ``device``)."""
     cfg = model.cfg
-    plain = replace(opts, max_shift=0)
+    plain = replace(opts, max_shift=0, max_crosstalk=0.0)
     rates = measure_throughput(model, data.train, plain, args.benchmark)
     print(
         f"E={cfg.embed_dim} T={cfg.window} batch={opts.batch} chunk={opts.chunk} "

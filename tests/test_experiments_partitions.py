@@ -194,6 +194,8 @@ def test_an_arch_run_trains_its_config_and_scores_through_its_window(tmp_path: P
     plain = parser.parse_args(["p3"])
     (job,) = partition_runs.plan(plain)
     assert (plain.config, plain.lr, job.window, job.run_dir.name) == ("small", 1e-3, 40, "v9-p3")
+    (augmented,) = partition_runs.plan(parser.parse_args(["p2", "--max-crosstalk", "0.03"]))
+    assert augmented.run_dir.name == "v9-p2-xt0.03"
     # The contract's window goes straight to scotti; another one through any_window.py.
     assert partition_runs.verb(40, "eval", "x.ses")[1:3] == ["-m", "scotti.cli.main"]
     assert partition_runs.verb(20, "eval", "x.ses")[1:] == [

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 
 pytest.importorskip("torch")  # export/ is the [train] extra's room
 
-from scotti.export.augment import draw_shifts, shift_feet
+from scotti.export.augment import add_crosstalk, draw_crosstalk, draw_shifts, shift_feet
 from scotti.export.data import (
     HOLD_FRAMES,
     MAX_GAP,
@@ -20,8 +21,12 @@ from scotti.export.data import (
     load_session,
     unwrap_seq,
 )
+from scotti.export.epochs import batch_tensors, plan_epoch
+from scotti.export.train import TrainOptions
 from scotti.export.windows import WindowDataset, split_by_subject
 from scotti.models import contract
+from scotti.models.insole import insole_mask
+from scotti.sim.effects.sensor import Crosstalk, CrosstalkParams
 
 from tests.support.export_sessions import COLS, ROWS, foot_counts, label_for, write_session
 
@@ -226,3 +231,40 @@ def test_shift_moves_each_foot_on_its_own_and_fills_zeros() -> None:
     shifts = draw_shifts(np.random.default_rng(0), 2)
     assert shifts.shape == (2, 2)
     assert np.abs(shifts).max() <= 2
+
+
+def test_added_crosstalk_is_the_simulators_effect_per_foot() -> None:
+    rng = np.random.default_rng(4)
+    mask = insole_mask()
+    rows, cols = mask.shape
+    feet = rng.uniform(0, 3000, size=(3, 2, rows, cols)).astype(np.float32) * mask
+    frames = np.concatenate([feet[:, 0], feet[:, 1]], axis=2)  # (L, H, 2W) as the model sees
+    fractions = np.array([0.02, 0.0], dtype=np.float32)
+    out = add_crosstalk(frames, fractions, cols)
+    # The simulator's stage on (n, 2, H, W), left foot only (the right gets 0 here).
+    left = Crosstalk(CrosstalkParams(fraction=0.02), mask.astype(np.float32)).apply(feet[:, :1])
+    np.testing.assert_allclose(out[:, :, :cols], np.minimum(left[:, 0], contract.MAX_COUNT))
+    assert np.array_equal(out[:, :, cols:], frames[:, :, cols:])  # no crosstalk: unchanged
+    assert (out[:, :, :cols][:, ~mask] == 0).all()  # no taxel outside the outline
+    assert out.max() <= contract.MAX_COUNT  # the sum rails at full scale
+    assert out[:, :, :cols].sum() > frames[:, :, :cols].sum()
+    drawn = draw_crosstalk(np.random.default_rng(0), 0.03)
+    assert drawn.shape == (2,)
+    assert ((drawn >= 0) & (drawn <= 0.03)).all()
+    assert not draw_crosstalk(np.random.default_rng(0), 0.0).any()
+
+
+def test_an_epoch_plan_draws_crosstalk_only_when_asked(tmp_path: Path) -> None:
+    ds = WindowDataset([load_session(write_session(tmp_path / "a.ses", 200))], window=8)
+    plain = plan_epoch(ds, TrainOptions(batch=8, chunk=4, stride=2), epoch=1)
+    assert not any(p.crosstalk.any() for b in plain for p in b)
+    opts = TrainOptions(batch=8, chunk=4, stride=2, max_crosstalk=0.03)
+    planned = [p for b in plan_epoch(ds, opts, epoch=1) for p in b]
+    drawn = np.stack([p.crosstalk for p in planned])
+    assert ((drawn >= 0) & (drawn <= 0.03)).all()
+    assert len(np.unique(drawn)) > 1  # a fresh amount per chunk and foot
+    again = [p for b in plan_epoch(ds, opts, epoch=1) for p in b]
+    assert np.array_equal(drawn, np.stack([p.crosstalk for p in again]))  # resumable
+    frames, _ = batch_tensors(ds, plan_epoch(ds, opts, epoch=1)[0])
+    bare, _ = batch_tensors(ds, [replace(p, crosstalk=np.zeros(2)) for p in planned[:1]])
+    assert frames[0].sum() > bare[0].sum()  # the batch carries it

@@ -219,6 +219,11 @@ def test_cli_loss_weights_make_a_single_task_run(
         err = capsys.readouterr().err.strip()
         assert err.startswith("scotti train: --loss-weights")
         assert "\n" not in err
+    for bad in ("0.7", "-0.01", "nan"):
+        assert main(["train", *args, "-o", str(tmp_path / "r"), f"--max-crosstalk={bad}"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("scotti train: --max-crosstalk must be between 0 and 0.5")
+        assert "\n" not in err
 
 
 def test_a_diverged_loss_stops_with_one_line(sessions_dir: Path) -> None:
