@@ -8,10 +8,11 @@ frame of a window: within 2.5 s the insole does not move in the shoe.
 Crosstalk: a passive row-column array ghosts part of each row's and column's
 load onto every taxel on it (the simulator's ``crosstalk`` effect), and how
 much differs from insole to insole. A corpus renders one draw per subject, so
-a model can learn the few draws it saw as part of a person's pressure pattern:
-with more crosstalk than any training subject had, a held-out subject's
-standing read as squat (docs/evaluation.md, the effect ablation). Adding a
-fresh amount per chunk and foot shows the model many insoles.
+each person's pressure pattern comes with one amount of ghosting, and a model
+can take the two together: a held-out subject's standing read as squat with
+the crosstalk of its insole and as standing without it, although training
+subjects had as much or more (docs/evaluation.md, the effect ablation).
+Adding a fresh amount per chunk and foot shows each person on many insoles.
 """
 
 from __future__ import annotations
