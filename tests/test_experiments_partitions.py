@@ -22,6 +22,7 @@ import configs
 import effect_ablation
 import partition_precision
 import partition_runs
+import recipe_table
 import task_table
 
 
@@ -260,3 +261,49 @@ def test_the_arch_table_compares_each_config_with_the_baseline_on_shared_partiti
     )
     assert arch_table.main([f"E128-L2-T20:p3={wrong}", "--steps", "3"]) == 1
     assert arch_table.main([f"E999:p3={specs[0].split('=')[1]}"]) == 1
+
+
+def test_the_recipe_table_pairs_recipes_person_by_person_on_the_same_sessions(
+    tmp_path: Path,
+) -> None:
+    def scored(seed: int, quality: float, partition: str) -> dict[str, Any]:
+        report = _report(_frames(400, seed, quality), "x", f"{partition}-{seed}")
+        report["sessions"] = [
+            {**report["sessions"][0], "subject": f"{partition}-s", "path": f"/d/{partition}.ses"}
+        ]
+        return report
+
+    reports = {
+        "plain:p1": scored(1, 0.6, "p1"),
+        "crosstalk:p1": scored(2, 0.9, "p1"),
+        "plain:p2": scored(3, 0.7, "p2"),
+        "crosstalk:p2": scored(4, 0.8, "p2"),
+    }
+    specs = [
+        f"{k}={_write(tmp_path / (k.replace(':', '-') + '.json'), r)}" for k, r in reports.items()
+    ]
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"{recipe_table.BEGIN}\n{recipe_table.END}\n")
+    assert recipe_table.main([*specs, "--write", str(doc)]) == 0
+    rows = [ln.removesuffix(" |").split(" | ") for ln in doc.read_text().splitlines()]
+    accuracy = next(r for r in rows if r[0] == "| accuracy (%)")
+    assert accuracy[1:3] == ["crosstalk", "p1, p2"]
+    delta = [
+        reports[f"crosstalk:{p}"]["metrics"]["action_accuracy"]
+        - reports[f"plain:{p}"]["metrics"]["action_accuracy"]
+        for p in ("p1", "p2")
+    ]
+    assert accuracy[5] == common.fmt(delta, 2, 100)
+    person = next(r for r in rows if r[0] == "| p2-s (p2)")
+    assert person[4:6] == [
+        common.fmt([reports["plain:p2"]["sessions"][0]["metrics"]["action_accuracy"]], 2, 100),
+        common.fmt([reports["crosstalk:p2"]["sessions"][0]["metrics"]["action_accuracy"]], 2, 100),
+    ]
+    # Scored on other session files: no paired comparison.
+    moved = {
+        **reports["crosstalk:p2"],
+        "sessions": [{**reports["crosstalk:p2"]["sessions"][0], "path": "/d/x.ses"}],
+    }
+    other = _write(tmp_path / "moved.json", moved)
+    assert recipe_table.main([specs[2], f"crosstalk:p2={other}"]) == 1
+    assert recipe_table.main([specs[0]]) == 1  # nothing to compare with
