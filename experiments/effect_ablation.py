@@ -13,7 +13,8 @@ K --json``; the table gives accuracy, standing recall, the share of standing
 frames read as squat, squat progress MSE and the unfamiliar share. An effect
 whose removal brings the figures back to the clean copy's is one the failure
 needs (``--leave-out EFFECT ...``: only those copies). Copies and reports go
-to runs/ablation/subject-NNN/ and are reused when there. ``--write DOC`` puts
+to runs/ablation/subject-NNN/ and are reused when there (reports per model
+and ``--every``). ``--write DOC`` puts
 the table between ``<!-- ablation:begin -->`` and ``<!-- ablation:end -->``
 of DOC.
 """
@@ -21,6 +22,7 @@ of DOC.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 from pathlib import Path
@@ -64,8 +66,11 @@ def render(scene: Any, path: Path) -> Path:
 
 
 def score(session: Path, model: Path, every: int) -> dict[str, Any]:
-    out = session.with_suffix(".json")
-    if not out.is_file() or out.stat().st_mtime < model.stat().st_mtime:
+    # One report per copy, model and --every: scoring another model never overwrites
+    # a report, nor is a report of another model taken for this one's.
+    digest = hashlib.sha256(model.read_bytes()).hexdigest()[:12]
+    out = session.with_name(f"{session.stem}.{digest}.every{every}.json")
+    if not out.is_file():
         cmd = scotti_command("eval", session, "--model", model, "--every", str(every), "--json")
         out.write_text(run(cmd, session.with_suffix(".log")))
     return dict(json.loads(out.read_text()))

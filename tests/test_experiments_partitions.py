@@ -12,6 +12,7 @@ import pytest
 from scotti.models.runtime import ScottiRuntime, window_graph_for
 
 from tests.support.export_sessions import write_session
+from tests.support.fixtures_models import always_standing
 from tests.test_experiments_docs import EXPERIMENTS, _frames, _report
 
 sys.path.insert(0, str(EXPERIMENTS))
@@ -167,12 +168,21 @@ def test_the_ablation_scores_each_copy_and_reads_standing_as_squat_from_the_conf
         "no-effects.ses",
     ]
     rows = [ln.split(" | ") for ln in doc.read_text().splitlines() if ln.startswith("| all")]
-    report = json.loads((tmp_path / "abl" / "all-effects.json").read_text())
+    (first,) = (tmp_path / "abl").glob("all-effects.*.every4.json")
+    report = json.loads(first.read_text())
     actions = report["confusion"]["actions"]
     standing = report["confusion"]["matrix"][actions.index("standing")]
     share = standing[actions.index("squat")] / max(1, sum(standing))
     assert rows[0][3] == f"{100 * share:.1f}"
     assert report["every"] == 4
+    # Another model gets reports of its own: the first model's stay as they were.
+    before = first.read_bytes()
+    standing = always_standing(tiny_model_path, tmp_path / "standing.onnx")
+    always_standing(window_graph_for(tiny_model_path), window_graph_for(standing))
+    other = ["--model", str(standing), "--out", str(tmp_path / "abl"), "--every", "4"]
+    assert effect_ablation.main(["--subject", "2", *other]) == 0
+    assert len(list((tmp_path / "abl").glob("all-effects.*.every4.json"))) == 2
+    assert first.read_bytes() == before
     assert effect_ablation.main(["--subject", "2", "--model", str(tmp_path / "none.onnx")]) == 1
 
 
