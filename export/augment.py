@@ -57,7 +57,11 @@ def _span(shift: int, size: int) -> tuple[slice, slice]:
 
 
 def draw_crosstalk(rng: np.random.Generator, max_fraction: float) -> np.ndarray:
-    """(2,) float32: the crosstalk added to the left and the right foot."""
+    """(2,) float32: the crosstalk added to the left and the right foot.
+
+    Off (0), it draws nothing from ``rng``, so the rest of an epoch's plan is
+    what it was before this augmentation existed.
+    """
     if max_fraction <= 0.0:
         return np.zeros(2, dtype=np.float32)
     return rng.uniform(0.0, max_fraction, size=2).astype(np.float32)

@@ -1,10 +1,9 @@
 """An epoch's plan (which windows, in which batches, with which shifts) and its tensors.
 
-Everything random in an epoch (window phase, chunk cuts, order, shifts, added
-crosstalk) is
-drawn from a generator seeded with (seed, epoch), so the plan is a pure
-function of (dataset, options, seed, epoch): a resumed run, a prefetch
-thread and every rank of a distributed run all see the same plan.
+Everything random in an epoch (window phase, chunk cuts, order, shifts,
+added crosstalk) is drawn from a generator seeded with (seed, epoch), so the
+plan is a pure function of (dataset, options, seed, epoch): a resumed run, a
+prefetch thread and every rank of a distributed run all see the same plan.
 """
 
 from __future__ import annotations
@@ -42,13 +41,8 @@ def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[l
     windows = 0
     for i in rng.permutation(len(chunks)):
         shifts = draw_shifts(rng, opts.max_shift)
-        # Drawn only when asked for, so that runs without it keep their plans.
-        crosstalk = draw_crosstalk(rng, opts.max_crosstalk) if opts.max_crosstalk > 0 else None
-        current.append(
-            PlannedChunk(chunks[i], shifts)
-            if crosstalk is None
-            else PlannedChunk(chunks[i], shifts, crosstalk)
-        )
+        # draw_crosstalk takes nothing from rng when it is off: plans without it stay as they were.
+        current.append(PlannedChunk(chunks[i], shifts, draw_crosstalk(rng, opts.max_crosstalk)))
         windows += chunks[i].count
         if windows >= opts.batch:
             batches.append(current)
