@@ -4,7 +4,9 @@ Read from the run directory next to the shipped checkpoint (``history.jsonl``,
 written by ``scotti train``): per epoch the training loss, the validation
 figures and whether the run stopped on a plateau, so a reader of the card sees
 where validation stopped improving rather than taking "trained to its plateau"
-on trust. ``command.txt`` in the run directory, when there, is quoted too.
+on trust. ``command.txt`` in the run directory, when there, is quoted too, and
+the recipe (the ``scotti train`` options the checkpoint recorded: schedule,
+loss weights, augmentation), so that two cards say how their models differ.
 """
 
 from __future__ import annotations
@@ -14,6 +16,26 @@ from pathlib import Path
 from typing import Any
 
 VAL_KEYS = ("loss", "mpjpe_mm", "action_accuracy", "progress_mse", "app")
+# The options of export/train.py's TrainOptions a reader needs to train the same model.
+RECIPE_KEYS = (
+    "epochs", "batch", "stride", "lr", "weight_decay", "loss_weights", "max_shift",
+    "max_crosstalk", "precision", "patience", "seed",
+)  # fmt: skip
+
+
+def recipe_of(checkpoint: Path) -> dict[str, Any] | None:
+    """The training options saved in the checkpoint (None for one that has none)."""
+    import torch  # the [train] extra, where the shipping script runs
+
+    try:
+        raw = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    except Exception:  # torch raises many types for a bad file; the card goes without
+        return None
+    options = raw.get("options") if isinstance(raw, dict) else None
+    if not isinstance(options, dict):
+        return None
+    # max_crosstalk came later: a checkpoint without it was trained without it.
+    return {k: options.get(k, 0.0 if k == "max_crosstalk" else None) for k in RECIPE_KEYS}
 
 
 def training_block(checkpoint: Path) -> dict[str, Any] | None:
@@ -50,6 +72,7 @@ def training_block(checkpoint: Path) -> dict[str, Any] | None:
         or f"time budget (--max-minutes), {last.get('stale_epochs', 0)} epochs since the best",
         "train_seconds": sum(float(e["seconds"] or 0) for e in epochs),
         "command": command.read_text().strip() if command.is_file() else None,
+        "recipe": recipe_of(checkpoint) if checkpoint.is_file() else None,
     }
 
 
@@ -78,8 +101,23 @@ def training_markdown(block: dict[str, Any] | None) -> list[str]:
             f"| {e['epoch']} | {e['train_loss']:.4f} | {v['loss']:.4f} | {v['mpjpe_mm']:.1f} | "
             f"{100 * v['action_accuracy']:.2f} % | {v['progress_mse']:.4f} | {v['app']:.4f} |"
         )
+    if block.get("recipe"):
+        lines += ["", f"Recipe (`scotti train` options): {recipe_line(block['recipe'])}."]
     if block.get("command"):
         command = block["command"]
         shown = command if command.startswith("scotti ") else f"scotti train {command}"
         lines += ["", "```", shown, "```"]
     return lines
+
+
+def recipe_line(recipe: dict[str, Any]) -> str:
+    words = []
+    for key, value in recipe.items():
+        if value is None:
+            continue
+        if isinstance(value, dict):  # the loss weights
+            value = ", ".join(f"{k} {v:g}" for k, v in value.items())
+            words.append(f"{key} ({value})")
+        else:
+            words.append(f"{key} {value:g}" if isinstance(value, float) else f"{key} {value}")
+    return "; ".join(words)

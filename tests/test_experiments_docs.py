@@ -474,3 +474,44 @@ def test_a_partition_run_never_gives_its_test_subjects_to_training(tmp_path: Pat
     history.write_text('{"epoch": 1}\n{"epoch": 2, "status": "plateau"}\n')
     assert job.finished(8)
     assert partition_runs.main(["p9"]) == 1
+
+
+def test_the_cards_training_section_says_the_recipe_the_checkpoint_recorded(
+    tmp_path: Path,
+) -> None:
+    torch = pytest.importorskip("torch")
+    import card_training
+
+    run = tmp_path / "run"
+    run.mkdir()
+    val = {"loss": 1.0, "mpjpe_mm": 60.0, "action_accuracy": 0.9, "progress_mse": 0.03, "app": 0.9}
+    record = {"epoch": 1, "train_loss": 2.0, "seconds": 60.0, "val": val, "best_epoch": 1}
+    (run / "history.jsonl").write_text(json.dumps(record | {"status": "plateau"}) + "\n")
+    options = {
+        "epochs": 8,
+        "stride": 16,
+        "lr": 1e-3,
+        "loss_weights": {"pose": 0.01, "action": 1.0, "progress": 3.0},
+        "max_shift": 2,
+        "max_crosstalk": 0.03,
+        "progress_bar": False,  # not part of the recipe
+    }
+    torch.save({"options": options}, run / "best.pt")
+    text = "\n".join(card_training.training_markdown(card_training.training_block(run / "best.pt")))
+    recipe = next(ln for ln in text.splitlines() if ln.startswith("Recipe"))
+    assert "loss_weights (pose 0.01, action 1, progress 3)" in recipe
+    assert "max_crosstalk 0.03" in recipe
+    assert "stride 16" in recipe
+    assert "progress_bar" not in recipe
+    # A checkpoint from before the crosstalk option was trained without it.
+    torch.save(
+        {"options": {k: v for k, v in options.items() if k != "max_crosstalk"}}, run / "best.pt"
+    )
+    block = card_training.training_block(run / "best.pt")
+    assert block is not None
+    assert block["recipe"]["max_crosstalk"] == 0.0
+    (run / "best.pt").write_bytes(b"not a checkpoint")
+    block = card_training.training_block(run / "best.pt")
+    assert block is not None
+    assert block["recipe"] is None
+    assert not any(ln.startswith("Recipe") for ln in card_training.training_markdown(block))
