@@ -97,14 +97,20 @@ def _unfamiliar(report: dict[str, Any]) -> float:
     return _num(report.get("ood", {}).get("unfamiliar"))
 
 
+def _side_by_side(first: str, keys: tuple[str, ...], base: str) -> list[str]:
+    """A header with each metric twice: under the base recipe, then under the other."""
+    header = [first, "recipe"]
+    for key in keys:
+        column = _metric(key)[1]
+        header += [f"{column}, {base}", f"{column}, recipe"]
+    return header
+
+
 def subject_rows(
     reports: dict[Key, dict[str, Any]], base: str, pairs_: dict[str, list[str]]
 ) -> list[str]:
     """Each held-out person under both recipes: where a recipe helps, and whom."""
-    header = ["subject", "recipe"]
-    for key in PER_SUBJECT:
-        column = _metric(key)[1]
-        header += [f"{column}, {base}", f"{column}, recipe"]
+    header = _side_by_side("subject", PER_SUBJECT, base)
     rows = []
     for recipe, partitions in pairs_.items():
         for p in partitions:
@@ -124,10 +130,7 @@ def subject_rows(
 def action_rows(
     reports: dict[Key, dict[str, Any]], base: str, pairs_: dict[str, list[str]]
 ) -> list[str]:
-    header = ["action", "recipe"]
-    for key in PER_ACTION:
-        column = _metric(key)[1]
-        header += [f"{column}, {base}", f"{column}, recipe"]
+    header = _side_by_side("action", PER_ACTION, base)
     rows = []
     for recipe, partitions in pairs_.items():
         for action in reports[(base, partitions[0])]["per_action"]:
