@@ -32,6 +32,14 @@ def _write(path: Path, report: dict[str, Any]) -> str:
     return str(path)
 
 
+def _specs(tmp_path: Path, reports: dict[str, dict[str, Any]]) -> list[str]:
+    """KEY=REPORT arguments of the table scripts, each report written to its own file."""
+    return [
+        f"{key}={_write(tmp_path / (key.replace(':', '-') + '.json'), report)}"
+        for key, report in reports.items()
+    ]
+
+
 def test_the_task_table_pairs_each_single_task_with_its_partitions_multi_task_model(
     tmp_path: Path,
 ) -> None:
@@ -47,9 +55,7 @@ def test_the_task_table_pairs_each_single_task_with_its_partitions_multi_task_mo
             ]
         )
     }
-    specs = [
-        f"{k}={_write(tmp_path / (k.replace(':', '-') + '.json'), r)}" for k, r in reports.items()
-    ]
+    specs = _specs(tmp_path, reports)
     doc = tmp_path / "doc.md"
     doc.write_text(f"head\n{task_table.BEGIN}\nold\n{task_table.END}\ntail\n")
     assert task_table.main([*specs, "--write", str(doc)]) == 0
@@ -240,9 +246,7 @@ def test_the_arch_table_compares_each_config_with_the_baseline_on_shared_partiti
             ]
         )
     }
-    specs = [
-        f"{k}={_write(tmp_path / (k.replace(':', '-') + '.json'), r)}" for k, r in reports.items()
-    ]
+    specs = _specs(tmp_path, reports)
     doc = tmp_path / "doc.md"
     doc.write_text(f"head\n{arch_table.BEGIN}\nold\n{arch_table.END}\n")
     assert arch_table.main([*specs, "--steps", "3", "--write", str(doc)]) == 0
@@ -289,9 +293,7 @@ def test_the_recipe_table_pairs_recipes_person_by_person_on_the_same_sessions(
         "plain:p2": scored(3, 0.7, "p2"),
         "crosstalk:p2": scored(4, 0.8, "p2"),
     }
-    specs = [
-        f"{k}={_write(tmp_path / (k.replace(':', '-') + '.json'), r)}" for k, r in reports.items()
-    ]
+    specs = _specs(tmp_path, reports)
     doc = tmp_path / "doc.md"
     doc.write_text(f"{recipe_table.BEGIN}\n{recipe_table.END}\n")
     assert recipe_table.main([*specs, "--write", str(doc)]) == 0
