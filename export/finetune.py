@@ -8,9 +8,13 @@ import torch
 from scotti.export.errors import ExportError
 from scotti.export.model import Scotti
 
-# Parts of the model that fine-tuning may keep fixed: the per-frame CNN, and the
-# encoder (class token, positions, transformer layers, final norm, pooling).
-FREEZE_GROUPS = ("cnn", "encoder")
+# Parts of the model that fine-tuning may keep fixed: the per-frame CNN, the
+# encoder (class token, positions, transformer layers, final norm, pooling) and
+# each task's head. Freezing all but one head fine-tunes that task alone and
+# leaves the other outputs exactly as they were (a zero loss weight does not:
+# the optimiser's weight decay still moves a head that is not frozen).
+FREEZE_GROUPS = ("cnn", "encoder", "pose_head", "action_head", "progress_head")
+HEADS = ("pose_head", "action_head", "progress_head")
 
 
 def freeze_parts(model: Scotti, groups: Sequence[str]) -> list[torch.nn.Module]:
@@ -29,6 +33,14 @@ def freeze_parts(model: Scotti, groups: Sequence[str]) -> list[torch.nn.Module]:
         modules += [model.encoder, model.ln_final]
         params += [model.class_token, model.positions, model.pool_weights]
         params += list(model.encoder.parameters()) + list(model.ln_final.parameters())
+    for head in HEADS:
+        if head in groups:
+            module = getattr(model, head)
+            modules.append(module)
+            params += list(module.parameters())
+    if set(FREEZE_GROUPS) <= set(groups):
+        msg = "--freeze names every part: nothing would be trained"
+        raise ExportError(msg)
     for p in params:
         p.requires_grad_(False)
     return modules

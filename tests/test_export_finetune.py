@@ -13,6 +13,7 @@ import torch
 from scotti.cli.main import main
 from scotti.export.data import load_session
 from scotti.export.errors import ExportError
+from scotti.export.losses import LossWeights
 from scotti.export.model import Scotti, ScottiConfig
 from scotti.export.train import Trainer, TrainOptions, freeze_parts, load_initial_weights
 from scotti.export.windows import WindowDataset
@@ -68,8 +69,30 @@ def test_frozen_parts_do_not_move(tmp_path: Path) -> None:
         assert torch.equal(before[name], after[name]), name
     assert not torch.equal(before["cnn.conv1.weight"], after["cnn.conv1.weight"])
     assert not torch.equal(before["pose_head.0.weight"], after["pose_head.0.weight"])
-    with pytest.raises(ExportError, match="the parts are cnn, encoder"):
+    with pytest.raises(ExportError, match="the parts are cnn, encoder, pose_head"):
         freeze_parts(model, ["heads"])
+
+
+def test_only_the_progress_head_moves_when_the_rest_is_frozen(tmp_path: Path) -> None:
+    """Fine-tuning one task: the other outputs stay bit for bit what they were."""
+    write_session(tmp_path / "a.scotti", 80, subject="a")
+    data = WindowDataset([load_session(tmp_path / "a.scotti")], window=TINY["window"])
+    model = tiny(0)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    rest = ("cnn", "encoder", "pose_head", "action_head")
+    # Weight decay on: it would move a head whose loss weight is 0 but that is not frozen.
+    opts = TrainOptions(
+        epochs=1, batch=8, chunk=4, progress_bar=False, freeze=rest,
+        loss_weights=LossWeights(pose=0, action=0, progress=1),
+        weight_decay=0.1,
+    )  # fmt: skip
+    Trainer(model, data, None, opts).fit(max_steps=3)
+    after = model.state_dict()
+    moved = sorted(k for k in before if not torch.equal(before[k], after[k]))
+    assert moved
+    assert all(k.startswith("progress_head.") for k in moved), moved
+    with pytest.raises(ExportError, match="nothing would be trained"):
+        freeze_parts(tiny(1), [*rest, "progress_head"])
 
 
 def test_cli_init_takes_the_size_from_the_checkpoint(
