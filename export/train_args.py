@@ -44,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         metavar="CHECKPOINT",
-        help="start from this checkpoint's weights (fine-tuning); fresh optimiser and schedule",
+        help="start from this checkpoint's weights, or an exported graph's (NAME.onnx, e.g. "
+        "models/scotti-default.onnx): fine-tuning, fresh optimiser and schedule",
     )
     parser.add_argument(
         "--freeze",

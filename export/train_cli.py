@@ -24,6 +24,7 @@ from scotti.export.checkpoint import load_checkpoint
 from scotti.export.devices import check_precision, resolve_device
 from scotti.export.distributed import DistContext, context_from_environment
 from scotti.export.errors import ExportError
+from scotti.export.graph_weights import checkpoint_from_graph
 from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.run_data import RunData, load_sessions, prepare
@@ -165,7 +166,7 @@ def train(
     ckpt = load_checkpoint(resume_from) if args.resume and resume_from.is_file() else None
     if args.resume and ckpt is None:
         log.info("no %s yet: starting a new run", resume_from)
-    init = load_checkpoint(args.init) if args.init is not None and ckpt is None else None
+    init = _initial_checkpoint(args.init) if args.init is not None and ckpt is None else None
     if init is not None and args.config is not None:
         msg = "--init takes the model size from its checkpoint; leave out --config"
         raise TrainCliError(msg)
@@ -303,6 +304,16 @@ def _benchmark(
         f"precision on {device} (chunked, alternating): fp32 {rates['fp32']:.1f} windows/s, "
         f"bf16 {rates['bf16']:.1f} windows/s, bf16/fp32 x{rates['ratio']:.2f}"
     )
+
+
+def _initial_checkpoint(path: Path) -> dict[str, Any]:
+    """``--init``: a training checkpoint, or an exported graph's weights read back out of it."""
+    if Path(path).suffix == ".onnx":
+        ckpt = checkpoint_from_graph(path)
+        worst = max(ckpt["parity"].values())
+        log.info("--init: weights read back from %s (largest difference to it %.1e)", path, worst)
+        return ckpt
+    return load_checkpoint(path)
 
 
 def _frozen_note(freeze: tuple[str, ...]) -> str:

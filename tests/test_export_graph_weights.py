@@ -1,0 +1,106 @@
+"""A checkpoint read back out of an exported graph (export/graph_weights.py), and
+``scotti train --init NAME.onnx`` starting from it."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+import torch
+from scotti.cli.main import main
+from scotti.export import graph_weights
+from scotti.export.graph_weights import GraphWeightsError, checkpoint_from_graph
+from scotti.export.model import Scotti, ScottiConfig
+
+from tests.support.export_sessions import write_session
+from tests.support.fixtures_models import TINY_CHECKPOINT, TINY_STEP, TINY_WINDOW
+
+pytestmark = pytest.mark.torch
+
+
+def _outputs(state: dict[str, torch.Tensor], cfg: ScottiConfig, frames: np.ndarray) -> list:
+    model = Scotti(cfg)
+    model.load_state_dict(state)
+    model.eval()
+    with torch.no_grad():
+        return [t.numpy() for t in model(torch.from_numpy(frames))]
+
+
+@pytest.mark.parametrize("graph", [TINY_STEP, TINY_WINDOW], ids=["step", "window"])
+def test_the_rebuilt_model_computes_what_the_exported_one_did(graph: Path) -> None:
+    original = torch.load(TINY_CHECKPOINT, weights_only=True)
+    rebuilt = checkpoint_from_graph(graph)
+    assert rebuilt["config"] == original["config"]
+    cfg = ScottiConfig.from_dict(original["config"])
+    # Other windows than the parity check's: real-looking low counts, not the full range.
+    frames = np.random.default_rng(7).integers(0, 600, (5, cfg.window, *cfg.frame_shape))
+    frames = frames.astype(np.float32)
+    for ours, theirs in zip(
+        _outputs(rebuilt["model"], cfg, frames),
+        _outputs(original["model"], cfg, frames),
+        strict=True,
+    ):
+        np.testing.assert_allclose(ours, theirs, atol=1e-4)
+    # Weights that are stored as they are come back bit for bit.
+    for name in ("cnn.conv1.weight", "encoder.0.ln1.weight", "progress_head.3.bias"):
+        assert torch.equal(rebuilt["model"][name], original["model"][name]), name
+    assert max(rebuilt["parity"].values()) < 1e-4
+
+
+def test_a_step_graph_without_its_window_graph_is_refused(tmp_path: Path) -> None:
+    alone = tmp_path / "scotti-tiny.onnx"
+    shutil.copy(TINY_STEP, alone)
+    with pytest.raises(GraphWeightsError, match=r"scotti-tiny\.window\.onnx, not found"):
+        checkpoint_from_graph(alone)
+
+
+def test_a_file_that_is_no_graph_is_refused(tmp_path: Path) -> None:
+    bad = tmp_path / "x.window.onnx"
+    bad.write_bytes(b"\x00 not a graph at all")
+    with pytest.raises(GraphWeightsError, match="not a readable ONNX graph"):
+        checkpoint_from_graph(bad)
+
+
+def test_weights_that_do_not_reproduce_the_graph_are_refused(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The parity check is what makes the exporter's naming safe to rely on: a misread
+    weight (here: two layers' roles swapped by a wrong order) never reaches training."""
+    read = graph_weights._state
+
+    def misread(path: Path) -> tuple[ScottiConfig, dict[str, torch.Tensor]]:
+        cfg, state = read(path)
+        state["encoder.0.mlp.0.weight"] = state["encoder.0.mlp.0.weight"].flip(0)
+        return cfg, state
+
+    monkeypatch.setattr(graph_weights, "_state", misread)
+    with pytest.raises(GraphWeightsError, match="differ from the graph"):
+        checkpoint_from_graph(TINY_WINDOW)
+
+
+def test_train_init_takes_a_graph(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    write_session(tmp_path / "a.scotti", 120, subject="a")
+    base = [str(tmp_path / "a.scotti"), "--epochs", "1", "--batch", "8", "--chunk", "4"]
+    run = tmp_path / "run"
+    init = ["--init", str(TINY_STEP), "--freeze", "cnn", "encoder", "pose_head", "action_head"]
+    assert main(["train", *base, "-o", str(run), *init, "--loss-weights", "0,0,1"]) == 0
+    ckpt = torch.load(run / "last.pt", weights_only=True)
+    original = torch.load(TINY_CHECKPOINT, weights_only=True)
+    assert ckpt["training_data"]["init"] == str(TINY_STEP)
+    assert torch.equal(
+        ckpt["model"]["action_head.3.weight"], original["model"]["action_head.3.weight"]
+    )
+    assert not torch.equal(
+        ckpt["model"]["progress_head.3.weight"], original["model"]["progress_head.3.weight"]
+    )
+    capsys.readouterr()
+    assert (
+        main(["train", *base, "-o", str(tmp_path / "r2"), "--init", str(tmp_path / "no.onnx")]) == 2
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "no.window.onnx, not found" in err[0]
