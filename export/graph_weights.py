@@ -90,9 +90,10 @@ def _state(path: Path) -> tuple[ScottiConfig, dict[str, torch.Tensor]]:
         cfg = ScottiConfig.from_dict(config)
     except ModelConfigError as exc:
         raise GraphWeightsError(f"{path}: its card's config is not usable ({exc})") from None
-    own = Scotti(cfg).state_dict()
+    fresh = Scotti(cfg)
+    own = fresh.state_dict()
     state = {k: torch.from_numpy(named[f"model.{k}"].copy()) for k in own if f"model.{k}" in named}
-    e, eps = cfg.embed_dim, 1e-5  # nn.BatchNorm1d's default eps
+    e, eps = cfg.embed_dim, fresh.cnn.norm.eps
     state["cnn.norm.weight"] = torch.ones(e)
     state["cnn.norm.bias"] = torch.zeros(e)
     state["cnn.norm.running_mean"] = torch.zeros(e)
