@@ -32,7 +32,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from common import ROOT, RUNS, ExperimentError, last_history, load_partitions, run, scotti_command
+from common import ROOT, RUNS, ExperimentError, load_partitions, run, scotti_command
 from partition_runs import CORPUS, PartitionRun
 
 HERE = Path(__file__).resolve().parent
@@ -74,14 +74,12 @@ def main(argv: list[str] | None = None) -> int:
         job = PartitionRun(args.partition, part.train, part.test, run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
         log = run_dir / "run.log"
-        window_graph = args.graph.with_name(args.graph.name.replace(".onnx", ".window.onnx"))
         base = run_dir / "base.pt"
         if not base.is_file():
             check = job.files(args.corpus, job.validation[:1])[0]
-            rebuild = [sys.executable, str(HERE / "checkpoint_from_onnx.py"), str(window_graph)]
+            rebuild = [sys.executable, str(HERE / "checkpoint_from_onnx.py"), str(args.graph)]
             run([*rebuild, "-o", str(base), "--check", str(check)], log)
-        last = last_history(run_dir)
-        if not (last and (last.get("status") == "plateau" or int(last["epoch"]) >= args.epochs)):
+        if not job.finished(args.epochs):
             resume = ["--resume"] if (run_dir / "last.pt").is_file() else []
             train = scotti_command(
                 "train", *job.files(args.corpus), "-o", run_dir, "--init", base,
@@ -94,8 +92,7 @@ def main(argv: list[str] | None = None) -> int:
                 *resume,
             )  # fmt: skip
             run(train, log)
-            last = last_history(run_dir)
-            if not (last.get("status") == "plateau" or int(last["epoch"]) >= args.epochs):
+            if not job.finished(args.epochs):
                 print(f"{run_dir}: training goes on at the next call (--max-minutes ran out)")
                 return 0
         model = run_dir / "models" / "scotti-ship.onnx"
