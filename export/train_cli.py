@@ -21,7 +21,7 @@ from typing import Any
 import torch
 from scotti.export import distributed
 from scotti.export.checkpoint import load_checkpoint
-from scotti.export.devices import check_precision, resolve_device
+from scotti.export.devices import check_precision, flush_denormals, resolve_device
 from scotti.export.distributed import DistContext, context_from_environment
 from scotti.export.errors import ExportError
 from scotti.export.graph_weights import checkpoint_from_graph
@@ -159,6 +159,8 @@ def train(
     """The whole run of ``scotti train`` in this process; None for ``--benchmark``."""
     ctx = ctx or DistContext()
     device = device or torch.device("cpu")
+    if not flush_denormals():
+        log.info("this CPU cannot flush subnormal floats: training may slow down as weights decay")
     torch.set_num_threads(args.threads)
     opts = _options(args)
     out: Path = args.output

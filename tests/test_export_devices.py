@@ -14,7 +14,7 @@ pytest.importorskip("torch")
 import torch
 from scotti.cli.main import main
 from scotti.export.data import load_session
-from scotti.export.devices import DeviceError, autocast, resolve_device
+from scotti.export.devices import DeviceError, autocast, flush_denormals, resolve_device
 from scotti.export.model import Scotti, ScottiConfig
 from scotti.export.prefetch import prefetched
 from scotti.export.train import Trainer, TrainOptions
@@ -97,6 +97,39 @@ def test_device_choice(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> No
     err = capsys.readouterr().err.strip()
     assert err.startswith("scotti train: --device cuda")
     assert "\n" not in err
+
+
+SUBNORMAL = 1e-39  # below float32's smallest normal, 1.18e-38
+
+
+def _subnormal_survives() -> bool:
+    return bool((torch.full((8,), SUBNORMAL) * 1.0).ne(0).all())
+
+
+@pytest.fixture
+def restore_denormals() -> Any:
+    yield
+    torch.set_flush_denormal(False)  # the rest of the test session keeps IEEE subnormals
+
+
+def test_flush_denormals_covers_threads_started_after_it(restore_denormals: None) -> None:
+    assert _subnormal_survives()  # the default: subnormals are kept (and slow)
+    assert flush_denormals()
+    assert not _subnormal_survives()
+    seen: list[bool] = []
+    worker = threading.Thread(target=lambda: seen.append(_subnormal_survives()))
+    worker.start()
+    worker.join()
+    assert seen == [False]  # a batch-building thread, say
+
+
+def test_training_flushes_subnormals(tmp_path: Path, restore_denormals: None) -> None:
+    write_session(tmp_path / "a.scotti", 90, subject="a")
+    args = [str(tmp_path / "a.scotti"), "-o", str(tmp_path / "r"), "--config", json.dumps(TINY)]
+    args += ["--batch", "8", "--chunk", "4", "--benchmark", "1", "--device", "cpu"]
+    assert _subnormal_survives()
+    assert main(["train", *args]) == 0
+    assert not _subnormal_survives()
 
 
 @pytest.mark.slow
