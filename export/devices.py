@@ -57,22 +57,6 @@ def check_precision(precision: str, device: torch.device) -> None:
         raise DeviceError(msg)
 
 
-def flush_denormals() -> bool:
-    """Treat subnormal floats as zero on the CPU, in this thread and every thread
-    started after it (threads inherit the floating-point mode); True where it took.
-
-    Weight decay shrinks the weights no gradient reaches (the CNN's projection
-    from taxels outside the insole outline, which are always zero) geometrically
-    until they are subnormal (below 1.2e-38), and x86 multiplies those through a
-    microcode assist, many times slower. Measured on p1's four-layer run: training
-    fell from 92 to 32 windows/s over its first three epochs, nearly all of it in
-    the convolutions' forward and backward, with 47,795 of its 1.2 M weights
-    subnormal. As zeros they change no output at float32 precision. Call it before
-    torch starts its thread pool (the first parallel op).
-    """
-    return bool(torch.set_flush_denormal(True))
-
-
 def autocast(device: torch.device, precision: str) -> contextlib.AbstractContextManager[None]:
     """The forward pass's context: bf16 autocast, or nothing at all for fp32."""
     if precision == "fp32":

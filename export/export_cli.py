@@ -109,6 +109,9 @@ def run(args: argparse.Namespace) -> int:
         f"exported {card['name']}: {card['parameters']:,} parameters, "
         f"T={card['config']['window']}, E={card['config']['embed_dim']}"
     )
+    if card.get("subnormal_weights_zeroed"):
+        zeroed = card["subnormal_weights_zeroed"]
+        print(f"  {zeroed:,} subnormal weights written as 0 (no output moves)")
     for kind, entry in card["files"].items():
         size = entry["bytes"] / 1e6
         print(f"  {kind:12s} {entry['file']}  {size:.2f} MB  sha256 {entry['sha256'][:16]}")

@@ -41,6 +41,7 @@ from scotti.export.parity import (
 )
 from scotti.export.progress_fit import fit_progress
 from scotti.export.quantize import quantize_int8
+from scotti.export.subnormals import zero_subnormal_weights
 from scotti.models import contract
 from scotti.models.input_checks import input_check_thresholds
 from scotti.models.ood import OodStats
@@ -313,6 +314,8 @@ def export_model(
     """
     paths = GraphPaths.for_output(out)
     model, cfg = ckpt.model.eval(), ckpt.model.cfg
+    # Subnormal weights would slow every call of a runtime that keeps them (subnormals.py).
+    zeroed = zero_subnormal_weights(model)
     sets = gather(ckpt.training_data, calibration) if calibration is not None else None
     name = out.with_suffix("").name
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -325,7 +328,7 @@ def export_model(
         frames = torch.rand(2, cfg.window, *cfg.frame_shape, generator=gen) * top  # (B, T, H, 2W)
         export_graph(StepGraph(model), (frame, past), staged.step, STEP_INPUTS, STEP_OUTPUTS)
         export_graph(WindowGraph(model), (frames,), staged.window, WINDOW_INPUTS, WINDOW_OUTPUTS)
-        card = base_card(ckpt, name, "fp32")
+        card = {**base_card(ckpt, name, "fp32"), "subnormal_weights_zeroed": zeroed}
         write_metadata(staged.step, "step", cfg, card)
         write_metadata(staged.window, "window", cfg, card)
         parity = prove(model, staged.step, staged.window, threads, tol)

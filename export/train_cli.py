@@ -21,13 +21,14 @@ from typing import Any
 import torch
 from scotti.export import distributed
 from scotti.export.checkpoint import load_checkpoint
-from scotti.export.devices import check_precision, flush_denormals, resolve_device
+from scotti.export.devices import check_precision, resolve_device
 from scotti.export.distributed import DistContext, context_from_environment
 from scotti.export.errors import ExportError
 from scotti.export.graph_weights import checkpoint_from_graph
 from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.run_data import RunData, load_sessions, prepare
+from scotti.export.subnormals import flush_denormals
 from scotti.export.test_report import write_test_report
 from scotti.export.throughput import measure_precisions, measure_throughput
 from scotti.export.train import Trainer, TrainOptions, load_initial_weights

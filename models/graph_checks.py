@@ -50,6 +50,12 @@ def open_session(path: Path, threads: int) -> ort.InferenceSession:
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     options.log_severity_level = 3  # errors only: warnings would go to the daemon's stderr
+    # Subnormal floats as zero: x86 multiplies them through a microcode assist. A graph
+    # whose weights decayed into them ran its window 13x slower (the shipped model of
+    # 2026-11-24: 25 ms against 1.9 ms; experiments/subnormal_cost.py). onnxruntime sets
+    # it on the pool's threads and, once per process, on the thread opening the first
+    # session; threads started after that inherit it (the daemon's inference thread).
+    options.add_session_config_entry("session.set_denormal_as_zero", "1")
     if threads > 1:
         # Spinning workers burn the cores the serial reader and a second session need:
         # two chained sessions with spinning doubled the step time on a small host.

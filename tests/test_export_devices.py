@@ -14,9 +14,10 @@ pytest.importorskip("torch")
 import torch
 from scotti.cli.main import main
 from scotti.export.data import load_session
-from scotti.export.devices import DeviceError, autocast, flush_denormals, resolve_device
+from scotti.export.devices import DeviceError, autocast, resolve_device
 from scotti.export.model import Scotti, ScottiConfig
 from scotti.export.prefetch import prefetched
+from scotti.export.subnormals import flush_denormals
 from scotti.export.train import Trainer, TrainOptions
 from scotti.export.windows import WindowDataset
 

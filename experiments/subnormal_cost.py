@@ -1,0 +1,156 @@
+"""What subnormal weights cost an exported model per call, and what removes the cost.
+
+    python experiments/subnormal_cost.py [models/scotti-default.onnx] [--rounds 3] [--calls 300]
+
+Counts the graph's float32 weights below 1.2e-38 (subnormal: x86 multiplies
+them through a microcode assist), writes a copy of both graphs with those
+weights set to 0 (what ``scotti export`` now writes, export/subnormals.py),
+and times a call of the step graph and of the window graph (batch 1, one
+thread, median) three ways:
+
+- ``ieee``: the graph as it is, onnxruntime keeping subnormals (its default);
+- ``daz``: the graph as it is, with ``session.set_denormal_as_zero`` (how
+  models/graph_checks.py opens every graph since this was found);
+- ``zeroed``: the zeroed copy, onnxruntime's default.
+
+onnxruntime applies the denormal setting once per process, so each way runs
+in its own process; the ways take turns round by round, so load from other
+processes hits them alike. The zeroed copy's outputs are compared with the
+original's on the same inputs (max abs difference).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import onnx
+from onnx import numpy_helper
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = np.finfo(np.float32).tiny
+WAYS = ("ieee", "daz", "zeroed")
+
+
+def window_graph(step: Path) -> Path:
+    return step.with_name(step.name.removesuffix(".onnx") + ".window.onnx")
+
+
+def zero_subnormals(src: Path, dst: Path) -> int:
+    """Copy ``src`` to ``dst`` with subnormal float32 initializers set to 0; how many."""
+    model = onnx.load(str(src))
+    zeroed = 0
+    for init in model.graph.initializer:
+        weights = numpy_helper.to_array(init)
+        if weights.dtype != np.float32:
+            continue
+        sub = (weights != 0) & (np.abs(weights) < TINY)
+        if sub.any():
+            zeroed += int(sub.sum())
+            init.CopyFrom(numpy_helper.from_array(np.where(sub, 0, weights), init.name))
+    onnx.save(model, str(dst))
+    return zeroed
+
+
+def _inputs(session: object, seed: int = 0) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    feed = {}
+    for arg in session.get_inputs():  # type: ignore[attr-defined]
+        shape = [1 if not isinstance(d, int) else d for d in arg.shape]
+        scale = 2000.0 if arg.name in ("frame", "frames") else 1.0  # raw counts vs embeddings
+        feed[arg.name] = (rng.random(shape) * scale).astype(np.float32)
+    return feed
+
+
+def child(graph: Path, daz: bool, calls: int) -> None:
+    """One way in this process: median ms per call, and the outputs of the first call."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1
+    options.inter_op_num_threads = 1
+    if daz:
+        options.add_session_config_entry("session.set_denormal_as_zero", "1")
+    result = {}
+    for kind, path in (("step", graph), ("window", window_graph(graph))):
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        feed = _inputs(session)
+        first = session.run(None, feed)
+        for _ in range(20):
+            session.run(None, feed)
+        times = []
+        for _ in range(calls):
+            start = time.perf_counter()
+            session.run(None, feed)
+            times.append(time.perf_counter() - start)
+        outputs = [o.tolist() for o in first]
+        result[kind] = {"ms": 1000 * float(np.median(times)), "outputs": outputs}
+    print(json.dumps(result))
+
+
+def run_way(graph: Path, daz: bool, calls: int) -> dict[str, dict[str, object]]:
+    cmd = [sys.executable, __file__, str(graph), "--child", "daz" if daz else "ieee"]
+    out = subprocess.run([*cmd, "--calls", str(calls)], capture_output=True, text=True, check=True)
+    return dict(json.loads(out.stdout))
+
+
+def max_diff(a: list[object], b: list[object]) -> float:
+    pairs = zip(a, b, strict=True)
+    return max(float(np.max(np.abs(np.asarray(x) - np.asarray(y)))) for x, y in pairs)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("model", nargs="?", type=Path, default=ROOT / "models/scotti-default.onnx")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--calls", type=int, default=300)
+    parser.add_argument("--child", choices=("ieee", "daz"), help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        child(args.model, args.child == "daz", args.calls)
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        zeroed_graph = Path(tmp) / args.model.name
+        counts = [
+            zero_subnormals(args.model, zeroed_graph),
+            zero_subnormals(window_graph(args.model), window_graph(zeroed_graph)),
+        ]
+        ms: dict[str, dict[str, list[float]]] = {w: {"step": [], "window": []} for w in WAYS}
+        diffs: dict[str, float] = {}
+        for _ in range(args.rounds):
+            got = {
+                "ieee": run_way(args.model, False, args.calls),
+                "daz": run_way(args.model, True, args.calls),
+                "zeroed": run_way(zeroed_graph, False, args.calls),
+            }
+            for way in WAYS:
+                for kind in ("step", "window"):
+                    ms[way][kind].append(float(got[way][kind]["ms"]))  # type: ignore[arg-type]
+            for kind in ("step", "window"):
+                a, b = got["ieee"][kind]["outputs"], got["zeroed"][kind]["outputs"]
+                diffs[kind] = max(diffs.get(kind, 0.0), max_diff(a, b))  # type: ignore[arg-type]
+    print(f"{args.model}: subnormal weights: step graph {counts[0]:,}, window graph {counts[1]:,}")
+    print(f"median ms per call, batch 1, 1 thread, median of {args.rounds} rounds x {args.calls}:")
+    print("| graph | ieee (as is) | daz (session option) | zeroed weights | ieee / zeroed |")
+    print("|---|---|---|---|---|")
+    for kind in ("step", "window"):
+        med = {w: float(np.median(ms[w][kind])) for w in WAYS}
+        print(
+            f"| {kind} | {med['ieee']:.2f} | {med['daz']:.2f} | {med['zeroed']:.2f} "
+            f"| {med['ieee'] / med['zeroed']:.1f}x |"
+        )
+    print(
+        "outputs, zeroed against as is, max abs difference: "
+        f"step {diffs['step']:.1e}, window {diffs['window']:.1e}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
