@@ -17,7 +17,10 @@ Cost comes from experiments/measure.py on each config's first model (the
 streaming step as the daemon calls it against recomputing the window; the
 weights do not change it), all configs taking turns call by call in one run,
 so its ratios compare like with like. ``--write DOC`` puts the Markdown
-between the ``<!-- archs:begin -->`` and ``<!-- archs:end -->`` lines of DOC.
+between the ``<!-- archs:begin -->`` and ``<!-- archs:end -->`` lines of DOC
+(``--section NAME``: the ``<!-- NAME:begin -->`` ones). A REPORT written as
+``FILE#PIECE`` takes the model of FILE whose path contains PIECE instead of the
+first (a report that scored a fine-tuned model beside the shipped one).
 """
 
 from __future__ import annotations
@@ -34,9 +37,15 @@ from measure import describe
 from partition_table import check_held_out, load_report, pairs, run_lines, write_between_markers
 from tables_doc import METRICS
 
-BEGIN, END = "<!-- archs:begin -->", "<!-- archs:end -->"
+SECTION = "archs"  # the doc's <!-- archs:begin --> ... <!-- archs:end --> lines
 
 Key = tuple[str, str]  # (config, partition)
+
+
+def report_of(value: Path) -> dict[str, Any]:
+    """FILE, or FILE#PIECE: the model of FILE whose path contains PIECE."""
+    path, _, pick = str(value).partition("#")
+    return load_report(Path(path), pick)
 
 
 def split_key(name: str) -> Key:
@@ -161,21 +170,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--baseline", default="E128-L2-T40", choices=list(CONFIGS))
     parser.add_argument("--steps", type=int, default=400, help="timed calls per graph")
     parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
+    parser.add_argument("--section", default=SECTION, help="which marked section (default archs)")
     args = parser.parse_args(argv)
     command = "python experiments/arch_table.py " + " ".join(
         argv if argv is not None else sys.argv[1:]
     )
     try:
-        reports = {
-            split_key(n): load_report(p, "") for n, p in pairs(args.reports, "report").items()
-        }
+        reports = {split_key(n): report_of(p) for n, p in pairs(args.reports, "report").items()}
         for (config, partition), report in reports.items():
             check_held_out(f"{config}:{partition}", report)
         check_configs(reports)
         runs = {split_key(n): d for n, d in pairs(args.run, "--run").items()}
         text = markdown(reports, cost_of(reports, args.steps), runs, args.baseline, command)
         if args.write:
-            write_between_markers(args.write, text, BEGIN, END)
+            begin, end = f"<!-- {args.section}:begin -->", f"<!-- {args.section}:end -->"
+            write_between_markers(args.write, text, begin, end)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:
         print(f"arch_table: {exc}", file=sys.stderr)
         return 1

@@ -248,7 +248,7 @@ def test_the_arch_table_compares_each_config_with_the_baseline_on_shared_partiti
     }
     specs = _specs(tmp_path, reports)
     doc = tmp_path / "doc.md"
-    doc.write_text(f"head\n{arch_table.BEGIN}\nold\n{arch_table.END}\n")
+    doc.write_text("head\n<!-- archs:begin -->\nold\n<!-- archs:end -->\n")
     assert arch_table.main([*specs, "--steps", "3", "--write", str(doc)]) == 0
     text = doc.read_text()
     assert text.startswith("head\n")
@@ -275,6 +275,31 @@ def test_the_arch_table_compares_each_config_with_the_baseline_on_shared_partiti
     )
     assert arch_table.main([f"E128-L2-T20:p3={wrong}", "--steps", "3"]) == 1
     assert arch_table.main([f"E999:p3={specs[0].split('=')[1]}"]) == 1
+
+
+def test_the_arch_table_picks_a_model_of_a_report_and_writes_a_named_section(
+    tmp_path: Path, tiny_model_path: Path
+) -> None:
+    def scored(seed: int, quality: float, path: str) -> dict[str, Any]:
+        report = _claiming(
+            _report(_frames(400, seed, quality), "x", "p1"), tiny_model_path, 128, 40
+        )
+        return {**report, "model": {**report["model"], "path": path}}
+
+    tuned, shipped = scored(0, 0.9, "runs/tuned.onnx"), scored(1, 0.5, str(tiny_model_path))
+    both = tmp_path / "both.json"
+    both.write_text(json.dumps([tuned, shipped]))  # as head_finetune.py's eval writes it
+    doc = tmp_path / "doc.md"
+    doc.write_text(
+        "<!-- archs:begin -->\nkept\n<!-- archs:end -->\n<!-- xt:begin -->\n<!-- xt:end -->\n"
+    )
+    spec = f"E128-L2-T40:p1={both}#{tiny_model_path.name}"
+    assert arch_table.main([spec, "--steps", "3", "--write", str(doc), "--section", "xt"]) == 0
+    text = doc.read_text()
+    assert "kept" in text  # the other section is left alone
+    (row,) = [ln.split(" | ") for ln in text.splitlines() if ln.startswith("| E128-L2-T40 | p1")]
+    assert row[5] == common.fmt([shipped["metrics"]["progress_mse"]], 4)  # not the first model's
+    assert arch_table.main([f"E128-L2-T40:p1={both}#nothing-like-it", "--steps", "3"]) == 1
 
 
 def test_the_recipe_table_pairs_recipes_person_by_person_on_the_same_sessions(
