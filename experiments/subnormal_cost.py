@@ -6,16 +6,18 @@ Counts the graph's float32 weights below 1.2e-38 (subnormal: x86 multiplies
 them through a microcode assist), writes a copy of both graphs with those
 weights set to 0 (what ``scotti export`` now writes, export/subnormals.py),
 and times a call of the step graph and of the window graph (batch 1, one
-thread, median) three ways:
+thread, median) four ways:
 
 - ``ieee``: the graph as it is, onnxruntime keeping subnormals (its default);
-- ``daz``: the graph as it is, with ``session.set_denormal_as_zero`` (how
-  models/graph_checks.py opens every graph since this was found);
-- ``zeroed``: the zeroed copy, onnxruntime's default.
+- ``daz``: the graph as it is, with onnxruntime's ``session.set_denormal_as_zero``
+  (not what the daemon does: models/subnormal_weights.py says why);
+- ``zeroed``: the zeroed copy, onnxruntime's default;
+- ``daemon``: the graph as it is, opened as the daemon opens it
+  (``models.graph_checks.open_session``: its subnormal weights zeroed in memory).
 
 onnxruntime applies the denormal setting once per process, so each way runs
 in its own process; the ways take turns round by round, so load from other
-processes hits them alike. The zeroed copy's outputs are compared with the
+processes hits them alike. The zeroed and the daemon's outputs are compared with the
 original's on the same inputs (max abs difference).
 """
 
@@ -35,7 +37,7 @@ from onnx import numpy_helper
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = np.finfo(np.float32).tiny
-WAYS = ("ieee", "daz", "zeroed")
+WAYS = ("ieee", "daz", "zeroed", "daemon")
 
 
 def window_graph(step: Path) -> Path:
@@ -68,18 +70,22 @@ def _inputs(session: object, seed: int = 0) -> dict[str, np.ndarray]:
     return feed
 
 
-def child(graph: Path, daz: bool, calls: int) -> None:
+def child(graph: Path, way: str, calls: int) -> None:
     """One way in this process: median ms per call, and the outputs of the first call."""
     import onnxruntime as ort
+    from scotti.models.graph_checks import open_session
 
     options = ort.SessionOptions()
     options.intra_op_num_threads = 1
     options.inter_op_num_threads = 1
-    if daz:
+    if way == "daz":
         options.add_session_config_entry("session.set_denormal_as_zero", "1")
     result = {}
     for kind, path in (("step", graph), ("window", window_graph(graph))):
-        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        if way == "daemon":
+            session = open_session(path, threads=1)
+        else:
+            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         feed = _inputs(session)
         first = session.run(None, feed)
         for _ in range(20):
@@ -94,8 +100,8 @@ def child(graph: Path, daz: bool, calls: int) -> None:
     print(json.dumps(result))
 
 
-def run_way(graph: Path, daz: bool, calls: int) -> dict[str, dict[str, object]]:
-    cmd = [sys.executable, __file__, str(graph), "--child", "daz" if daz else "ieee"]
+def run_way(graph: Path, way: str, calls: int) -> dict[str, dict[str, object]]:
+    cmd = [sys.executable, __file__, str(graph), "--child", way]
     out = subprocess.run([*cmd, "--calls", str(calls)], capture_output=True, text=True, check=True)
     return dict(json.loads(out.stdout))
 
@@ -110,10 +116,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("model", nargs="?", type=Path, default=ROOT / "models/scotti-default.onnx")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--calls", type=int, default=300)
-    parser.add_argument("--child", choices=("ieee", "daz"), help=argparse.SUPPRESS)
+    parser.add_argument("--child", choices=("ieee", "daz", "daemon"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
-        child(args.model, args.child == "daz", args.calls)
+        child(args.model, args.child, args.calls)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         zeroed_graph = Path(tmp) / args.model.name
@@ -125,28 +131,31 @@ def main(argv: list[str] | None = None) -> int:
         diffs: dict[str, float] = {}
         for _ in range(args.rounds):
             got = {
-                "ieee": run_way(args.model, False, args.calls),
-                "daz": run_way(args.model, True, args.calls),
-                "zeroed": run_way(zeroed_graph, False, args.calls),
+                "ieee": run_way(args.model, "ieee", args.calls),
+                "daz": run_way(args.model, "daz", args.calls),
+                "zeroed": run_way(zeroed_graph, "ieee", args.calls),
+                "daemon": run_way(args.model, "daemon", args.calls),
             }
             for way in WAYS:
                 for kind in ("step", "window"):
                     ms[way][kind].append(float(got[way][kind]["ms"]))  # type: ignore[arg-type]
             for kind in ("step", "window"):
-                a, b = got["ieee"][kind]["outputs"], got["zeroed"][kind]["outputs"]
-                diffs[kind] = max(diffs.get(kind, 0.0), max_diff(a, b))  # type: ignore[arg-type]
+                a = got["ieee"][kind]["outputs"]
+                for way in ("zeroed", "daemon"):
+                    b = got[way][kind]["outputs"]
+                    diffs[kind] = max(diffs.get(kind, 0.0), max_diff(a, b))  # type: ignore[arg-type]
     print(f"{args.model}: subnormal weights: step graph {counts[0]:,}, window graph {counts[1]:,}")
     print(f"median ms per call, batch 1, 1 thread, median of {args.rounds} rounds x {args.calls}:")
-    print("| graph | ieee (as is) | daz (session option) | zeroed weights | ieee / zeroed |")
-    print("|---|---|---|---|---|")
+    print("| graph | ieee (as is) | daz (session option) | zeroed file | daemon | ieee / daemon |")
+    print("|---|---|---|---|---|---|")
     for kind in ("step", "window"):
         med = {w: float(np.median(ms[w][kind])) for w in WAYS}
         print(
             f"| {kind} | {med['ieee']:.2f} | {med['daz']:.2f} | {med['zeroed']:.2f} "
-            f"| {med['ieee'] / med['zeroed']:.1f}x |"
+            f"| {med['daemon']:.2f} | {med['ieee'] / med['daemon']:.1f}x |"
         )
     print(
-        "outputs, zeroed against as is, max abs difference: "
+        "outputs, zeroed and daemon against as is, max abs difference: "
         f"step {diffs['step']:.1e}, window {diffs['window']:.1e}"
     )
     return 0

@@ -10,19 +10,29 @@ subnormals. As zeros they change no output at float32 precision.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import torch
 
 
-def flush_denormals() -> bool:
-    """Treat subnormal floats as zero on the CPU, in this thread and every thread
-    started after it (threads inherit the floating-point mode); True where it took.
+@contextlib.contextmanager
+def flushing_denormals() -> Iterator[bool]:
+    """Inside: subnormal floats read and written as zero on the CPU, in this thread and
+    every thread started inside (threads inherit the mode); yields whether it took.
 
-    Call it before torch starts its thread pool (the first parallel op). Measured
-    on p1's four-layer run before this: training fell from 92 to 32 windows/s over
-    its first three epochs, nearly all of it in the convolutions, with 47,795 of
-    its 1.2 M weights subnormal.
+    Enter it before torch starts its thread pool (the first parallel op). Measured on
+    p1's four-layer run before this: training fell from 92 to 32 windows/s over its
+    first three epochs, nearly all of it in the convolutions, with 47,795 of its
+    1.2 M weights subnormal. On leaving, IEEE subnormals again (torch's default; it
+    has no getter for the mode before): a process that trains in-process (the tests)
+    keeps its own float arithmetic afterwards.
     """
-    return bool(torch.set_flush_denormal(True))
+    took = bool(torch.set_flush_denormal(True))
+    try:
+        yield took
+    finally:
+        torch.set_flush_denormal(False)
 
 
 def zero_subnormal_weights(model: torch.nn.Module) -> int:
@@ -30,8 +40,8 @@ def zero_subnormal_weights(model: torch.nn.Module) -> int:
 
     An exported graph carries its weights as they are, and an ONNX runtime that
     keeps IEEE subnormals pays for them on every call (the shipped model of
-    2026-11-24, with 26,351 subnormal weights: its window graph took 25 ms
-    against 1.9 ms zeroed, its step 1.5x; ``python experiments/subnormal_cost.py``).
+    2026-11-24, with 26,351 subnormal weights: its window graph took 26 ms
+    against 2.0 ms zeroed, its step 2.3x; ``python experiments/subnormal_cost.py``).
     """
     tiny = torch.finfo(torch.float32).tiny
     zeroed = 0

@@ -28,7 +28,7 @@ from scotti.export.graph_weights import checkpoint_from_graph
 from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.run_data import RunData, load_sessions, prepare
-from scotti.export.subnormals import flush_denormals
+from scotti.export.subnormals import flushing_denormals
 from scotti.export.test_report import write_test_report
 from scotti.export.throughput import measure_precisions, measure_throughput
 from scotti.export.train import Trainer, TrainOptions, load_initial_weights
@@ -141,7 +141,9 @@ def run_training(args: argparse.Namespace) -> Trainer | None:
         raise TrainCliError(msg)
     device = resolve_device(args.device, ctx.local_rank)
     check_precision(args.precision, device)
-    with distributed.process_group(ctx, device):
+    with distributed.process_group(ctx, device), flushing_denormals() as flushing:
+        if not flushing:
+            log.info("this CPU cannot flush subnormal floats: training may slow as weights decay")
         trainer = train(args, ctx=ctx, device=device)
         if trainer is not None:
             # DDP's reducer goes while its process group is alive. Left to the end of
@@ -160,8 +162,6 @@ def train(
     """The whole run of ``scotti train`` in this process; None for ``--benchmark``."""
     ctx = ctx or DistContext()
     device = device or torch.device("cpu")
-    if not flush_denormals():
-        log.info("this CPU cannot flush subnormal floats: training may slow down as weights decay")
     torch.set_num_threads(args.threads)
     opts = _options(args)
     out: Path = args.output

@@ -18,6 +18,7 @@ import onnxruntime as ort
 from scotti.models import contract as c
 from scotti.models.errors import ModelContractError, ModelError
 from scotti.models.ood import OodStats
+from scotti.models.subnormal_weights import without_subnormal_weights
 
 _FLOAT = "tensor(float)"
 _REQUIRED_META = (
@@ -50,18 +51,14 @@ def open_session(path: Path, threads: int) -> ort.InferenceSession:
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     options.log_severity_level = 3  # errors only: warnings would go to the daemon's stderr
-    # Subnormal floats as zero: x86 multiplies them through a microcode assist. A graph
-    # whose weights decayed into them ran its window 13x slower (the shipped model of
-    # 2026-11-24: 25 ms against 1.9 ms; experiments/subnormal_cost.py). onnxruntime sets
-    # it on the pool's threads and, once per process, on the thread opening the first
-    # session; threads started after that inherit it (the daemon's inference thread).
-    options.add_session_config_entry("session.set_denormal_as_zero", "1")
     if threads > 1:
         # Spinning workers burn the cores the serial reader and a second session need:
         # two chained sessions with spinning doubled the step time on a small host.
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    zeroed = without_subnormal_weights(path)  # what they would cost: subnormal_weights.py
+    source: str | bytes = zeroed[0] if zeroed is not None else str(path)
     try:
-        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        return ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own unexported exception types
         # "[ONNXRuntimeError] : 7 : INVALID_PROTOBUF : Load model from P failed:Protobuf ..."
         lines = str(exc).strip().splitlines() or [type(exc).__name__]

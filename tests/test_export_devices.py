@@ -17,7 +17,7 @@ from scotti.export.data import load_session
 from scotti.export.devices import DeviceError, autocast, resolve_device
 from scotti.export.model import Scotti, ScottiConfig
 from scotti.export.prefetch import prefetched
-from scotti.export.subnormals import flush_denormals
+from scotti.export.subnormals import flushing_denormals
 from scotti.export.train import Trainer, TrainOptions
 from scotti.export.windows import WindowDataset
 
@@ -107,30 +107,25 @@ def _subnormal_survives() -> bool:
     return bool((torch.full((8,), SUBNORMAL) * 1.0).ne(0).all())
 
 
-@pytest.fixture
-def restore_denormals() -> Any:
-    yield
-    torch.set_flush_denormal(False)  # the rest of the test session keeps IEEE subnormals
-
-
-def test_flush_denormals_covers_threads_started_after_it(restore_denormals: None) -> None:
+def test_flushing_denormals_covers_threads_started_inside_and_ends_with_it() -> None:
     assert _subnormal_survives()  # the default: subnormals are kept (and slow)
-    assert flush_denormals()
-    assert not _subnormal_survives()
-    seen: list[bool] = []
-    worker = threading.Thread(target=lambda: seen.append(_subnormal_survives()))
-    worker.start()
-    worker.join()
-    assert seen == [False]  # a batch-building thread, say
+    with flushing_denormals() as took:
+        assert took
+        assert not _subnormal_survives()
+        seen: list[bool] = []
+        worker = threading.Thread(target=lambda: seen.append(_subnormal_survives()))
+        worker.start()
+        worker.join()
+        assert seen == [False]  # a batch-building thread, say
+    assert _subnormal_survives()
 
 
-def test_training_flushes_subnormals(tmp_path: Path, restore_denormals: None) -> None:
+def test_training_leaves_the_float_mode_as_it_found_it(tmp_path: Path) -> None:
     write_session(tmp_path / "a.scotti", 90, subject="a")
     args = [str(tmp_path / "a.scotti"), "-o", str(tmp_path / "r"), "--config", json.dumps(TINY)]
     args += ["--batch", "8", "--chunk", "4", "--benchmark", "1", "--device", "cpu"]
-    assert _subnormal_survives()
     assert main(["train", *args]) == 0
-    assert not _subnormal_survives()
+    assert _subnormal_survives()  # a test (or a notebook) that trains keeps IEEE floats
 
 
 @pytest.mark.slow
