@@ -32,11 +32,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import onnx
-from onnx import numpy_helper
+from scotti.models.subnormal_weights import without_subnormal_weights
 
 ROOT = Path(__file__).resolve().parent.parent
-TINY = np.finfo(np.float32).tiny
 WAYS = ("ieee", "daz", "zeroed", "daemon")
 
 
@@ -45,19 +43,11 @@ def window_graph(step: Path) -> Path:
 
 
 def zero_subnormals(src: Path, dst: Path) -> int:
-    """Copy ``src`` to ``dst`` with subnormal float32 initializers set to 0; how many."""
-    model = onnx.load(str(src))
-    zeroed = 0
-    for init in model.graph.initializer:
-        weights = numpy_helper.to_array(init)
-        if weights.dtype != np.float32:
-            continue
-        sub = (weights != 0) & (np.abs(weights) < TINY)
-        if sub.any():
-            zeroed += int(sub.sum())
-            init.CopyFrom(numpy_helper.from_array(np.where(sub, 0, weights), init.name))
-    onnx.save(model, str(dst))
-    return zeroed
+    """Copy ``src`` to ``dst`` with subnormal float32 weights set to 0 (the daemon's own
+    zeroing, models/subnormal_weights.py); how many there were."""
+    zeroed = without_subnormal_weights(src)
+    dst.write_bytes(zeroed[0] if zeroed is not None else src.read_bytes())
+    return zeroed[1] if zeroed is not None else 0
 
 
 def _inputs(session: object, seed: int = 0) -> dict[str, np.ndarray]:
