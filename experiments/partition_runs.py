@@ -25,6 +25,10 @@ otherwise), into runs/GROUP-PARTITION-NAME; a model whose window is not the
 contract's 40 is calibrated and scored through experiments/any_window.py.
 ``--max-crosstalk X`` trains with crosstalk added per chunk and foot
 (export/augment.py), into runs/GROUP-PARTITION[-VARIANT]-xtX.
+``--init MODEL`` starts the run from a checkpoint's or an exported graph's
+weights instead of from scratch (``scotti train --init``: training the shipped
+model on, with a fresh schedule); a graph is then scored beside the new model in
+the same replay, so the two are compared on the same held-out frames.
 
 Then ``experiments/partition_table.py`` puts the reports side by side. The
 test subjects are never given to ``scotti train``: not for training, not for
@@ -68,6 +72,7 @@ class PartitionRun:
     run_dir: Path
     variant: str = "multi"
     window: int = CONTRACT_WINDOW
+    init: Path | None = None  # weights to start from (scotti train --init), else from scratch
 
     @property
     def validation(self) -> tuple[str, ...]:
@@ -82,8 +87,11 @@ class PartitionRun:
 
     def train_command(self, corpus: Path, opts: argparse.Namespace) -> list[str]:
         resume = ["--resume"] if (self.run_dir / "last.pt").is_file() else []
+        # With --init the size is the starting model's (scotti train refuses --config beside
+        # it); it is passed on resume too, so the checkpoints keep saying where they started.
+        start = ["--init", str(self.init)] if self.init else ["--config", opts.config]
         return scotti_command(
-            "train", *self.files(corpus), "-o", self.run_dir, "--config", opts.config,
+            "train", *self.files(corpus), "-o", self.run_dir, *start,
             "--val-subjects", *self.validation, "--test-fraction", "0",
             "--epochs", str(opts.epochs), "--patience", "3", "--stride", str(opts.stride),
             "--val-stride", "8", "--lr", str(opts.lr),
@@ -131,6 +139,8 @@ def score(job: PartitionRun, corpus: Path, cache: str) -> Path:
     run(verb(job.window, "calibrate", model, *job.files(corpus, job.validation)), log)
     report = job.run_dir / "eval" / "test.json"
     models = ["--model", model, "--model", before / model.name]
+    if job.init is not None and job.init.suffix == ".onnx":
+        models += ["--model", job.init]  # the graph it started from, on the same frames
     out = run(verb(job.window, "eval", *job.files(corpus, job.test), *models, "--json"), log)
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text(out)
@@ -161,6 +171,7 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
             RUNS / f"{args.group}-{n}{suffix}",
             args.variant,
             window,
+            args.init,
         )
         for n in args.partitions
     ]
@@ -185,6 +196,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-minutes", type=float, default=112, help="per run, this call")
     parser.add_argument(
         "--max-crosstalk", type=float, default=0.0, help="scotti train's augmentation (-xtX runs)"
+    )
+    parser.add_argument(
+        "--init",
+        type=Path,
+        help="start from this checkpoint or exported graph (scotti train --init), not from scratch",
     )
     return parser
 

@@ -344,3 +344,40 @@ def test_the_recipe_table_pairs_recipes_person_by_person_on_the_same_sessions(
     other = _write(tmp_path / "moved.json", moved)
     assert recipe_table.main([specs[2], f"crosstalk:p2={other}"]) == 1
     assert recipe_table.main([specs[0]]) == 1  # nothing to compare with
+
+
+def test_a_run_from_a_shipped_graph_passes_init_not_config_on_every_call(tmp_path: Path) -> None:
+    import argparse
+
+    from scotti.export import train_args
+
+    parser = partition_runs.build_parser()
+    graph = tmp_path / "shipped.onnx"
+    args = parser.parse_args(["p1", "--init", str(graph), "--lr", "3e-4", "--group", "v10"])
+    (job,) = partition_runs.plan(args)
+    assert job.init == graph
+    assert job.run_dir.name == "v10-p1"
+    job = partition_runs.PartitionRun(
+        job.partition, job.train, job.test, tmp_path / "run", init=graph
+    )
+    train = argparse.ArgumentParser()
+    train_args.add_arguments(train)
+    corpus = tmp_path / "corpus"
+    (corpus / "realistic").mkdir(parents=True)
+    for subject in job.train:
+        (corpus / "realistic" / f"{subject}.ses").write_bytes(b"")
+
+    def parsed(command: list[str]) -> argparse.Namespace:
+        assert command[1:4] == ["-m", "scotti.cli.main", "train"]
+        return train.parse_args(command[4:])
+
+    first = parsed(job.train_command(corpus, args))
+    # scotti train takes the size from --init and refuses --config beside it.
+    assert (first.init, first.config, first.resume, first.lr) == (graph, None, False, 3e-4)
+    job.run_dir.mkdir()
+    (job.run_dir / "last.pt").write_bytes(b"")
+    again = parsed(job.train_command(corpus, args))
+    assert (again.init, again.config, again.resume) == (graph, None, True)
+    scratch = partition_runs.plan(parser.parse_args(["p1"]))[0]
+    assert scratch.init is None
+    assert parsed(scratch.train_command(corpus, args)).config == "small"
