@@ -97,7 +97,7 @@ class PartitionRun:
             "--val-stride", "8", "--lr", str(opts.lr),
             "--loss-weights", LOSS_WEIGHTS[self.variant], "--threads", "1",
             "--max-minutes", str(opts.max_minutes), "--cache", opts.cache,
-            "--max-crosstalk", str(opts.max_crosstalk), *resume,
+            "--max-crosstalk", str(opts.max_crosstalk), "--ema", str(opts.ema), *resume,
         )  # fmt: skip
 
     def finished(self, epochs: int) -> bool:
@@ -196,6 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-minutes", type=float, default=112, help="per run, this call")
     parser.add_argument(
         "--max-crosstalk", type=float, default=0.0, help="scotti train's augmentation (-xtX runs)"
+    )
+    parser.add_argument(
+        "--ema", type=float, default=0.0, help="scotti train --ema (name the --group after it)"
     )
     parser.add_argument(
         "--init",

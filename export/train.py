@@ -41,6 +41,7 @@ from scotti.export.model import Scotti, ScottiOutputs
 from scotti.export.prefetch import prefetched
 from scotti.export.throughput import measure_throughput, unfold_frames
 from scotti.export.windows import WindowDataset
+from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
 
 # The pieces that moved into their own modules, still importable from here.
@@ -88,6 +89,7 @@ class TrainOptions:
     workers: int = 1  # threads building batches ahead of the step; 0 = in the loop
     patience: int = 4  # epochs without a validation improvement before stopping; 0 = never
     min_delta: float = 1e-3  # what counts as an improvement of the validation loss
+    ema: float = 0.0  # decay of an exponential moving average of the weights; 0 = off
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -154,6 +156,18 @@ class Trainer:
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, warmup_cosine(self.total_steps, opts.warmup_fraction)
         )
+        # With --ema, validation, best.pt and export see the moving average of the weights
+        # (the epoch-to-epoch wander of the raw weights is what makes validation noisy);
+        # the raw weights go on training and are kept beside it for --resume.
+        self.averaged = (
+            AveragedModel(
+                model,
+                multi_avg_fn=get_ema_multi_avg_fn(opts.ema),  # type: ignore[no-untyped-call]
+                use_buffers=True,
+            )
+            if opts.ema > 0
+            else None
+        )
         self.state = TrainState()
         self.last_metrics: dict[str, Any] = {}
         self.step_losses: list[float] = []  # every step's loss in this process, for tests
@@ -191,6 +205,8 @@ class Trainer:
             torch.nn.utils.clip_grad_norm_(trainable, self.opts.grad_clip)
         self.optimizer.step()
         self.scheduler.step()
+        if self.averaged is not None:
+            self.averaged.update_parameters(self.model)
         n = int(targets.action.shape[0])
         if not self.dist.distributed:
             return float(loss.detach()), n
@@ -251,6 +267,15 @@ class Trainer:
             self._end_epoch(windows_now / max(1e-9, seconds), seconds)
         return "plateau" if self.plateau_reached() else "done"
 
+    @property
+    def evaluated_model(self) -> Scotti:
+        """The weights validation judges and checkpoints hand on: the average, if any."""
+        if self.averaged is None:
+            return self.model
+        module = self.averaged.module
+        assert isinstance(module, Scotti)  # AveragedModel keeps a deep copy of the model
+        return module
+
     def plateau_reached(self) -> bool:
         return plateau(self.state.history, self.opts.patience, self.opts.min_delta).reached
 
@@ -261,7 +286,8 @@ class Trainer:
             return None
         metrics = None
         if self.dist.is_main:
-            metrics = evaluate(self.model, val_set, self.opts.val_stride, self.opts.loss_weights)
+            opts = self.opts
+            metrics = evaluate(self.evaluated_model, val_set, opts.val_stride, opts.loss_weights)
         result: dict[str, Any] = distributed.from_main(metrics, self.dist)
         return result
 
@@ -331,9 +357,16 @@ class Trainer:
         rng: dict[str, Any] = dict(self._rng_state())
         if self.dist.distributed:
             rng["by_rank"] = distributed.gather(self._rng_state(), self.dist)
+        averaged = {}
+        if self.averaged is not None:  # "model" is the average: what export and --init read
+            averaged = {
+                "trained_model": self.model.state_dict(),
+                "ema_updates": int(self.averaged.n_averaged.item()),
+            }
         return {
             "config": self.model.cfg.to_dict(),
-            "model": self.model.state_dict(),
+            "model": self.evaluated_model.state_dict(),
+            **averaged,
             "optimizer": self.optimizer.state_dict(),
             "scheduler": self.scheduler.state_dict(),
             "epoch": st.epoch,
@@ -366,7 +399,11 @@ class Trainer:
                 f"with {saved_world}, or from a checkpoint at an epoch's end"
             )
             raise ExportError(msg)
-        self.model.load_state_dict(ckpt["model"])
+        self.model.load_state_dict(ckpt.get("trained_model", ckpt["model"]))
+        if self.averaged is not None and "trained_model" in ckpt:
+            self.averaged.module.load_state_dict(ckpt["model"])
+            self.averaged.n_averaged.fill_(int(ckpt["ema_updates"]))
+        # A run resumed with --ema that had none starts its average at the next step.
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self.scheduler.load_state_dict(ckpt["scheduler"])
         self.state = TrainState(

@@ -71,6 +71,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="augmentation: add up to this row/column crosstalk per chunk and foot "
         "(0 = off; the simulator's realistic insoles have 0.005-0.03)",
     )
+    parser.add_argument(
+        "--ema",
+        type=float,
+        default=d.ema,
+        metavar="DECAY",
+        help="validate, pick best.pt and export an exponential moving average of the weights, "
+        "updated every step with this decay (e.g. 0.999; 0 = off)",
+    )
     w = d.loss_weights
     parser.add_argument(
         "--loss-weights",

@@ -101,6 +101,9 @@ def _options(args: argparse.Namespace) -> TrainOptions:
     if not 0.0 <= args.max_crosstalk <= 0.5:
         msg = f"--max-crosstalk must be between 0 and 0.5, got {args.max_crosstalk}"
         raise TrainCliError(msg)
+    if not (args.ema == 0.0 or 0.0 < args.ema < 1.0):  # also catches NaN
+        msg = f"--ema must be 0 (off) or a decay between 0 and 1, got {args.ema}"
+        raise TrainCliError(msg)
     if not args.min_delta >= 0.0:
         msg = f"--min-delta must be at least 0, got {args.min_delta}"
         raise TrainCliError(msg)
@@ -123,6 +126,7 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         workers=args.workers,
         patience=args.patience,
         min_delta=args.min_delta,
+        ema=args.ema,
     )
 
 
