@@ -34,18 +34,12 @@ from typing import Any
 from common import ExperimentError, fmt, table, utc_now
 from configs import CONFIGS, window_of
 from measure import describe
-from partition_table import check_held_out, load_report, pairs, run_lines, write_between_markers
+from partition_table import check_held_out, pairs, report_of, run_lines, write_between_markers
 from tables_doc import METRICS
 
 SECTION = "archs"  # the doc's <!-- archs:begin --> ... <!-- archs:end --> lines
 
 Key = tuple[str, str]  # (config, partition)
-
-
-def report_of(value: Path) -> dict[str, Any]:
-    """FILE, or FILE#PIECE: the model of FILE whose path contains PIECE."""
-    path, _, pick = str(value).partition("#")
-    return load_report(Path(path), pick)
 
 
 def split_key(name: str) -> Key:

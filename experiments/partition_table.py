@@ -61,6 +61,12 @@ def load_report(path: Path, pick: str) -> dict[str, Any]:
     return chosen[0]
 
 
+def report_of(value: Path | str) -> dict[str, Any]:
+    """FILE, or FILE#PIECE: the model of FILE whose path contains PIECE (else its first)."""
+    path, _, pick = str(value).partition("#")
+    return load_report(Path(path), pick)
+
+
 def check_held_out(name: str, report: dict[str, Any]) -> None:
     """Refuse a model that trained or validated on a subject it is scored on."""
     graph = ROOT / report["model"]["path"]

@@ -13,7 +13,11 @@ partition's held-out subjects. Every other recipe is compared with ``--base``
 the reports must hold the same session files: the comparison is paired, person
 by person. Prints the pooled figures, each held-out subject's, and each
 action's; ``--write DOC`` puts them between the ``<!-- recipes:begin -->``
-and ``<!-- recipes:end -->`` lines of DOC.
+and ``<!-- recipes:end -->`` lines of DOC (``--section NAME``: the
+``<!-- NAME:begin -->`` ones). A REPORT written as FILE#PIECE is the model of
+FILE whose path contains PIECE: two models scored in one replay (say a model
+and the one it was trained on from, as ``partition_runs.py --init`` scores them)
+are compared frame for frame.
 """
 
 from __future__ import annotations
@@ -25,10 +29,9 @@ from pathlib import Path
 from typing import Any
 
 from common import ExperimentError, fmt, table, utc_now
-from partition_table import check_held_out, load_report, pairs, run_lines, write_between_markers
+from partition_table import check_held_out, pairs, report_of, run_lines, write_between_markers
 from tables_doc import METRICS, ROW_NAMES
 
-BEGIN, END = "<!-- recipes:begin -->", "<!-- recipes:end -->"
 PER_SUBJECT = ("mpjpe_mm", "action_accuracy", "progress_mse", "app")
 PER_ACTION = ("action_accuracy", "progress_mse")
 
@@ -187,21 +190,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", action="append", default=[], metavar="RECIPE:PARTITION=RUN_DIR")
     parser.add_argument("--base", help="the recipe the others are compared with (default: first)")
     parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
+    parser.add_argument("--section", default="recipes", help="which marked section of --write")
     args = parser.parse_args(argv)
     command = "python experiments/recipe_table.py " + " ".join(
         argv if argv is not None else sys.argv[1:]
     )
     try:
-        reports = {
-            split_key(n): load_report(p, "") for n, p in pairs(args.reports, "report").items()
-        }
+        reports = {split_key(n): report_of(p) for n, p in pairs(args.reports, "report").items()}
         for (recipe, partition), report in reports.items():
             check_held_out(f"{recipe}:{partition}", report)
         base = args.base or next(iter(reports))[0]
         runs = {split_key(n): d for n, d in pairs(args.run, "--run").items()}
         text = markdown(reports, runs, base, command)
         if args.write:
-            write_between_markers(args.write, text, BEGIN, END)
+            begin, end = f"<!-- {args.section}:begin -->", f"<!-- {args.section}:end -->"
+            write_between_markers(args.write, text, begin, end)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:
         print(f"recipe_table: {exc}", file=sys.stderr)
         return 1

@@ -320,7 +320,7 @@ def test_the_recipe_table_pairs_recipes_person_by_person_on_the_same_sessions(
     }
     specs = _specs(tmp_path, reports)
     doc = tmp_path / "doc.md"
-    doc.write_text(f"{recipe_table.BEGIN}\n{recipe_table.END}\n")
+    doc.write_text("<!-- recipes:begin -->\n<!-- recipes:end -->\n")
     assert recipe_table.main([*specs, "--write", str(doc)]) == 0
     rows = [ln.removesuffix(" |").split(" | ") for ln in doc.read_text().splitlines()]
     accuracy = next(r for r in rows if r[0] == "| accuracy (%)")
@@ -344,6 +344,34 @@ def test_the_recipe_table_pairs_recipes_person_by_person_on_the_same_sessions(
     other = _write(tmp_path / "moved.json", moved)
     assert recipe_table.main([specs[2], f"crosstalk:p2={other}"]) == 1
     assert recipe_table.main([specs[0]]) == 1  # nothing to compare with
+
+
+def test_the_recipe_table_compares_two_models_of_one_replay_in_a_named_section(
+    tmp_path: Path,
+) -> None:
+    def scored(seed: int, quality: float, name: str) -> dict[str, Any]:
+        report = _report(_frames(400, seed, quality), "multi", name)
+        report["sessions"] = [{**report["sessions"][0], "path": "/d/s.ses"}]  # the same replay
+        return report
+
+    shipped, trained_on = scored(5, 0.7, "scotti-default"), scored(6, 0.9, "v10-p1")
+    both = _write(tmp_path / "both.json", shipped)
+    Path(both).write_text(
+        json.dumps([trained_on, {**trained_on, "model": {"path": "x/export-fit.onnx"}}, shipped])
+    )
+    doc = tmp_path / "doc.md"
+    kept = "<!-- recipes:begin -->\nthe crosstalk table\n<!-- recipes:end -->\n"
+    doc.write_text(kept + "<!-- warm:begin -->\n<!-- warm:end -->\n")
+    specs = [f"shipped:p1={both}#scotti-default", f"warm:p1={both}#v10-p1"]
+    assert recipe_table.main([*specs, "--write", str(doc), "--section", "warm"]) == 0
+    text = doc.read_text()
+    assert text.startswith(kept)  # the other section is left as it was
+    rows = [ln.removesuffix(" |").split(" | ") for ln in text.splitlines()]
+    accuracy = next(r for r in rows if r[0] == "| accuracy (%)")
+    delta = trained_on["metrics"]["action_accuracy"] - shipped["metrics"]["action_accuracy"]
+    assert accuracy[1] == "warm"
+    assert accuracy[5] == common.fmt([delta], 2, 100)
+    assert recipe_table.main([f"shipped:p1={both}#nothing-like-it", specs[1]]) == 1
 
 
 def test_a_run_from_a_shipped_graph_passes_init_not_config_on_every_call(tmp_path: Path) -> None:
