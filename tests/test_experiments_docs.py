@@ -453,9 +453,9 @@ def test_a_partition_run_never_gives_its_test_subjects_to_training(tmp_path: Pat
             (corpus / part / f"subject-{i:03d}.ses").write_bytes(b"")
     p2 = next(p for p in common.load_partitions() if p.name == "p2")
     job = partition_runs.PartitionRun("p2", p2.train, p2.test, tmp_path / "run")
-    opts = partition_runs.argparse.Namespace(
-        config="small", epochs=8, stride=16, lr=1e-3, max_minutes=30, cache="c", max_crosstalk=0.0
-    )
+    # The script's own parser, so every option it passes on has its default.
+    argv = ["p2", "--lr", "1e-3", "--max-minutes", "30", "--cache", "c"]
+    opts = partition_runs.build_parser().parse_args(argv)
     cmd = [str(x) for x in job.train_command(corpus, opts)]
     stems = {Path(w).stem for w in cmd if w.endswith(".ses")}
     assert not stems & set(p2.test)
