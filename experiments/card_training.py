@@ -19,8 +19,10 @@ VAL_KEYS = ("loss", "mpjpe_mm", "action_accuracy", "progress_mse", "app")
 # The options of export/train.py's TrainOptions a reader needs to train the same model.
 RECIPE_KEYS = (
     "epochs", "batch", "stride", "lr", "weight_decay", "loss_weights", "max_shift",
-    "max_crosstalk", "precision", "patience", "seed",
+    "max_crosstalk", "ema", "precision", "patience", "seed",
 )  # fmt: skip
+# Options that came later: a checkpoint without them was trained without them (0 = off).
+LATER_KEYS = ("max_crosstalk", "ema")
 
 
 def recipe_of(checkpoint: Path) -> dict[str, Any] | None:
@@ -34,8 +36,7 @@ def recipe_of(checkpoint: Path) -> dict[str, Any] | None:
     options = raw.get("options") if isinstance(raw, dict) else None
     if not isinstance(options, dict):
         return None
-    # max_crosstalk came later: a checkpoint without it was trained without it.
-    return {k: options.get(k, 0.0 if k == "max_crosstalk" else None) for k in RECIPE_KEYS}
+    return {k: options.get(k, 0.0 if k in LATER_KEYS else None) for k in RECIPE_KEYS}
 
 
 def training_block(checkpoint: Path) -> dict[str, Any] | None:

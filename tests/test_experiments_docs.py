@@ -494,6 +494,7 @@ def test_the_cards_training_section_says_the_recipe_the_checkpoint_recorded(
         "loss_weights": {"pose": 0.01, "action": 1.0, "progress": 3.0},
         "max_shift": 2,
         "max_crosstalk": 0.03,
+        "ema": 0.999,
         "progress_bar": False,  # not part of the recipe
     }
     torch.save({"options": options}, run / "best.pt")
@@ -501,15 +502,16 @@ def test_the_cards_training_section_says_the_recipe_the_checkpoint_recorded(
     recipe = next(ln for ln in text.splitlines() if ln.startswith("Recipe"))
     assert "loss_weights (pose 0.01, action 1, progress 3)" in recipe
     assert "max_crosstalk 0.03" in recipe
+    assert "ema 0.999" in recipe
     assert "stride 16" in recipe
     assert "progress_bar" not in recipe
-    # A checkpoint from before the crosstalk option was trained without it.
-    torch.save(
-        {"options": {k: v for k, v in options.items() if k != "max_crosstalk"}}, run / "best.pt"
-    )
+    # A checkpoint from before the crosstalk and average options was trained without them.
+    older = {k: v for k, v in options.items() if k not in ("max_crosstalk", "ema")}
+    torch.save({"options": older}, run / "best.pt")
     block = card_training.training_block(run / "best.pt")
     assert block is not None
     assert block["recipe"]["max_crosstalk"] == 0.0
+    assert block["recipe"]["ema"] == 0.0
     (run / "best.pt").write_bytes(b"not a checkpoint")
     block = card_training.training_block(run / "best.pt")
     assert block is not None
