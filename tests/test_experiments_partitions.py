@@ -376,6 +376,7 @@ def test_the_recipe_table_compares_two_models_of_one_replay_in_a_named_section(
 
 def test_a_run_from_a_shipped_graph_passes_init_not_config_on_every_call(tmp_path: Path) -> None:
     import argparse
+    import dataclasses
 
     from scotti.export import train_args
 
@@ -385,9 +386,7 @@ def test_a_run_from_a_shipped_graph_passes_init_not_config_on_every_call(tmp_pat
     (job,) = partition_runs.plan(args)
     assert job.init == graph
     assert job.run_dir.name == "v10-p1"
-    job = partition_runs.PartitionRun(
-        job.partition, job.train, job.test, tmp_path / "run", init=graph
-    )
+    job = dataclasses.replace(job, run_dir=tmp_path / "run")
     train = argparse.ArgumentParser()
     train_args.add_arguments(train)
     corpus = tmp_path / "corpus"
