@@ -85,8 +85,14 @@ def process_group(ctx: DistContext, device: torch.device) -> Iterator[None]:
     )
     try:
         yield
-    finally:
-        dist.destroy_process_group()
+    except BaseException:
+        dist.destroy_process_group()  # no barrier: a peer may be gone, it would hang
+        raise
+    # Every rank done with every collective before any tears its group down, so
+    # no rank closes its connections while a peer is still in one. (A rank that
+    # fails is not waited for: torchrun stops the others when one exits non-zero.)
+    dist.barrier()
+    dist.destroy_process_group()
 
 
 def shard(batches: Sequence[Item], ctx: DistContext) -> list[Item]:

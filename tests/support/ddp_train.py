@@ -8,6 +8,7 @@ weights and its step count, so the test can compare the ranks.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import hashlib
 import json
 import sys
@@ -26,6 +27,9 @@ def weights_digest(state: dict[str, torch.Tensor]) -> str:
 
 
 def main() -> int:
+    # A rank that aborts (SIGABRT) prints every thread's Python stack first, so a
+    # failure in CI says where the rank was.
+    faulthandler.enable()
     out, argv = Path(sys.argv[1]), sys.argv[2:]
     parser = argparse.ArgumentParser()
     train_cli.add_arguments(parser)
