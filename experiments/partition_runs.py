@@ -25,6 +25,9 @@ otherwise), into runs/GROUP-PARTITION-NAME; a model whose window is not the
 contract's 40 is calibrated and scored through experiments/any_window.py.
 ``--max-crosstalk X`` trains with crosstalk added per chunk and foot
 (export/augment.py), into runs/GROUP-PARTITION[-VARIANT]-xtX.
+``--more FOLDER...`` adds every person of those folders of the corpus to the
+training subjects (``scotti sim corpus --first-subject 33``: people no partition
+tests on), into runs/GROUP-PARTITION[...]-FOLDER.
 ``--init MODEL`` starts the run from a checkpoint's or an exported graph's
 weights instead of from scratch (``scotti train --init``: training the shipped
 model on, with a fresh schedule); a graph is then scored beside the new model in
@@ -73,6 +76,7 @@ class PartitionRun:
     variant: str = "multi"
     window: int = CONTRACT_WINDOW
     init: Path | None = None  # weights to start from (scotti train --init), else from scratch
+    more: tuple[str, ...] = ()  # further corpus folders whose people all train (--more)
 
     @property
     def validation(self) -> tuple[str, ...]:
@@ -82,7 +86,7 @@ class PartitionRun:
         """Session files: these subjects, or all the run may see (training and validation)."""
         if subjects:
             return [_session(corpus, s) for s in subjects]
-        extra = sorted((corpus / "extra").glob("subject-*.ses"))
+        extra = [f for part in ("extra", *self.more) for f in _people(corpus, part)]
         return [*(_session(corpus, s) for s in self.train), *extra]
 
     def train_command(self, corpus: Path, opts: argparse.Namespace) -> list[str]:
@@ -95,7 +99,7 @@ class PartitionRun:
             "--val-subjects", *self.validation, "--test-fraction", "0",
             "--epochs", str(opts.epochs), "--patience", "3", "--stride", str(opts.stride),
             "--val-stride", "8", "--lr", str(opts.lr),
-            "--loss-weights", LOSS_WEIGHTS[self.variant], "--threads", "1",
+            "--loss-weights", LOSS_WEIGHTS[self.variant], "--threads", str(opts.threads),
             "--max-minutes", str(opts.max_minutes), "--cache", opts.cache,
             "--max-crosstalk", str(opts.max_crosstalk), "--ema", str(opts.ema), *resume,
         )  # fmt: skip
@@ -104,6 +108,13 @@ class PartitionRun:
         """Training has ended: the plateau rule stopped it or its epochs are done."""
         last = last_history(self.run_dir)
         return bool(last) and (last.get("status") == "plateau" or int(last["epoch"]) >= epochs)
+
+
+def _people(corpus: Path, part: str) -> list[Path]:
+    files = sorted((corpus / part).glob("subject-*.ses"))
+    if not files:
+        raise ExperimentError(f"no session files in {corpus / part}: see export/TRAINING.md")
+    return files
 
 
 def _session(corpus: Path, subject: str) -> Path:
@@ -163,6 +174,8 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
     args.lr = args.lr or 1e-3
     if args.max_crosstalk > 0:
         suffix += f"-xt{args.max_crosstalk:g}"
+    for part in args.more:
+        suffix += f"-{part}"
     return [
         PartitionRun(
             n,
@@ -172,6 +185,7 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
             args.variant,
             window,
             args.init,
+            tuple(args.more),
         )
         for n in args.partitions
     ]
@@ -200,6 +214,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--ema", type=float, default=0.0, help="scotti train --ema (name the --group after it)"
     )
+    parser.add_argument(
+        "--more",
+        nargs="+",
+        default=[],
+        metavar="FOLDER",
+        help="further folders of --corpus whose people all train beside extra/ (-FOLDER runs)",
+    )
+    parser.add_argument("--threads", type=int, default=1, help="scotti train --threads per run")
     parser.add_argument(
         "--init",
         type=Path,

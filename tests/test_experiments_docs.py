@@ -476,6 +476,31 @@ def test_a_partition_run_never_gives_its_test_subjects_to_training(tmp_path: Pat
     assert partition_runs.main(["p9"]) == 1
 
 
+def test_more_people_train_beside_the_partition_and_never_its_tests(tmp_path: Path) -> None:
+    corpus = tmp_path / "corpus"
+    for part, ids in (("realistic", range(15)), ("extra", range(15, 33)), ("more", range(33, 36))):
+        (corpus / part).mkdir(parents=True)
+        for i in ids:
+            (corpus / part / f"subject-{i:03d}.ses").write_bytes(b"")
+    argv = ["p1", "--more", "more", "--threads", "2", "--corpus", str(corpus), "--cache", "c"]
+    opts = partition_runs.build_parser().parse_args(argv)
+    (job,) = partition_runs.plan(opts)
+    assert job.run_dir.name == "v9-p1-more"
+    cmd = [str(x) for x in job.train_command(corpus, opts)]
+    stems = {Path(w).stem for w in cmd if w.endswith(".ses")}
+    p1 = next(p for p in common.load_partitions() if p.name == "p1")
+    assert stems == set(p1.train) | {f"subject-{i:03d}" for i in range(15, 36)}
+    assert not stems & set(p1.test)
+    assert cmd[cmd.index("--threads") + 1] == "2"
+    # The held-out files and the validation subjects are as without --more.
+    assert {f.stem for f in job.files(corpus, job.test)} == set(p1.test)
+    assert job.validation == (*p1.train[-2:], "subject-031", "subject-032")
+    empty = partition_runs.build_parser().parse_args(["p1", "--more", "none"])
+    (nothing,) = partition_runs.plan(empty)
+    with pytest.raises(common.ExperimentError, match="no session files"):
+        nothing.files(corpus)
+
+
 def test_the_cards_training_section_says_the_recipe_the_checkpoint_recorded(
     tmp_path: Path,
 ) -> None:
