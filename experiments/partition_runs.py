@@ -86,7 +86,8 @@ class PartitionRun:
         """Session files: these subjects, or all the run may see (training and validation)."""
         if subjects:
             return [_session(corpus, s) for s in subjects]
-        extra = [f for part in ("extra", *self.more) for f in _people(corpus, part)]
+        extra = sorted((corpus / "extra").glob("subject-*.ses"))
+        extra += [f for part in self.more for f in _people(corpus, part)]
         return [*(_session(corpus, s) for s in self.train), *extra]
 
     def train_command(self, corpus: Path, opts: argparse.Namespace) -> list[str]:
