@@ -27,7 +27,8 @@ from tests.support.export_sessions import write_session
 pytestmark = pytest.mark.torch
 
 SCRIPT = Path(__file__).parent / "support" / "ddp_train.py"
-# What libstdc++ prints when a C++ thread object dies still running (std::terminate).
+# What libstdc++ prints when std::terminate runs with no exception in flight
+# (a joinable std::thread destroyed, for one; which one here is not known).
 EXIT_ABORT = "terminate called without an active exception"
 
 
