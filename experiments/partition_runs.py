@@ -32,6 +32,9 @@ tests on), into runs/GROUP-PARTITION[...]-FOLDER.
 weights instead of from scratch (``scotti train --init``: training the shipped
 model on, with a fresh schedule); a graph is then scored beside the new model in
 the same replay, so the two are compared on the same held-out frames.
+``--beside PARTITION=MODEL`` scores a further graph in that partition's replay
+(say, the shipped default beside a new recipe's p1 model); name only
+partitions whose held-out subjects that graph never trained or validated on.
 
 Then ``experiments/partition_table.py`` puts the reports side by side. The
 test subjects are never given to ``scotti train``: not for training, not for
@@ -77,6 +80,7 @@ class PartitionRun:
     window: int = CONTRACT_WINDOW
     init: Path | None = None  # weights to start from (scotti train --init), else from scratch
     more: tuple[str, ...] = ()  # further corpus folders whose people all train (--more)
+    beside: tuple[Path, ...] = ()  # further graphs scored in the same replay (--beside)
 
     @property
     def validation(self) -> tuple[str, ...]:
@@ -104,6 +108,15 @@ class PartitionRun:
             "--max-minutes", str(opts.max_minutes), "--cache", opts.cache,
             "--max-crosstalk", str(opts.max_crosstalk), "--ema", str(opts.ema), *resume,
         )  # fmt: skip
+
+    def eval_models(self, model: Path, before: Path) -> list[str | Path]:
+        """``scotti eval``'s models, the calibrated graph first (partition_table takes it)."""
+        models: list[str | Path] = ["--model", model, "--model", before]
+        if self.init is not None and self.init.suffix == ".onnx":
+            models += ["--model", self.init]  # the graph it started from, on the same frames
+        for graph in self.beside:
+            models += ["--model", graph]
+        return models
 
     def finished(self, epochs: int) -> bool:
         """Training has ended: the plateau rule stopped it or its epochs are done."""
@@ -150,9 +163,7 @@ def score(job: PartitionRun, corpus: Path, cache: str) -> Path:
         shutil.copy2(graph, before / graph.name)
     run(verb(job.window, "calibrate", model, *job.files(corpus, job.validation)), log)
     report = job.run_dir / "eval" / "test.json"
-    models = ["--model", model, "--model", before / model.name]
-    if job.init is not None and job.init.suffix == ".onnx":
-        models += ["--model", job.init]  # the graph it started from, on the same frames
+    models = job.eval_models(model, before / model.name)
     out = run(verb(job.window, "eval", *job.files(corpus, job.test), *models, "--json"), log)
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text(out)
@@ -177,6 +188,7 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
         suffix += f"-xt{args.max_crosstalk:g}"
     for part in args.more:
         suffix += f"-{part}"
+    beside = _beside(args.beside, args.partitions)
     return [
         PartitionRun(
             n,
@@ -187,9 +199,26 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
             window,
             args.init,
             tuple(args.more),
+            beside.get(n, ()),
         )
         for n in args.partitions
     ]
+
+
+def _beside(specs: list[str], partitions: list[str]) -> dict[str, tuple[Path, ...]]:
+    """``--beside PARTITION=MODEL`` options, per partition; refuses what cannot be scored."""
+    graphs: dict[str, tuple[Path, ...]] = {}
+    for spec in specs:
+        name, sep, graph = spec.partition("=")
+        if not sep or not graph:
+            raise ExperimentError(f"--beside {spec}: expected PARTITION=MODEL (p1=models/x.onnx)")
+        if name not in partitions:
+            raise ExperimentError(f"--beside {spec}: {name} is not among this call's partitions")
+        path = Path(graph)
+        if not path.is_file():
+            raise ExperimentError(f"--beside {spec}: no such model file")
+        graphs[name] = (*graphs.get(name, ()), path)
+    return graphs
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -227,6 +256,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--init",
         type=Path,
         help="start from this checkpoint or exported graph (scotti train --init), not from scratch",
+    )
+    parser.add_argument(
+        "--beside",
+        action="append",
+        default=[],
+        metavar="PARTITION=MODEL",
+        help="also score this graph in that partition's held-out replay (repeatable)",
     )
     return parser
 

@@ -501,6 +501,25 @@ def test_more_people_train_beside_the_partition_and_never_its_tests(tmp_path: Pa
         nothing.files(corpus)
 
 
+def test_a_graph_scored_beside_joins_only_its_partitions_replay(tmp_path: Path) -> None:
+    shipped = tmp_path / "shipped.onnx"
+    shipped.write_bytes(b"")
+    argv = ["p1", "p2", "--beside", f"p1={shipped}", "--cache", "c"]
+    p1_job, p2_job = partition_runs.plan(partition_runs.build_parser().parse_args(argv))
+    model, before = tmp_path / "m.onnx", tmp_path / "before.onnx"
+    both = ["--model", model, "--model", before]
+    assert p1_job.eval_models(model, before) == [*both, "--model", shipped]
+    assert p2_job.eval_models(model, before) == both
+    for bad, why in (
+        (f"p3={shipped}", "not among"),
+        ("p1", "PARTITION=MODEL"),
+        (f"p1={tmp_path / 'none.onnx'}", "no such model"),
+    ):
+        opts = partition_runs.build_parser().parse_args(["p1", "p2", "--beside", bad])
+        with pytest.raises(common.ExperimentError, match=why):
+            partition_runs.plan(opts)
+
+
 def test_the_cards_training_section_says_the_recipe_the_checkpoint_recorded(
     tmp_path: Path,
 ) -> None:
