@@ -194,6 +194,17 @@ def write_json(path: Path, value: Any) -> None:
     path.write_text(json.dumps(value, indent=2) + "\n")
 
 
+def pairs(items: Sequence[str], what: str) -> dict[str, Path]:
+    """``NAME=PATH`` arguments as a mapping; a malformed one is an ExperimentError."""
+    out = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise ExperimentError(f"{what} {item!r}: expected NAME=PATH")
+        out[name] = Path(path)
+    return out
+
+
 def from_root(path: str | Path) -> str:
     """A path as the docs quote it: relative to the repository root when inside it."""
     p = Path(path)

@@ -57,6 +57,7 @@ from common import (
     ExperimentError,
     last_history,
     load_partitions,
+    pairs,
     run,
     run_parallel,
     scotti_command,
@@ -80,7 +81,7 @@ class PartitionRun:
     window: int = CONTRACT_WINDOW
     init: Path | None = None  # weights to start from (scotti train --init), else from scratch
     more: tuple[str, ...] = ()  # further corpus folders whose people all train (--more)
-    beside: tuple[Path, ...] = ()  # further graphs scored in the same replay (--beside)
+    beside: Path | None = None  # a further graph scored in the same replay (--beside)
 
     @property
     def validation(self) -> tuple[str, ...]:
@@ -114,8 +115,8 @@ class PartitionRun:
         models: list[str | Path] = ["--model", model, "--model", before]
         if self.init is not None and self.init.suffix == ".onnx":
             models += ["--model", self.init]  # the graph it started from, on the same frames
-        for graph in self.beside:
-            models += ["--model", graph]
+        if self.beside is not None:
+            models += ["--model", self.beside]
         return models
 
     def finished(self, epochs: int) -> bool:
@@ -199,25 +200,20 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
             window,
             args.init,
             tuple(args.more),
-            beside.get(n, ()),
+            beside.get(n),
         )
         for n in args.partitions
     ]
 
 
-def _beside(specs: list[str], partitions: list[str]) -> dict[str, tuple[Path, ...]]:
-    """``--beside PARTITION=MODEL`` options, per partition; refuses what cannot be scored."""
-    graphs: dict[str, tuple[Path, ...]] = {}
-    for spec in specs:
-        name, sep, graph = spec.partition("=")
-        if not sep or not graph:
-            raise ExperimentError(f"--beside {spec}: expected PARTITION=MODEL (p1=models/x.onnx)")
+def _beside(specs: list[str], partitions: list[str]) -> dict[str, Path]:
+    """``--beside PARTITION=MODEL`` options; refuses what cannot be scored."""
+    graphs = pairs(specs, "--beside")
+    for name, path in graphs.items():
         if name not in partitions:
-            raise ExperimentError(f"--beside {spec}: {name} is not among this call's partitions")
-        path = Path(graph)
+            raise ExperimentError(f"--beside {name}: not among this call's partitions")
         if not path.is_file():
-            raise ExperimentError(f"--beside {spec}: no such model file")
-        graphs[name] = (*graphs.get(name, ()), path)
+            raise ExperimentError(f"--beside {name}={path}: no such model file")
     return graphs
 
 
@@ -262,7 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="PARTITION=MODEL",
-        help="also score this graph in that partition's held-out replay (repeatable)",
+        help="also score this graph in that partition's held-out replay (once per partition)",
     )
     return parser
 

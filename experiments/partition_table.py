@@ -34,21 +34,11 @@ from pathlib import Path
 from typing import Any
 
 from card_training import training_block
-from common import ROOT, ExperimentError, fmt, from_root, table, utc_now
+from common import ROOT, ExperimentError, fmt, from_root, pairs, table, utc_now
 from tables_doc import METRICS, per_action, plot_confusion, plot_curves, table1
 
 BEGIN, END = "<!-- partitions:begin -->", "<!-- partitions:end -->"
 FLAGS = ("unloaded", "out_of_range", "unfamiliar")
-
-
-def pairs(items: list[str], what: str) -> dict[str, Path]:
-    out = {}
-    for item in items:
-        name, sep, path = item.partition("=")
-        if not sep or not name or not path:
-            raise ExperimentError(f"{what} {item!r}: expected NAME=PATH")
-        out[name] = Path(path)
-    return out
 
 
 def load_report(path: Path, pick: str) -> dict[str, Any]:

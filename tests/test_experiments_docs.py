@@ -512,7 +512,7 @@ def test_a_graph_scored_beside_joins_only_its_partitions_replay(tmp_path: Path) 
     assert p2_job.eval_models(model, before) == both
     for bad, why in (
         (f"p3={shipped}", "not among"),
-        ("p1", "PARTITION=MODEL"),
+        ("p1", "expected NAME=PATH"),
         (f"p1={tmp_path / 'none.onnx'}", "no such model"),
     ):
         opts = partition_runs.build_parser().parse_args(["p1", "p2", "--beside", bad])
