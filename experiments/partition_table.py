@@ -12,9 +12,11 @@ path). Prints Markdown: one row per partition, the mean ± SD over partitions
 beside the random baseline and the paper, accuracy and progress per action
 (`standing` included), and how each model's run ended (``--run NAME=RUN_DIR``:
 the run's ``history.jsonl``). ``--write DOC`` puts the same text between the
-``<!-- partitions:begin -->`` and ``<!-- partitions:end -->`` lines of DOC;
-``--img DIR`` draws the confusion matrix (partitions summed) and each
-partition's precision-margin curve there and links them. ``--clean
+``<!-- partitions:begin -->`` and ``<!-- partitions:end -->`` lines of DOC
+(``--section NAME``: the ``<!-- NAME:begin -->`` ones, so that a second
+recipe's table can stand beside the first); ``--img DIR`` draws the confusion
+matrix (partitions summed) and each partition's precision-margin curve there
+(``NAME-confusion.png``, ``NAME-precision-margin.png``) and links them. ``--clean
 NAME=REPORT`` adds the same models scored on copies of the held-out sessions
 made without the simulator's sensor and transport effects (``scotti sim corpus
 --effects none``, same seed): what those effects cost.
@@ -116,12 +118,14 @@ def run_lines(runs: dict[str, Path]) -> list[str]:
     return lines
 
 
-def figures(reports: dict[str, dict[str, Any]], img: Path, doc_dir: Path) -> list[str]:
+def figures(
+    reports: dict[str, dict[str, Any]], img: Path, doc_dir: Path, section: str = "partitions"
+) -> list[str]:
     """The confusion matrix (partitions summed) and the precision-margin curves, as PNGs."""
     img.mkdir(parents=True, exist_ok=True)
     multi = list(reports.values())
-    confusion = plot_confusion(multi, img, "partitions-confusion.png", " (each partition's model)")
-    curves = plot_curves(multi, img, "partitions-precision-margin.png", list(reports))
+    confusion = plot_confusion(multi, img, f"{section}-confusion.png", " (each partition's model)")
+    curves = plot_curves(multi, img, f"{section}-precision-margin.png", list(reports))
     return [
         f"![confusion matrix, partitions summed]({_relative(confusion, doc_dir)})",
         "",
@@ -194,6 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", action="append", default=[], metavar="NAME=RUN_DIR")
     parser.add_argument("--pick", default="", help="the model whose path contains this")
     parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
+    parser.add_argument("--section", default="partitions", help="which marked section of --write")
     parser.add_argument("--img", type=Path, help="draw the confusion matrix and curves here")
     parser.add_argument(
         "--clean",
@@ -211,12 +216,13 @@ def main(argv: list[str] | None = None) -> int:
         for name, report in reports.items():
             check_held_out(name, report)
         doc_dir = args.write.parent if args.write else Path.cwd()
-        pictures = figures(reports, args.img, doc_dir) if args.img else None
+        pictures = figures(reports, args.img, doc_dir, args.section) if args.img else None
         clean = {n: load_report(p, args.pick) for n, p in pairs(args.clean, "--clean").items()}
         check_clean(reports, clean)
         text = markdown(reports, pairs(args.run, "--run"), command, pictures, clean)
         if args.write:
-            write_between_markers(args.write, text)
+            begin, end = f"<!-- {args.section}:begin -->", f"<!-- {args.section}:end -->"
+            write_between_markers(args.write, text, begin, end)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:
         print(f"partition_table: {exc}", file=sys.stderr)
         return 1

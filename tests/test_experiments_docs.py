@@ -445,6 +445,31 @@ def test_the_partition_table_scores_each_partition_and_refuses_a_seen_subject(
     assert partition_table.main([f"p1={tmp_path / 'seen.json'}"]) == 1
 
 
+def test_a_second_recipes_partition_table_goes_into_its_own_section(tmp_path: Path) -> None:
+    specs = []
+    for k, p in enumerate(PARTS):
+        report = _report(_frames(200, 70 + k, 0.6), "multi", f"run-{p}")
+        (tmp_path / f"{p}.json").write_text(json.dumps([report]))
+        specs.append(f"{p}={tmp_path / p}.json")
+    first = f"{partition_table.BEGIN}\nkept\n{partition_table.END}\n"
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"{first}between\n<!-- v12:begin -->\nold\n<!-- v12:end -->\n")
+    img = tmp_path / "img"
+    argv = [*specs, "--write", str(doc), "--img", str(img), "--section", "v12"]
+    assert partition_table.main(argv) == 0
+    text = doc.read_text()
+    assert text.startswith(first + "between\n")  # the first recipe's table is untouched
+    assert "old" not in text
+    assert "| p3 |" in text
+    for name in ("v12-confusion.png", "v12-precision-margin.png"):
+        assert (img / name).read_bytes()[:8] == PNG
+        assert f"(img/{name})" in text
+    assert not (img / "partitions-confusion.png").exists()
+    # A section the doc does not have is refused, and the doc is left as it was.
+    assert partition_table.main([*specs, "--write", str(doc), "--section", "v13"]) == 1
+    assert doc.read_text() == text
+
+
 def test_a_partition_run_never_gives_its_test_subjects_to_training(tmp_path: Path) -> None:
     corpus = tmp_path / "corpus"
     for part, ids in (("realistic", range(15)), ("extra", range(15, 33))):
