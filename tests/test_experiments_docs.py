@@ -22,6 +22,7 @@ sys.path.insert(0, str(EXPERIMENTS))
 
 import common  # noqa: E402
 import corpus  # noqa: E402
+import history_table  # noqa: E402
 import partition_runs  # noqa: E402
 import partition_table  # noqa: E402
 import ship_default  # noqa: E402
@@ -468,6 +469,32 @@ def test_a_second_recipes_partition_table_goes_into_its_own_section(tmp_path: Pa
     # A section the doc does not have is refused, and the doc is left as it was.
     assert partition_table.main([*specs, "--write", str(doc), "--section", "v13"]) == 1
     assert doc.read_text() == text
+
+
+def _epoch(epoch: int, train: float, val: float) -> dict[str, Any]:
+    figures = {"action_accuracy": 0.9, "progress_mse": 0.02, "app": 0.91, "mpjpe_mm": 55.0}
+    return {"epoch": epoch, "train_loss": train, "val": {"loss": val, **figures}}
+
+
+def test_the_history_table_bolds_the_best_epoch_of_each_run(tmp_path: Path) -> None:
+    for name, vals in (("a", (1.0, 0.7, 0.8)), ("b", (0.9, 0.95))):
+        (tmp_path / name).mkdir()
+        lines = [json.dumps(_epoch(k + 1, 2.0 - k, v)) for k, v in enumerate(vals)]
+        (tmp_path / name / "history.jsonl").write_text("\n".join(lines) + "\n")
+    doc = tmp_path / "doc.md"
+    doc.write_text("<!-- epochs:begin -->\nold\n<!-- epochs:end -->\n")
+    specs = [f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}"]
+    assert history_table.main([*specs, "--write", str(doc)]) == 0
+    rows = [ln for ln in doc.read_text().splitlines() if ln.startswith(("| a ", "| b "))]
+    assert [r.split(" | ")[1] for r in rows] == ["1", "2", "3", "1", "2"]
+    bold = [r.split(" | ")[:2] for r in rows if "**" in r]
+    assert bold == [["| a", "2"], ["| b", "1"]]  # each run's lowest validation loss
+    assert "| 90.0 % | 0.0200 | 0.910 | 55.0 |" in rows[0]
+    # A run without a history, or with a broken line, is refused with the file named.
+    assert history_table.main([f"c={tmp_path / 'c'}"]) == 1
+    for broken in ('{"epoch": 1}\n', '{"epoch": 1, "train_loss": 1.0}\n{"train_lo'):
+        (tmp_path / "b" / "history.jsonl").write_text(broken)
+        assert history_table.main([f"b={tmp_path / 'b'}"]) == 1
 
 
 def test_a_partition_run_never_gives_its_test_subjects_to_training(tmp_path: Path) -> None:
