@@ -34,7 +34,7 @@ from typing import Any
 from common import ExperimentError, fmt, table, utc_now
 from configs import CONFIGS, window_of
 from measure import describe
-from partition_table import check_held_out, pairs, report_of, run_lines, write_between_markers
+from partition_table import check_held_out, pairs, report_of, run_lines, write_section
 from tables_doc import METRICS
 
 SECTION = "archs"  # the doc's <!-- archs:begin --> ... <!-- archs:end --> lines
@@ -177,8 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = {split_key(n): d for n, d in pairs(args.run, "--run").items()}
         text = markdown(reports, cost_of(reports, args.steps), runs, args.baseline, command)
         if args.write:
-            begin, end = f"<!-- {args.section}:begin -->", f"<!-- {args.section}:end -->"
-            write_between_markers(args.write, text, begin, end)
+            write_section(args.write, text, args.section)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:
         print(f"arch_table: {exc}", file=sys.stderr)
         return 1

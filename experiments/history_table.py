@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from common import ExperimentError, pairs, table, utc_now
-from partition_table import write_between_markers
+from partition_table import write_section
 
 HEADER = (
     "run", "epoch", "train loss", "val loss", "val accuracy", "val progress MSE", "val APP",
@@ -96,8 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         text = markdown(pairs(args.runs, "run"), command)
         if args.write:
-            begin, end = f"<!-- {args.section}:begin -->", f"<!-- {args.section}:end -->"
-            write_between_markers(args.write, text, begin, end)
+            write_section(args.write, text, args.section)
     except (ExperimentError, OSError) as exc:
         print(f"history_table: {exc}", file=sys.stderr)
         return 1

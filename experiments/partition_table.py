@@ -188,6 +188,11 @@ def write_between_markers(doc: Path, text: str, begin: str = BEGIN, end: str = E
     doc.write_text(content[: start + len(begin)] + "\n" + text + content[stop:])
 
 
+def write_section(doc: Path, text: str, section: str) -> None:
+    """Replace what stands between DOC's ``<!-- SECTION:begin/end -->`` lines (``--section``)."""
+    write_between_markers(doc, text, f"<!-- {section}:begin -->", f"<!-- {section}:end -->")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python experiments/partition_table.py",
@@ -221,8 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         check_clean(reports, clean)
         text = markdown(reports, pairs(args.run, "--run"), command, pictures, clean)
         if args.write:
-            begin, end = f"<!-- {args.section}:begin -->", f"<!-- {args.section}:end -->"
-            write_between_markers(args.write, text, begin, end)
+            write_section(args.write, text, args.section)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:
         print(f"partition_table: {exc}", file=sys.stderr)
         return 1

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from common import ExperimentError, fmt, table, utc_now
-from partition_table import check_held_out, pairs, report_of, run_lines, write_between_markers
+from partition_table import check_held_out, pairs, report_of, run_lines, write_section
 from tables_doc import METRICS, ROW_NAMES
 
 PER_SUBJECT = ("mpjpe_mm", "action_accuracy", "progress_mse", "app")
@@ -203,8 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = {split_key(n): d for n, d in pairs(args.run, "--run").items()}
         text = markdown(reports, runs, base, command)
         if args.write:
-            begin, end = f"<!-- {args.section}:begin -->", f"<!-- {args.section}:end -->"
-            write_between_markers(args.write, text, begin, end)
+            write_section(args.write, text, args.section)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:
         print(f"recipe_table: {exc}", file=sys.stderr)
         return 1
