@@ -17,7 +17,9 @@ helps or hurts. With several partitions the differences are paired by
 partition and given as mean ± SD; with one, as that partition's figure, which
 says nothing about the spread. ``--run VARIANT:PARTITION=RUN_DIR`` adds how
 each run's training ended. ``--write DOC`` puts the Markdown between the
-``<!-- tasks:begin -->`` and ``<!-- tasks:end -->`` lines of DOC.
+``<!-- tasks:begin -->`` and ``<!-- tasks:end -->`` lines of DOC
+(``--section NAME``: the ``<!-- NAME:begin/end -->`` ones, so a second recipe's
+Table 3 can stand beside the first).
 """
 
 from __future__ import annotations
@@ -29,12 +31,17 @@ from pathlib import Path
 from typing import Any
 
 from common import ExperimentError, fmt, mean_sd, table, utc_now
-from partition_table import check_held_out, load_report, pairs, run_lines, write_between_markers
+from partition_table import check_held_out, load_report, pairs, run_lines, write_section
 from tables_doc import METRICS, ROW_NAMES, TASK_OF
 
-BEGIN, END = "<!-- tasks:begin -->", "<!-- tasks:end -->"
+SECTION = "tasks"
+BEGIN, END = f"<!-- {SECTION}:begin -->", f"<!-- {SECTION}:end -->"
 VARIANTS = ("pose", "action", "progress")
-PER_ACTION = {"action": ("action_accuracy",), "progress": ("progress_mse", "app")}
+PER_ACTION = {
+    "pose": ("mpjpe_mm",),
+    "action": ("action_accuracy",),
+    "progress": ("progress_mse", "app"),
+}
 
 Key = tuple[str, str]  # (variant, partition)
 
@@ -157,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("reports", nargs="+", metavar="VARIANT:PARTITION=REPORT")
     parser.add_argument("--run", action="append", default=[], metavar="VARIANT:PARTITION=RUN_DIR")
     parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
+    parser.add_argument("--section", default=SECTION, help="which marked section (default tasks)")
     args = parser.parse_args(argv)
     command = "python experiments/task_table.py " + " ".join(
         argv if argv is not None else sys.argv[1:]
@@ -170,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = {split_key(n): d for n, d in pairs(args.run, "--run").items()}
         text = markdown(reports, runs, command)
         if args.write:
-            write_between_markers(args.write, text, BEGIN, END)
+            write_section(args.write, text, args.section)
     except (ExperimentError, OSError, KeyError, ValueError) as exc:
         print(f"task_table: {exc}", file=sys.stderr)
         return 1

@@ -98,6 +98,35 @@ def test_the_task_table_pairs_each_single_task_with_its_partitions_multi_task_mo
     assert task_table.main([f"shape:p1={tmp_path / 'multi-p1.json'}"]) == 1
 
 
+
+def test_the_task_table_compares_a_pose_only_model_per_action_in_a_named_section(
+    tmp_path: Path,
+) -> None:
+    reports = {
+        "multi:p1": _report(_frames(400, 1, 0.9), "x", "multi-p1"),
+        "pose:p1": _report(_frames(400, 2, 0.4), "x", "pose-p1"),
+    }
+    doc = tmp_path / "doc.md"
+    kept = f"{task_table.BEGIN}\nthe first recipe's table\n{task_table.END}\n"
+    doc.write_text(f"{kept}<!-- v12-tasks:begin -->\nold\n<!-- v12-tasks:end -->\n")
+    argv = [*_specs(tmp_path, reports), "--write", str(doc), "--section", "v12-tasks"]
+    assert task_table.main(argv) == 0
+    text = doc.read_text()
+    assert text.startswith(kept)  # the default section is left alone
+    assert "old" not in text
+    rows = {
+        ln.split(" | ")[0][2:]: ln.removesuffix(" |").split(" | ")
+        for ln in text.splitlines()
+        if ln.startswith("| ")
+    }
+    mpjpe = [reports[k]["metrics"]["mpjpe_mm"] for k in ("pose:p1", "multi:p1")]
+    assert rows["MPJPE (mm)"][2:4] == [common.fmt([v], 1) for v in mpjpe]
+    assert "accuracy (%)" not in rows  # only the pose task is compared
+    # Per action: each model's MPJPE on that action's frames.
+    assert "MPJPE (mm), pose-only | MPJPE (mm), multi-task" in text
+    squat = [reports[k]["per_action"]["squat"]["mpjpe_mm"] for k in ("pose:p1", "multi:p1")]
+    assert rows["squat"][1:3] == [common.fmt([v], 1) for v in squat]
+
 def test_int8_copies_are_scored_on_the_fp32_reports_sessions_and_timed(
     tmp_path: Path, tiny_model_path: Path
 ) -> None:
