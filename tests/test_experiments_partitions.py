@@ -98,7 +98,6 @@ def test_the_task_table_pairs_each_single_task_with_its_partitions_multi_task_mo
     assert task_table.main([f"shape:p1={tmp_path / 'multi-p1.json'}"]) == 1
 
 
-
 def test_the_task_table_compares_a_pose_only_model_per_action_in_a_named_section(
     tmp_path: Path,
 ) -> None:
@@ -126,6 +125,7 @@ def test_the_task_table_compares_a_pose_only_model_per_action_in_a_named_section
     assert "MPJPE (mm), pose-only | MPJPE (mm), multi-task" in text
     squat = [reports[k]["per_action"]["squat"]["mpjpe_mm"] for k in ("pose:p1", "multi:p1")]
     assert rows["squat"][1:3] == [common.fmt([v], 1) for v in squat]
+
 
 def test_int8_copies_are_scored_on_the_fp32_reports_sessions_and_timed(
     tmp_path: Path, tiny_model_path: Path
