@@ -8,6 +8,7 @@ every command line they run is logged to be quoted in the docs.
 
 from __future__ import annotations
 
+import concurrent.futures
 import json
 import math
 import os
@@ -15,8 +16,10 @@ import re
 import shlex
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,8 +77,15 @@ def run(cmd: Sequence[str], log: Path | None = None, *, quote: bool = True) -> s
     return proc.stdout
 
 
-def run_parallel(cmds: Sequence[Sequence[str]], log: Path) -> list[str]:
-    """Run commands side by side (one per core); their stdouts in order."""
+def run_parallel(
+    cmds: Sequence[Sequence[str]], log: Path, then: Callable[[int], object] | None = None
+) -> list[str]:
+    """Run commands side by side (one per core); their stdouts in order.
+
+    ``then(i)`` runs as soon as command ``i`` has ended well, while the others go on:
+    a run whose training ended is scored on the core it freed, not after the slowest
+    run. A failed command raises once every command (and its ``then``) has ended.
+    """
     procs = []
     for cmd in cmds:
         COMMANDS.append(shown(cmd))
@@ -85,18 +95,26 @@ def run_parallel(cmds: Sequence[Sequence[str]], log: Path) -> list[str]:
                 list(cmd), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
             )
         )
-    outs = []
-    for cmd, proc in zip(cmds, procs, strict=True):
-        out, err = proc.communicate()
-        log.parent.mkdir(parents=True, exist_ok=True)
-        with log.open("a") as f:
-            f.write(f"$ {shown(cmd)}\n{out}{err}\n")
-        if proc.returncode != 0:
+    log_lock = threading.Lock()
+
+    def wait(i: int) -> str:
+        out, err = procs[i].communicate()
+        with log_lock:
+            log.parent.mkdir(parents=True, exist_ok=True)
+            with log.open("a") as f:
+                f.write(f"$ {shown(cmds[i])}\n{out}{err}\n")
+        if procs[i].returncode != 0:
             tail = (err.strip() or out.strip()).splitlines()[-1:] or ["(no output)"]
-            msg = f"{shown(cmd)!r} failed with status {proc.returncode}: {tail[0]}"
+            msg = f"{shown(cmds[i])!r} failed with status {procs[i].returncode}: {tail[0]}"
             raise ExperimentError(msg)
-        outs.append(out)
-    return outs
+        if then is not None:
+            then(i)
+        return out
+
+    with ThreadPoolExecutor(max_workers=max(1, len(procs))) as pool:
+        waits = [pool.submit(wait, i) for i in range(len(procs))]
+        concurrent.futures.wait(waits)
+    return [w.result() for w in waits]  # the first failure, in command order, raises
 
 
 # --- partitions -----------------------------------------------------------------

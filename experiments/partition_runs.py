@@ -14,7 +14,8 @@ Per partition of experiments/partitions.json, in runs/GROUP-PARTITION[-VARIANT]:
    weights, until the plateau rule or ``--epochs`` ends it. A run that
    ``--max-minutes`` stopped resumes from last.pt on the next call (several
    partitions train side by side, one process and thread each).
-2. When its training has ended: ``scotti export --calibrate`` (the unfamiliar
+2. As soon as its training has ended (the other runs go on, and this run is
+   scored on the core it freed): ``scotti export --calibrate`` (the unfamiliar
    score), ``scotti calibrate`` on the validation subjects (the progress map,
    fitted as the shipped model's was) and ``scotti eval --json`` on the
    partition's held-out subjects into eval/test.json.
@@ -123,6 +124,9 @@ class PartitionRun:
         """Training has ended: the plateau rule stopped it or its epochs are done."""
         last = last_history(self.run_dir)
         return bool(last) and (last.get("status") == "plateau" or int(last["epoch"]) >= epochs)
+
+    def scored(self) -> bool:
+        return (self.run_dir / "eval" / "test.json").is_file()
 
 
 def _people(corpus: Path, part: str) -> list[Path]:
@@ -271,13 +275,20 @@ def main(argv: list[str] | None = None) -> int:
         for job in training:
             job.run_dir.mkdir(parents=True, exist_ok=True)
         commands = [j.train_command(args.corpus, args) for j in training]
+
+        def score_if_ended(i: int) -> None:
+            """Score a run whose training has ended, while the others still train."""
+            job = training[i]
+            if job.finished(args.epochs) and not job.scored():
+                score(job, args.corpus, args.cache)
+
         if commands:
-            run_parallel(commands, RUNS / f"{args.group}-train.log")
+            run_parallel(commands, RUNS / f"{args.group}-train.log", then=score_if_ended)
         for job in jobs:
             if not job.finished(args.epochs):
                 print(f"{job.run_dir}: training goes on at the next call (--max-minutes ran out)")
         done = [j for j in jobs if j.finished(args.epochs)]
-        todo = [j for j in done if not (j.run_dir / "eval" / "test.json").is_file()]
+        todo = [j for j in done if not j.scored()]  # runs that had ended before this call
         with ThreadPoolExecutor(max_workers=2) as pool:  # one core each
             list(pool.map(lambda j: score(j, args.corpus, args.cache), todo))
         for job in done:

@@ -54,6 +54,35 @@ def test_mean_spread_and_formatting() -> None:
     assert common.fmt([float("nan")], 2) == "-"
 
 
+def test_side_by_side_commands_are_followed_up_as_each_ends(tmp_path: Path) -> None:
+    """``then`` runs for a command as soon as it ends, while the slower one still runs."""
+    go = tmp_path / "go"
+    waits_for_go = (
+        "import pathlib, sys, time\n"
+        "end = time.monotonic() + 60\n"
+        f"while not pathlib.Path({str(go)!r}).exists() and time.monotonic() < end:\n"
+        "    time.sleep(0.05)\n"
+        "print('went' if pathlib.Path(" + repr(str(go)) + ").exists() else 'timed out')\n"
+    )
+    cmds = [[sys.executable, "-c", waits_for_go], [sys.executable, "-c", "print('quick')"]]
+    followed: list[int] = []
+
+    def then(i: int) -> None:
+        followed.append(i)
+        go.touch()  # only the quick command's follow-up can let the slow one end
+
+    outs = common.run_parallel(cmds, tmp_path / "log", then=then)
+    assert outs == ["went\n", "quick\n"]  # stdouts in command order
+    assert followed == [1, 0]  # in the order they ended
+    assert (tmp_path / "log").read_text().count("$ ") == 2
+    # A failed command raises once the others have ended, and is not followed up.
+    followed.clear()
+    failing = [[sys.executable, "-c", "raise SystemExit(3)"], cmds[1]]
+    with pytest.raises(common.ExperimentError, match="status 3"):
+        common.run_parallel(failing, tmp_path / "log", then=followed.append)
+    assert followed == [1]
+
+
 def test_a_plan_fits_its_budget() -> None:
     part = common.Partition("p1", ("a",), ("b",))
     spec = training.RunSpec(Path("runs/x"), part, "small")
