@@ -8,7 +8,6 @@ every command line they run is logged to be quoted in the docs.
 
 from __future__ import annotations
 
-import concurrent.futures
 import json
 import math
 import os
@@ -111,9 +110,8 @@ def run_parallel(
             then(i)
         return out
 
-    with ThreadPoolExecutor(max_workers=max(1, len(procs))) as pool:
+    with ThreadPoolExecutor(max_workers=max(1, len(procs))) as pool:  # waits for all
         waits = [pool.submit(wait, i) for i in range(len(procs))]
-        concurrent.futures.wait(waits)
     return [w.result() for w in waits]  # the first failure, in command order, raises
 
 

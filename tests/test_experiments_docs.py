@@ -58,11 +58,11 @@ def test_side_by_side_commands_are_followed_up_as_each_ends(tmp_path: Path) -> N
     """``then`` runs for a command as soon as it ends, while the slower one still runs."""
     go = tmp_path / "go"
     waits_for_go = (
-        "import pathlib, sys, time\n"
+        f"import pathlib, time\ngo = pathlib.Path({str(go)!r})\n"
         "end = time.monotonic() + 60\n"
-        f"while not pathlib.Path({str(go)!r}).exists() and time.monotonic() < end:\n"
+        "while not go.exists() and time.monotonic() < end:\n"
         "    time.sleep(0.05)\n"
-        "print('went' if pathlib.Path(" + repr(str(go)) + ").exists() else 'timed out')\n"
+        "print('went' if go.exists() else 'timed out')\n"
     )
     cmds = [[sys.executable, "-c", waits_for_go], [sys.executable, "-c", "print('quick')"]]
     followed: list[int] = []
