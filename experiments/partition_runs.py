@@ -26,6 +26,8 @@ otherwise), into runs/GROUP-PARTITION-NAME; a model whose window is not the
 contract's 40 is calibrated and scored through experiments/any_window.py.
 ``--max-crosstalk X`` trains with crosstalk added per chunk and foot
 (export/augment.py), into runs/GROUP-PARTITION[-VARIANT]-xtX.
+``--precision bf16`` trains under bf16 autocast (validation and the exported
+graphs stay fp32), into runs/GROUP-PARTITION[...]-bf16.
 ``--more FOLDER...`` adds every person of those folders of the corpus to the
 training subjects (``scotti sim corpus --first-subject 33``: people no partition
 tests on), into runs/GROUP-PARTITION[...]-FOLDER.
@@ -108,7 +110,8 @@ class PartitionRun:
             "--val-stride", "8", "--lr", str(opts.lr),
             "--loss-weights", LOSS_WEIGHTS[self.variant], "--threads", str(opts.threads),
             "--max-minutes", str(opts.max_minutes), "--cache", opts.cache,
-            "--max-crosstalk", str(opts.max_crosstalk), "--ema", str(opts.ema), *resume,
+            "--max-crosstalk", str(opts.max_crosstalk), "--ema", str(opts.ema),
+            "--precision", opts.precision, *resume,
         )  # fmt: skip
 
     def eval_models(self, model: Path, before: Path) -> list[str | Path]:
@@ -193,6 +196,8 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
         suffix += f"-xt{args.max_crosstalk:g}"
     for part in args.more:
         suffix += f"-{part}"
+    if args.precision != "fp32":
+        suffix += f"-{args.precision}"
     beside = _beside(args.beside, args.partitions)
     return [
         PartitionRun(
@@ -252,6 +257,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="further folders of --corpus whose people all train beside extra/ (-FOLDER runs)",
     )
     parser.add_argument("--threads", type=int, default=1, help="scotti train --threads per run")
+    parser.add_argument(
+        "--precision",
+        choices=("fp32", "bf16"),
+        default="fp32",
+        help="scotti train --precision: bf16 autocasts the training step (-bf16 runs)",
+    )
     parser.add_argument(
         "--init",
         type=Path,

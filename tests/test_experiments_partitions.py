@@ -437,3 +437,34 @@ def test_a_run_from_a_shipped_graph_passes_init_not_config_on_every_call(tmp_pat
     scratch = partition_runs.plan(parser.parse_args(["p1"]))[0]
     assert scratch.init is None
     assert parsed(scratch.train_command(corpus, args)).config == "small"
+
+
+def test_a_bf16_run_has_its_own_directory_and_asks_scotti_train_for_bf16(tmp_path: Path) -> None:
+    import argparse
+    import dataclasses
+
+    from scotti.export import train_args
+
+    parser = partition_runs.build_parser()
+    recipe = "--max-crosstalk 0.03 --more more --precision bf16 --group v12ema"
+    args = parser.parse_args(["p1", "--variant", "pose", *recipe.split()])
+    (job,) = partition_runs.plan(args)
+    assert job.run_dir.name == "v12ema-p1-pose-xt0.03-more-bf16"
+    plain_args = parser.parse_args(["p1", "--group", "v12ema"])
+    (plain,) = partition_runs.plan(plain_args)
+    assert plain.run_dir.name == "v12ema-p1"  # fp32 runs keep the names they had
+    corpus = tmp_path / "corpus"
+    for folder in ("realistic", "more"):
+        (corpus / folder).mkdir(parents=True)
+    for subject in job.train:
+        (corpus / "realistic" / f"{subject}.ses").write_bytes(b"")
+    (corpus / "more" / "subject-033.ses").write_bytes(b"")
+    job = dataclasses.replace(job, run_dir=tmp_path / "run")
+    train = argparse.ArgumentParser()
+    train_args.add_arguments(train)
+    command = job.train_command(corpus, args)
+    assert command[1:4] == ["-m", "scotti.cli.main", "train"]
+    parsed = train.parse_args(command[4:])
+    assert (parsed.precision, parsed.loss_weights) == ("bf16", "0.01,0,0")
+    fp32 = train.parse_args(plain.train_command(corpus, plain_args)[4:])
+    assert fp32.precision == "fp32"
