@@ -207,7 +207,7 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
             RUNS / f"{args.group}-{n}{suffix}",
             args.variant,
             window,
-            args.init,
+            args.init.absolute() if args.init else None,
             tuple(args.more),
             beside.get(n),
         )
@@ -217,7 +217,8 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
 
 def _beside(specs: list[str], partitions: list[str]) -> dict[str, Path]:
     """``--beside PARTITION=MODEL`` options; refuses what cannot be scored."""
-    graphs = pairs(specs, "--beside")
+    # Made absolute here: the scotti commands run in the repository root, not the caller's folder.
+    graphs = {name: path.absolute() for name, path in pairs(specs, "--beside").items()}
     for name, path in graphs.items():
         if name not in partitions:
             raise ExperimentError(f"--beside {name}: not among this call's partitions")

@@ -468,3 +468,26 @@ def test_a_bf16_run_has_its_own_directory_and_asks_scotti_train_for_bf16(tmp_pat
     assert (parsed.precision, parsed.loss_weights) == ("bf16", "0.01,0,0")
     fp32 = train.parse_args(plain.train_command(corpus, plain_args)[4:])
     assert fp32.precision == "fp32"
+
+
+def test_model_paths_named_from_another_folder_reach_scotti_as_absolute_paths(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The scotti commands run in the repository root: a path relative to the caller's
+    # folder (say ../models/x.onnx from experiments/) must not be read from there.
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "shipped.onnx").write_bytes(b"graph")
+    caller = tmp_path / "experiments"
+    caller.mkdir()
+    monkeypatch.chdir(caller)
+    parser = partition_runs.build_parser()
+    args = parser.parse_args(
+        ["p1", "--beside", "p1=../models/shipped.onnx", "--init", "../models/shipped.onnx"]
+    )
+    (job,) = partition_runs.plan(args)
+    assert job.beside is not None
+    assert job.init is not None
+    assert job.beside.is_absolute()
+    assert job.init.is_absolute()
+    assert job.beside.read_bytes() == job.init.read_bytes() == b"graph"
+    assert job.beside.resolve() == (tmp_path / "models" / "shipped.onnx").resolve()
