@@ -21,6 +21,10 @@ speed() {  # name, config, threads, batches
 }
 speed small small 2 10
 speed small small 1 10
-speed E256-L2-T40 '{"embed_dim": 256, "layers": 2, "heads": 4, "head_hidden": 256}' 2 10
-speed E256-L4-T40 '{"embed_dim": 256, "layers": 4, "heads": 8, "head_hidden": 256}' 2 10
+arch() {  # the sweep's configuration of that name, as scotti train --config takes it
+  .venv/bin/python -c 'import json, sys; sys.path.insert(0, "experiments")
+from configs import CONFIGS; print(json.dumps(CONFIGS[sys.argv[1]]))' "$1"
+}
+speed E256-L2-T40 "$(arch E256-L2-T40)" 2 10
+speed E256-L4-T40 "$(arch E256-L4-T40)" 2 10
 speed paper paper 2 6
