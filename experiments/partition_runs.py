@@ -109,7 +109,7 @@ class PartitionRun:
             "--epochs", str(opts.epochs), "--patience", "3", "--stride", str(opts.stride),
             "--val-stride", "8", "--lr", str(opts.lr),
             "--loss-weights", LOSS_WEIGHTS[self.variant], "--threads", str(opts.threads),
-            "--max-minutes", str(opts.max_minutes), "--cache", opts.cache,
+            "--max-minutes", str(opts.max_minutes), "--cache", str(opts.cache),
             "--max-crosstalk", str(opts.max_crosstalk), "--ema", str(opts.ema),
             "--precision", opts.precision, *resume,
         )  # fmt: skip
@@ -154,7 +154,7 @@ def verb(window: int, *args: str | Path) -> list[str]:
     return [sys.executable, str(HERE / "any_window.py"), str(window), *map(str, args)]
 
 
-def score(job: PartitionRun, corpus: Path, cache: str) -> Path:
+def score(job: PartitionRun, corpus: Path, cache: Path) -> Path:
     """Export with both calibrations, then the held-out evaluation; the report's path.
 
     The report holds two models scored in one replay: the calibrated graphs first
@@ -199,6 +199,8 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
     if args.precision != "fp32":
         suffix += f"-{args.precision}"
     beside = _beside(args.beside, args.partitions)
+    # Made absolute like --beside's: the scotti commands run in the repository root.
+    args.corpus, args.cache = args.corpus.absolute(), args.cache.absolute()
     return [
         PartitionRun(
             n,
@@ -237,7 +239,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--variant", choices=sorted(LOSS_WEIGHTS), default="multi")
     parser.add_argument("--group", default="v9", help="runs/GROUP-PARTITION[-VARIANT]")
     parser.add_argument("--corpus", type=Path, default=CORPUS, help="with realistic/ and extra/")
-    parser.add_argument("--cache", default="data/cache7", help="scotti train --cache")
+    parser.add_argument(
+        "--cache", type=Path, default=ROOT / "data" / "cache7", help="scotti train --cache"
+    )
     parser.add_argument("--config", default="small", help="scotti train --config")
     parser.add_argument("--arch", choices=sorted(CONFIGS), help="instead of --config")
     parser.add_argument("--epochs", type=int, default=8, help="the cosine schedule's length")

@@ -482,9 +482,17 @@ def test_model_paths_named_from_another_folder_reach_scotti_as_absolute_paths(
     monkeypatch.chdir(caller)
     parser = partition_runs.build_parser()
     args = parser.parse_args(
-        ["p1", "--beside", "p1=../models/shipped.onnx", "--init", "../models/shipped.onnx"]
-    )
+        [
+            "p1",
+            "--beside", "p1=../models/shipped.onnx",
+            "--init", "../models/shipped.onnx",
+            "--corpus", "../corpus",
+            "--cache", "../cache",
+        ]
+    )  # fmt: skip
     (job,) = partition_runs.plan(args)
+    assert args.corpus == tmp_path / "experiments" / ".." / "corpus"
+    assert args.cache == tmp_path / "experiments" / ".." / "cache"
     assert job.beside is not None
     assert job.init is not None
     assert job.beside.is_absolute()
