@@ -199,8 +199,6 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
     if args.precision != "fp32":
         suffix += f"-{args.precision}"
     beside = _beside(args.beside, args.partitions)
-    # Made absolute like --beside's: the scotti commands run in the repository root.
-    args.corpus, args.cache = args.corpus.absolute(), args.cache.absolute()
     return [
         PartitionRun(
             n,
@@ -209,7 +207,7 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
             RUNS / f"{args.group}-{n}{suffix}",
             args.variant,
             window,
-            args.init.absolute() if args.init else None,
+            args.init,
             tuple(args.more),
             beside.get(n),
         )
@@ -229,6 +227,11 @@ def _beside(specs: list[str], partitions: list[str]) -> dict[str, Path]:
     return graphs
 
 
+def absolute_path(text: str) -> Path:
+    """A path option made absolute: the scotti commands run in the repository root."""
+    return Path(text).absolute()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python experiments/partition_runs.py",
@@ -238,9 +241,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("partitions", nargs="+", help="p1, p2, p3")
     parser.add_argument("--variant", choices=sorted(LOSS_WEIGHTS), default="multi")
     parser.add_argument("--group", default="v9", help="runs/GROUP-PARTITION[-VARIANT]")
-    parser.add_argument("--corpus", type=Path, default=CORPUS, help="with realistic/ and extra/")
     parser.add_argument(
-        "--cache", type=Path, default=ROOT / "data" / "cache7", help="scotti train --cache"
+        "--corpus", type=absolute_path, default=CORPUS, help="with realistic/ and extra/"
+    )
+    parser.add_argument(
+        "--cache", type=absolute_path, default=ROOT / "data" / "cache7", help="scotti train --cache"
     )
     parser.add_argument("--config", default="small", help="scotti train --config")
     parser.add_argument("--arch", choices=sorted(CONFIGS), help="instead of --config")
@@ -270,7 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--init",
-        type=Path,
+        type=absolute_path,
         help="start from this checkpoint or exported graph (scotti train --init), not from scratch",
     )
     parser.add_argument(
