@@ -61,7 +61,20 @@ def _corpus_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--minutes-per-action", type=float, default=4.0, help="at least this much of each action"
     )
-    p.add_argument("--effects", choices=("realistic", "none"), default="realistic")
+    p.add_argument(
+        "--effects",
+        choices=("realistic", "none", "mixed"),
+        default="realistic",
+        help="transport and sensor effects: a fresh realistic draw per subject, none, or "
+        "mixed (a third of the subjects clean)",
+    )
+    p.add_argument(
+        "--insoles",
+        choices=("typical", "wide"),
+        default="typical",
+        help="each subject's insole drawn near the nominal curve, or over the wide range of "
+        "insoles users bring (sim/insole.py draw_insole)",
+    )
     return p
 
 
@@ -155,6 +168,7 @@ def _corpus(a: argparse.Namespace) -> int:
         seed=a.seed,
         minutes_per_action=a.minutes_per_action,
         effects=a.effects,
+        insoles=a.insoles,
         progress=lambda line: print(line, flush=True),  # a line per subject, as it is done
     )
     total = manifest["total_duration_s"]

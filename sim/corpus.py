@@ -28,14 +28,15 @@ from scotti.models.contract import ACTIONS
 from scotti.sim.actions import EXERCISES
 from scotti.sim.effects.registry import parse_effects, realistic_effects
 from scotti.sim.foot import draw_feet
-from scotti.sim.insole import InsoleSpec, draw_insole
+from scotti.sim.insole import InsoleSpec, InsoleSpread, draw_insole
 from scotti.sim.motion import Subject
 from scotti.sim.scene import PHYSICS_OVERSAMPLE, Scene, SubjectModel, build_motion
 from scotti.sim.session import SessionModel
 from scotti.sim.subjects import draw_subjects
 from scotti.sim.writer import RenderReport, sim_input, write_session
 
-EffectsPreset = Literal["realistic", "none"]
+EffectsPreset = Literal["realistic", "none", "mixed"]
+MIXED_CLEAN_SHARE: Final = 1 / 3  # of subjects without effects in a "mixed" corpus
 SET_S: Final = (30.0, 75.0)  # length of one set
 REST_S: Final = (5.0, 20.0)  # standing between sets
 MANIFEST: Final = "manifest.json"
@@ -48,15 +49,25 @@ def subject_scene(
     corpus_seed: int,
     minutes_per_action: float,
     effects: EffectsPreset,
+    insoles: InsoleSpread = "typical",
 ) -> Scene:
-    """The scene of one corpus subject (a lab session of all actions, derived seed, effects)."""
+    """The scene of one corpus subject (a lab session of all actions, derived seed, effects).
+
+    ``mixed`` effects: a third of the subjects (a coin of their own) are clean,
+    the rest get the draw a ``realistic`` corpus gives them, so that a model
+    meets both a clean and a noisy transport of the same population.
+    """
     seed = int(np.random.SeedSequence([corpus_seed, index]).generate_state(1)[0])
     raw_effects: list[dict[str, Any]] = []
-    if effects == "realistic":
+    clean = effects == "none" or (
+        effects == "mixed"
+        and np.random.default_rng([corpus_seed, index, 0xC1]).random() < MIXED_CLEAN_SHARE
+    )
+    if not clean:
         raw_effects = realistic_effects(np.random.default_rng([corpus_seed, index, 0xEF]))
     # Each subject wears their own pair of insoles, drawn whatever the effects:
     # the clean copy differs from the realistic one by the effects alone.
-    drawn = draw_insole(np.random.default_rng([corpus_seed, index, 0x15]))
+    drawn = draw_insole(np.random.default_rng([corpus_seed, index, 0x15]), insoles)
     insole = InsoleSpec.model_validate(drawn.as_dict())
     return Scene(
         name=f"subject-{index:03d}",
@@ -125,6 +136,7 @@ def write_corpus(
     minutes_per_action: float,
     effects: EffectsPreset,
     first: int = 0,
+    insoles: InsoleSpread = "typical",
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Render every subject's session into ``out_dir`` and write the manifest.
@@ -140,7 +152,12 @@ def write_corpus(
     population = draw_subjects(first + subjects, seed)
     for i, subject in enumerate(population[first:], start=first):
         scene = subject_scene(
-            i, subject, corpus_seed=seed, minutes_per_action=minutes_per_action, effects=effects
+            i,
+            subject,
+            corpus_seed=seed,
+            minutes_per_action=minutes_per_action,
+            effects=effects,
+            insoles=insoles,
         )
         name = f"{scene.name}.ses"
         started = time.perf_counter()
@@ -156,6 +173,7 @@ def write_corpus(
                 "duration_s": report.duration_s,
                 "frames": report.frames,
                 "effects": [e["name"] for e in scene.effects],
+                "insole": scene.insole.resolved().as_dict(),
                 "bytes": (out / name).stat().st_size,
             }
         )
@@ -172,6 +190,7 @@ def write_corpus(
         "first_subject": first,
         "minutes_per_action": minutes_per_action,
         "effects": effects,
+        "insoles": insoles,
         "total_duration_s": sum(e["duration_s"] for e in entries),
         "sessions": entries,
     }

@@ -106,8 +106,28 @@ REALISTIC: Final = MODELS["realistic"]
 IDEAL: Final = MODELS["ideal"]
 
 
-def draw_insole(rng: np.random.Generator) -> Insole:
-    """A realistic insole with parameters drawn over their typical ranges (corpora)."""
+InsoleSpread = Literal["typical", "wide"]
+
+
+def draw_insole(rng: np.random.Generator, spread: InsoleSpread = "typical") -> Insole:
+    """A realistic insole with parameters drawn over their typical or wide ranges (corpora).
+
+    ``typical`` stays near the nominal curve (the corpora the shipped models were
+    first trained on; kept so those corpora remake byte for byte). ``wide``
+    covers the insoles a user may bring: a stiff film that wakes late
+    (threshold up to 60 kPa), soft or hard transfer curves (half scale
+    80-700 kPa, log-uniform, exponent 0.5-1.5), early saturation and taxel
+    gains spread up to 0.5: the scene schema accepts more, but past these a
+    film is not a plantar pressure sensor any more.
+    """
+    if spread == "wide":
+        return Insole(
+            threshold_kpa=round(float(rng.uniform(0.0, 60.0)), 2),
+            p_half_kpa=round(float(np.exp(rng.uniform(np.log(80.0), np.log(700.0)))), 1),
+            exponent=round(float(rng.uniform(0.5, 1.5)), 3),
+            saturation_counts=round(float(rng.uniform(3000.0, float(MAX_COUNT)))),
+            gain_sigma=round(float(rng.uniform(0.0, 0.5)), 3),
+        )
     return Insole(
         threshold_kpa=round(float(rng.uniform(8.0, 35.0)), 2),
         p_half_kpa=round(float(rng.uniform(120.0, 300.0)), 1),

@@ -33,3 +33,21 @@ def test_clean_and_realistic_copies_hold_the_same_motion_and_every_action() -> N
                       effects="none")
     )  # fmt: skip
     assert len(other) != len(clean) or not np.array_equal(other.action, clean.action)
+
+
+def test_a_mixed_corpus_has_clean_and_noisy_people_with_wide_insoles() -> None:
+    people = draw_subjects(12, seed=9)
+    scenes = [
+        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects="mixed", insoles="wide")
+        for i, s in enumerate(people)
+    ]
+    clean = [not s.effects for s in scenes]
+    assert 0 < sum(clean) < len(scenes)
+    # A noisy person of the mixed corpus has the realistic corpus's draw, the same insole
+    # spread choice aside.
+    k = clean.index(False)
+    realistic = subject_scene(k, people[k], corpus_seed=9, minutes_per_action=0.1,
+                              effects="realistic", insoles="wide")  # fmt: skip
+    assert scenes[k].effects == realistic.effects
+    thresholds = [s.insole.resolved().threshold_kpa for s in scenes]
+    assert max(thresholds) > 35  # beyond the typical draw's range

@@ -131,3 +131,23 @@ def test_counts_stay_on_the_insole_outline() -> None:
     counts = render_counts(synthetic_input(walking(32)), seed=4)
     assert not counts[:, :, ~insole_mask()].any()
     assert counts.max() <= REALISTIC.saturation_counts
+
+
+def test_wide_insoles_reach_the_insoles_users_bring() -> None:
+    rng = np.random.default_rng(0)
+    drawn = [draw_insole(rng, "wide") for _ in range(400)]
+    thresholds = np.array([i.threshold_kpa for i in drawn])
+    halves = np.array([i.p_half_kpa for i in drawn])
+    spreads = np.array([i.gain_sigma for i in drawn])
+    # A soft insole (threshold 45 kPa, half scale 450) and a gain spread of 0.45
+    # read squats as standing with the typical draws; the wide ones include them.
+    assert thresholds.max() > 45
+    assert thresholds.min() < 5
+    assert halves.max() > 450
+    assert halves.min() < 120
+    assert spreads.max() > 0.45
+    # The typical draw is what it was: old corpora remake byte for byte.
+    assert draw_insole(np.random.default_rng(0)) == draw_insole(np.random.default_rng(0), "typical")
+    assert draw_insole(np.random.default_rng(0)).threshold_kpa <= 35
+    for insole in drawn:
+        InsoleSpec.model_validate(insole.as_dict())
