@@ -30,6 +30,7 @@ from scotti.models.contract import ACTIONS, NUM_ACTIONS, has_progress
 from scotti.models.errors import ModelContractError
 
 BINS: Final = 50  # quantile bins of the output per action: a smooth map from ~10^4 frames
+MIN_SPAN: Final = 0.5  # a fitted map narrower than this is not stretched to 0..1
 MIN_FRAMES: Final = 500  # an action with fewer held-out frames keeps its output as it is
 
 
@@ -100,7 +101,7 @@ def fit(
         rows = (a == index) & np.isfinite(t) & np.isfinite(p)
         if not has_progress(index) or rows.sum() < min_frames:
             continue
-        knots[index] = _isotonic_knots(p[rows], t[rows], bins)
+        knots[index] = _reach_both_ends(*_isotonic_knots(p[rows], t[rows], bins))
         frames[ACTIONS[index]] = int(rows.sum())
     calibration = ProgressCalibration(
         knots,
@@ -118,6 +119,26 @@ def fit(
 def _mse(output: npt.ArrayLike, label: npt.NDArray[np.float64]) -> float:
     rows = np.isfinite(label)
     return float(np.mean((np.asarray(output, np.float64)[rows] - label[rows]) ** 2))
+
+
+def _reach_both_ends(
+    kx: npt.NDArray[np.float64], ky: npt.NDArray[np.float64]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The map stretched linearly so that its lowest knot reads 0 and its highest 1.
+
+    A bin's pooled label is a mean, and the outputs' extreme bins hold frames of
+    many phases (the top 2 % of a squat model's outputs are frames labelled 0.6
+    to 1), so the plain isotonic map of the shipped model never went past 0.74
+    to 0.88: a repetition never completed, and a counter waiting for its top
+    waited on the threshold rather than on the person. Stretching keeps the
+    order (the map stays monotone) and puts the model's surest start at 0 and
+    its surest end at 1. A map that spans less than ``MIN_SPAN`` is a model
+    without evidence of progress for that action, left as it is.
+    """
+    span = float(ky[-1] - ky[0])
+    if kx.size < 2 or span < MIN_SPAN:
+        return kx, ky
+    return kx, np.clip((ky - ky[0]) / span, 0.0, 1.0)
 
 
 def _isotonic_knots(

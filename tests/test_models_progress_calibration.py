@@ -127,3 +127,27 @@ def test_a_graph_with_a_broken_calibration_does_not_load(
     onnx.save(proto, str(copy))
     with pytest.raises(ModelContractError, match=r"broken\.onnx: .*progress calibration"):
         ScottiRuntime(copy)
+
+
+def test_the_map_reaches_zero_and_one_so_every_repetition_completes() -> None:
+    rng = np.random.default_rng(3)
+    label = rng.uniform(0, 1, 6000)
+    # A hedging head whose extreme outputs mix phases: its top bin's mean label is
+    # well below 1, which an unstretched isotonic map would keep.
+    output = 0.5 + 0.4 * (label - 0.5) + rng.normal(0, 0.12, 6000)
+    cal = fit(output, label, np.full(6000, SQUAT))
+    _, y = cal.knots[SQUAT]
+    assert y[0] == 0.0
+    assert y[-1] == 1.0
+    assert np.all(np.diff(y) >= 0)
+    assert cal.apply([output.max() + 1.0], [SQUAT])[0] == 1.0
+    assert cal.apply([output.min() - 1.0], [SQUAT])[0] == 0.0
+
+
+def test_a_map_without_evidence_of_progress_is_not_stretched() -> None:
+    rng = np.random.default_rng(4)
+    label = rng.uniform(0.4, 0.6, 3000)  # outputs carry nothing about the label
+    output = rng.uniform(0, 1, 3000)
+    cal = fit(output, label, np.full(3000, SQUAT))
+    _, y = cal.knots[SQUAT]
+    assert y[-1] - y[0] < 0.5
