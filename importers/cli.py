@@ -42,6 +42,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the keypoints' up axis; a value with a sign wants '=': --up=-y",
     )
     parser.add_argument("--units", choices=("m", "cm", "mm"), help="keypoint units")
+    parser.add_argument(
+        "--floor",
+        choices=("plane", "feet"),
+        help="keypoints: one floor plane (default), or each frame stood on its feet "
+        "(hip-centred coordinates such as MediaPipe's world landmarks)",
+    )
     labels = parser.add_mutually_exclusive_group()
     labels.add_argument("--segments", help="CSV of start,end,action")
     labels.add_argument("--action", help="the one action of the whole recording")
@@ -72,7 +78,8 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
     keypoints: dict[str, Any] = {}
     if args.keypoints is not None:
         keypoints["file"] = str(Path(args.keypoints).resolve())
-    for flag, key in (("keypoint_set", "set"), ("up", "up"), ("units", "units")):
+    named = (("keypoint_set", "set"), ("up", "up"), ("units", "units"), ("floor", "floor"))
+    for flag, key in named:
         if getattr(args, flag) is not None:
             keypoints[key] = getattr(args, flag)
     if keypoints:

@@ -136,6 +136,9 @@ class KeypointsConfig(_Strict):
     up: Literal["+x", "-x", "+y", "-y", "+z", "-z", "auto"] = "+z"
     mirror: bool = False  # the source is mirrored (a left-handed frame, a mirrored video)
     floor_z: float | Literal["auto"] = "auto"  # the floor's height along ``up``, source units
+    # plane: one floor for the whole recording (floor_z), refused when the feet are not on it
+    # (hip-centred coordinates); feet: each frame stood on its lowest heel or toe.
+    floor: Literal["plane", "feet"] = "plane"
     min_score: float = Field(default=0.0, ge=0.0, le=1.0)  # lower scores are masked
     max_gap_s: float = Field(default=0.25, gt=0.0)  # longer holes in tracking stay masked
 
@@ -152,6 +155,9 @@ class KeypointsConfig(_Strict):
     def _custom_needs_mapping(self) -> KeypointsConfig:
         if self.set == "custom" and self.mapping is None and self.mapping_file is None:
             msg = "set 'custom' needs mapping or mapping_file"
+            raise ValueError(msg)
+        if self.floor == "feet" and self.floor_z != "auto":
+            msg = "floor_z is the one floor of floor = 'plane'; floor = 'feet' finds it each frame"
             raise ValueError(msg)
         return self
 

@@ -9,8 +9,10 @@ source frame:
    motion capture, "-y" for a camera frame with y down; "auto": the mean
    direction from the ankles to the shoulders) onto z; ``mirror`` flips a
    left-handed source (a mirrored video) first;
-3. the floor to z = 0 (``floor_z``; "auto": the 5th percentile, over the
-   recording, of the lowest foot point of each frame);
+3. the floor to z = 0: ``floor = "plane"`` (the default), one floor for the
+   whole recording (``floor_z``; "auto": the 5th percentile, over the
+   recording, of the lowest foot point of each frame); ``floor = "feet"``,
+   each frame lifted or lowered so that its lowest heel or toe is at z = 0;
 4. per frame: the origin to the mid-hip's foot point, and a turn about z so
    that x is the facing direction, estimated from the hips (perpendicular to
    right hip -> left hip) and the feet (heel -> toes), averaged over 0.5 s.
@@ -18,6 +20,16 @@ source frame:
 A frame without both hips has no origin: all its keypoints stay masked.
 Hips and feet must agree on the facing direction: a mirrored source makes
 the toes point backwards from the hips, and is refused with a hint.
+
+Coordinates that float, as MediaPipe's world landmarks do (their origin is
+between the hips, so the hips never move and the feet rise towards them in a
+squat), are refused under ``floor = "plane"`` with a hint to set ``floor =
+"feet"``: when a torso point (mid-hip, mid-shoulder, the centroid) keeps to
+one height while the lowest foot moves, or when the lowest foot is on the
+floor in under half the frames. ``floor = "feet"`` recovers the hips' height
+wherever a foot is on the floor (a squat, a lunge, walking); it cannot see a
+flight (both feet in the air look like standing) nor a raised step (standing
+on it looks like standing on the floor).
 """
 
 from __future__ import annotations
@@ -58,6 +70,8 @@ STANDING_POSE: Final[dict[str, tuple[float, float, float]]] = {
 }
 
 _FEET_POINTS: Final = [KP[n] for n in KEYPOINTS if n.endswith(("heel", "toe", "ankle"))]
+# What touches the floor: the ankles stand an unknown height above it.
+_CONTACT_POINTS: Final = [KP[n] for n in KEYPOINTS if n.endswith(("heel", "toe"))]
 _HEADING_SMOOTH_FRAMES: Final = 9  # 0.5 s at 16 Hz, centred
 FLOOR_PERCENTILE: Final = 5.0
 
@@ -113,6 +127,10 @@ def _mapping(cfg: ImportConfig, k: KeypointsConfig) -> dict[str, str | int]:
     return load_mapping(cfg.path(k.mapping_file))
 
 
+# A point's confidence column, the first found: ours, then MediaPipe's.
+_SCORE_SUFFIXES: Final = ("score", "visibility")
+
+
 def _from_csv(
     path: Path, k: KeypointsConfig
 ) -> tuple[np.ndarray, tuple[str, ...] | None, np.ndarray, np.ndarray | None]:
@@ -136,8 +154,10 @@ def _from_csv(
     for i, name in enumerate(names):
         for axis, suffix in enumerate("xyz"):
             raw[:, i, axis] = table.values[:, table.column_of(f"{name}_{suffix}")]
-        if f"{name}_score" in table.header:
-            scores[:, i] = table.values[:, table.header.index(f"{name}_score")]
+        for suffix in _SCORE_SUFFIXES:
+            if f"{name}_{suffix}" in table.header:
+                scores[:, i] = table.values[:, table.header.index(f"{name}_{suffix}")]
+                break
     bad = np.argwhere(np.isinf(raw))
     if bad.size:
         row, point, axis = (int(v) for v in bad[0])
@@ -216,12 +236,22 @@ def up_vector(cfg: KeypointsConfig, points: np.ndarray, path: Path) -> np.ndarra
     return np.asarray(mean / np.linalg.norm(mean))
 
 
-def to_world(cfg: KeypointsConfig, source: KeypointSource) -> np.ndarray:
-    """(N, 19, 3) metres, z up, floor at z = 0 (still the source's heading and origin)."""
+def to_world(
+    cfg: KeypointsConfig, source: KeypointSource, *, refuse_floating: bool = True
+) -> np.ndarray:
+    """(N, 19, 3) metres, z up, floor at z = 0 (still the source's heading and origin).
+
+    ``refuse_floating=False`` skips the floating check of ``floor = "plane"``:
+    only to measure what importing such coordinates as they are would give.
+    """
     scaled = source.points * LENGTH_UNITS[cfg.units]
     if cfg.mirror:
         scaled = scaled * np.array([-1.0, 1.0, 1.0])  # any one axis: handedness flips
     world = scaled @ up_rotation(up_vector(cfg, scaled, source.path)).T
+    if cfg.floor == "feet":
+        world[..., 2] -= _floor_under_feet(world, source.path)[:, None]
+        _check_handedness(world, source.path)
+        return np.asarray(world)
     if cfg.floor_z == "auto":
         feet_z = world[:, _FEET_POINTS, 2]
         lowest = np.where(np.isfinite(feet_z), feet_z, np.inf).min(axis=1)
@@ -234,7 +264,85 @@ def to_world(cfg: KeypointsConfig, source: KeypointSource) -> np.ndarray:
         floor = float(cfg.floor_z) * LENGTH_UNITS[cfg.units]
     world[..., 2] -= floor
     _check_handedness(world, source.path)
+    if refuse_floating:
+        _check_standing(world, source.path)
     return np.asarray(world)
+
+
+def _lowest(world: np.ndarray, points: list[int]) -> np.ndarray:
+    """(N,) the lowest z among ``points`` in each frame (NaN: none of them seen)."""
+    z = world[:, points, 2]
+    low = np.where(np.isfinite(z), z, np.inf).min(axis=1)
+    return np.asarray(np.where(np.isfinite(low), low, np.nan))
+
+
+def _floor_under_feet(world: np.ndarray, path: Path) -> np.ndarray:
+    """(N,) each frame's floor: its lowest heel or toe (NaN: none seen, the frame stays masked)."""
+    floor = _lowest(world, _CONTACT_POINTS)
+    if not np.isfinite(floor).any():
+        problem = "floor = 'feet' needs heels or toes (ankles are an unknown height above "
+        problem += "the floor); map them, or use floor = 'plane'"
+        raise InputError(path, problem)
+    return floor
+
+
+# The floating check (floor = "plane"), on the source's samples, metres.
+FLOATING_FEET_RANGE_M: Final = 0.05  # the lowest foot moves less: nothing to tell (standing)
+FLOATING_TORSO_SHARE: Final = 0.25  # a torso point moving under this share of that: floating
+ON_FLOOR_M: Final = 0.10  # the lowest foot this close to the floor stands on it
+ON_FLOOR_SHARE: Final = 0.5  # of frames: fewer on the floor, no common floor
+_FLOOR_HINT: Final = 'set floor = "feet" (--floor feet) to stand each frame on its feet'
+
+
+def _spread(z: np.ndarray) -> float:
+    """The 5th to 95th percentile range: robust to a few glitches."""
+    lo, hi = np.percentile(z, [5.0, 95.0])
+    return float(hi - lo)
+
+
+def _check_standing(world: np.ndarray, path: Path) -> None:
+    """Refuse coordinates whose origin floats with the body instead of resting on a floor.
+
+    On a floor, the lowest foot moves up only when the whole body does (a
+    jump, a step up), so a torso point that keeps to one height while it
+    moves means the origin is on the body: hip-centred (MediaPipe's world
+    landmarks), root-relative, or centred on the body's centroid. Other
+    floating origins show as feet that are seldom on any common floor.
+    """
+    lowest = _lowest(world, _FEET_POINTS)
+    torso = {
+        "mid-hip": 0.5 * (world[:, KP["left_hip"], 2] + world[:, KP["right_hip"], 2]),
+        "mid-shoulder": 0.5
+        * (world[:, KP["left_shoulder"], 2] + world[:, KP["right_shoulder"], 2]),
+        "centroid": _mean_seen(world[..., 2]),
+    }
+    for name, z in torso.items():
+        both = np.isfinite(lowest) & np.isfinite(z)
+        if both.sum() < 2:
+            continue
+        feet, body = _spread(lowest[both]), _spread(z[both])
+        if feet > FLOATING_FEET_RANGE_M and body < FLOATING_TORSO_SHARE * feet:
+            problem = f"the keypoints float with the body: the {name} keeps within "
+            problem += f"{1000 * body:.0f} mm of one height while the lowest foot moves "
+            problem += f"{1000 * feet:.0f} mm (hip-centred coordinates?); {_FLOOR_HINT}"
+            raise InputError(path, problem)
+    seen = lowest[np.isfinite(lowest)]
+    if seen.size < 2:
+        return
+    share = float((np.abs(seen) <= ON_FLOOR_M).mean())
+    if share < ON_FLOOR_SHARE:
+        problem = f"the lowest foot is within {1000 * ON_FLOOR_M:.0f} mm of one floor in only "
+        problem += f"{100 * share:.0f} % of frames (a floating origin, or a wrong up or "
+        problem += f"floor_z?); {_FLOOR_HINT}"
+        raise InputError(path, problem)
+
+
+def _mean_seen(z: np.ndarray) -> np.ndarray:
+    """(N,) the mean over the points seen in each frame (NaN: none)."""
+    seen = np.isfinite(z)
+    total = np.where(seen, z, 0.0).sum(axis=1)
+    count = seen.sum(axis=1)
+    return np.asarray(np.where(count > 0, total / np.maximum(count, 1), np.nan))
 
 
 MIRRORED_SHARE: Final = 0.5  # of frames where hips and feet disagree: refuse

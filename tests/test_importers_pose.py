@@ -101,3 +101,68 @@ def test_a_mirrored_source_is_refused_and_mirror_fixes_it(tmp_path: Path) -> Non
     fixed = config(tmp_path, {**keypoints, "mirror": True})
     ours = pose_frame(to_world(keypoints_of(fixed), read_keypoints(fixed)))
     np.testing.assert_allclose(ours, pose, atol=1e-5)
+
+
+def write_scored_csv(path: Path, pose: np.ndarray, columns: dict[str, np.ndarray]) -> None:
+    """COCO-WholeBody names, x y z per point, then each extra ``NAME_suffix`` column given."""
+    t = np.arange(pose.shape[0]) / 30
+    header = ["time"] + [f"{n}_{a}" for n in KEYPOINTS for a in "xyz"] + list(columns)
+    extra = np.column_stack(list(columns.values())) if columns else np.empty((t.size, 0))
+    body = np.column_stack([t, pose.reshape(t.size, -1), extra])
+    lines = [",".join(header)] + [",".join(f"{v:.6g}" for v in row) for row in body]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_mediapipe_visibility_is_read_as_a_score(tmp_path: Path) -> None:
+    pose = squat_pose(np.arange(0, 1, 1 / 30))
+    low = np.where(np.arange(30) % 3 == 0, 0.2, 0.95)  # the left knee hidden in every third frame
+    write_scored_csv(tmp_path / "k.csv", pose, {"left_knee_visibility": low})
+    cfg = config(tmp_path, {"file": "k.csv", "set": "coco_wholebody", "min_score": 0.5})
+    points = read_keypoints(cfg).points
+    hidden = np.isnan(points[:, KP["left_knee"]]).all(axis=1)
+    np.testing.assert_array_equal(hidden, low < 0.5)
+    assert np.isfinite(np.delete(points, KP["left_knee"], axis=1)).all()
+
+
+def test_a_score_column_wins_over_visibility(tmp_path: Path) -> None:
+    pose = squat_pose(np.arange(0, 1, 1 / 30))
+    score = np.where(np.arange(30) < 10, 0.1, 0.9)
+    visibility = np.where(np.arange(30) < 20, 0.9, 0.1)
+    columns = {"nose_score": score, "nose_visibility": visibility}
+    write_scored_csv(tmp_path / "k.csv", pose, columns)
+    cfg = config(tmp_path, {"file": "k.csv", "set": "coco_wholebody", "min_score": 0.5})
+    hidden = np.isnan(read_keypoints(cfg).points[:, KP["nose"]]).all(axis=1)
+    np.testing.assert_array_equal(hidden, score < 0.5)
+
+
+def test_floor_from_the_feet_needs_heels_or_toes(tmp_path: Path) -> None:
+    t = np.arange(0, 2, 1 / 25)
+    keep = ["left_hip", "right_hip", "left_shoulder", "right_shoulder", "left_ankle", "right_ankle"]
+    camera = to_camera(squat_pose(t))[:, [KP[k] for k in keep]]
+    np.savez(tmp_path / "k.npz", time=t, keypoints=camera, names=np.array(keep))
+    mapping = {k: k for k in keep}
+    keypoints = {"file": "k.npz", "set": "custom", "mapping": mapping, "up": "-y"}
+    cfg = config(tmp_path, {**keypoints, "floor": "feet"})
+    with pytest.raises(InputError, match=r"k\.npz: floor = 'feet' needs heels or toes"):
+        to_world(keypoints_of(cfg), read_keypoints(cfg))
+
+
+def test_floor_z_belongs_to_one_floor_plane(tmp_path: Path) -> None:
+    with pytest.raises(
+        InputError, match=r"keypoints: .*floor_z is the one floor of floor = 'plane'"
+    ):
+        config(tmp_path, {"file": "k.csv", "set": "body25", "floor": "feet", "floor_z": 0.0})
+
+
+def test_a_frame_with_no_heel_or_toe_seen_has_no_floor(tmp_path: Path) -> None:
+    t = np.arange(0, 2, 1 / 30)
+    pose = squat_pose(t)
+    camera = in_set(to_camera(pose), "body25")
+    feet = [i for i, name in enumerate(BODY25) if name[1:] in ("BigToe", "SmallToe", "Heel")]
+    camera[5][feet] = np.nan  # frame 5: no foot point on the floor seen
+    write_keypoints_csv(tmp_path / "k.csv", t, camera, BODY25)
+    cfg = config(tmp_path, {"file": "k.csv", "set": "body25", "up": "-y", "floor": "feet"})
+    ours = pose_frame(to_world(keypoints_of(cfg), read_keypoints(cfg)))
+    assert np.isnan(ours[5]).all()
+    others = np.delete(np.arange(t.size), 5)
+    np.testing.assert_allclose(ours[others], pose[others], atol=1e-5)
