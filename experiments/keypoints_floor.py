@@ -215,12 +215,29 @@ def per_frame_error(ours: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.where(seen.any(axis=1), np.nansum(d, axis=1) / np.maximum(seen.sum(1), 1), np.nan)
 
 
+def per_frame_height_error(ours: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(N,) mean signed height error (m, ours - truth) over the keypoints both have."""
+    dz = ours[..., 2] - truth[..., 2]
+    seen = np.isfinite(dz)
+    return np.where(seen.any(axis=1), np.nansum(dz, axis=1) / np.maximum(seen.sum(1), 1), np.nan)
+
+
 @dataclass(frozen=True)
 class Row:
     name: str
     error_m: np.ndarray  # (N,) per frame
+    height_m: np.ndarray  # (N,) per frame, signed
     progress_error: np.ndarray | None  # (N,) absolute, NaN where either is missing
     note: str = ""
+
+
+def row(
+    name: str, ours: np.ndarray, truth: Truth, progress: np.ndarray | None, note: str = ""
+) -> Row:
+    error = per_frame_error(ours, truth.keypoints)
+    height = per_frame_height_error(ours, truth.keypoints)
+    progress_error = None if progress is None else np.abs(progress - truth.progress)
+    return Row(name, error, height, progress_error, note)
 
 
 def table(truth: Truth, rows: list[Row]) -> str:
@@ -236,14 +253,17 @@ def table(truth: Truth, rows: list[Row]) -> str:
     head = f"{'':36s}" + "".join(f"{g:>{n}s}" for (g, _), n in zip(groups, w, strict=True))
     count = "".join(f"{int(m.sum()):>{n}d}" for (_, m), n in zip(groups, w, strict=True))
     lines = [head, f"{'frames':36s}" + count]
-    for row in rows:
-        if row.note:
-            lines.append(f"{row.name:36s}{row.note}")
-        cells = [np.nanmean(row.error_m[m]) * 1000 if m.any() else np.nan for _, m in groups]
+    for r in rows:
+        if r.note:
+            lines.append(f"{r.name:36s}{r.note}")
+        cells = [np.nanmean(r.error_m[m]) * 1000 if m.any() else np.nan for _, m in groups]
         shown = "".join(f"{c:{n}.1f}" for c, n in zip(cells, w, strict=True))
-        lines.append(f"{row.name + ' MPJPE mm':36s}" + shown)
-        if row.progress_error is not None:
-            pe = row.progress_error
+        lines.append(f"{r.name + ' MPJPE mm':36s}" + shown)
+        cells = [np.nanmean(r.height_m[m]) * 1000 if m.any() else np.nan for _, m in groups]
+        shown = "".join(f"{c:{n}.1f}" for c, n in zip(cells, w, strict=True))
+        lines.append(f"{'  mean height error mm':36s}" + shown)
+        if r.progress_error is not None:
+            pe = r.progress_error
             cells = [np.nanmean(pe[m]) if np.isfinite(pe[m]).any() else np.nan for _, m in groups]
             shown = "".join(f"{c:{n}.3f}" for c, n in zip(cells, w, strict=True))
             lines.append(f"{'  progress MAE':36s}" + shown)
@@ -266,13 +286,10 @@ def measure(scene: Path, folder: Path, noise_mm: float) -> str:
         out = folder / f"{csv_name[:-4]}-{floor}.scotti"
         rc, err = run_import(import_args(folder, csv_name, floor), out)
         if rc != 0:
-            ours = as_is(folder)
-            error = per_frame_error(ours, truth.keypoints)
-            rows.append(Row(name, error, None, note=f"refused (exit {rc}): {err}"))
+            rows.append(row(name, as_is(folder), truth, None, f"refused (exit {rc}): {err}"))
             continue
         ours, progress = imported(out, truth)
-        error = per_frame_error(ours, truth.keypoints)
-        rows.append(Row(name, error, np.abs(progress - truth.progress)))
+        rows.append(row(name, ours, truth, progress))
     return table(truth, rows)
 
 
