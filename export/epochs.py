@@ -1,7 +1,7 @@
 """An epoch's plan (which windows, in which batches, with which shifts) and its tensors.
 
 Everything random in an epoch (window phase, chunk cuts, order, shifts,
-added crosstalk) is drawn from a generator seeded with (seed, epoch), so the
+added crosstalk, foreign sensors) is drawn from a generator seeded with (seed, epoch), so the
 plan is a pure function of (dataset, options, seed, epoch): a resumed run, a
 prefetch thread and every rank of a distributed run all see the same plan.
 """
@@ -18,6 +18,7 @@ import torch
 from scotti.export.augment import add_crosstalk, draw_crosstalk, draw_shifts, shift_feet
 from scotti.export.evaluate import to_targets
 from scotti.export.losses import ScottiTargets
+from scotti.export.sensor_transfer import ForeignSensor, draw_transfer, render
 from scotti.export.windows import Chunk, WindowDataset
 
 if TYPE_CHECKING:
@@ -29,6 +30,7 @@ class PlannedChunk:
     chunk: Chunk
     shifts: np.ndarray  # (2, 2) (rows, cols) per foot
     crosstalk: np.ndarray = field(default_factory=lambda: np.zeros(2, dtype=np.float32))
+    sensor: ForeignSensor | None = None  # read through this insole as an import (None: ours)
 
 
 def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[list[PlannedChunk]]:
@@ -41,8 +43,10 @@ def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[l
     windows = 0
     for i in rng.permutation(len(chunks)):
         shifts = draw_shifts(rng, opts.max_shift)
-        # draw_crosstalk takes nothing from rng when it is off: plans without it stay as they were.
-        current.append(PlannedChunk(chunks[i], shifts, draw_crosstalk(rng, opts.max_crosstalk)))
+        # Neither draws from rng when it is off: plans without them stay as they were.
+        crosstalk = draw_crosstalk(rng, opts.max_crosstalk)
+        sensor = draw_transfer(rng, opts.sensor_transfer)
+        current.append(PlannedChunk(chunks[i], shifts, crosstalk, sensor))
         windows += chunks[i].count
         if windows >= opts.batch:
             batches.append(current)
@@ -63,6 +67,8 @@ def batch_tensors(
 
 def _augmented(frames: np.ndarray, planned: PlannedChunk, cols: int) -> np.ndarray:
     shifted = shift_feet(frames, planned.shifts, cols).astype(np.float32)
+    if planned.sensor is not None:
+        shifted = render(shifted, planned.sensor)  # another insole, as an import brings it in
     if not planned.crosstalk.any():
         return shifted
     return add_crosstalk(shifted, planned.crosstalk, cols)

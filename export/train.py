@@ -80,6 +80,7 @@ class TrainOptions:
     grad_clip: float = 1.0  # max global gradient norm; 0 turns clipping off
     max_shift: int = 2  # taxels, random shift of each foot per chunk (0 = no augmentation)
     max_crosstalk: float = 0.0  # crosstalk added per chunk and foot, up to this (augment.py)
+    sensor_transfer: float = 0.0  # share of chunks read through a drawn foreign insole
     seed: int = 0
     max_minutes: float = 0.0  # stop (and checkpoint) after this much training; 0 = no limit
     progress_bar: bool = True

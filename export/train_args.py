@@ -72,6 +72,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(0 = off; the simulator's realistic insoles have 0.005-0.03)",
     )
     parser.add_argument(
+        "--sensor-transfer",
+        type=float,
+        default=d.sensor_transfer,
+        metavar="P",
+        help="augmentation: render this share of chunks as an import from a drawn foreign "
+        "insole would bring them in (another grid or discrete cells, curve, gain and rate; "
+        "export/sensor_transfer.py; 0 = off)",
+    )
+    parser.add_argument(
         "--ema",
         type=float,
         default=d.ema,

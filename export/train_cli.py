@@ -101,6 +101,9 @@ def _options(args: argparse.Namespace) -> TrainOptions:
     if not 0.0 <= args.max_crosstalk <= 0.5:
         msg = f"--max-crosstalk must be between 0 and 0.5, got {args.max_crosstalk}"
         raise TrainCliError(msg)
+    if not 0.0 <= args.sensor_transfer <= 1.0:  # also catches NaN
+        msg = f"--sensor-transfer must be a share between 0 and 1, got {args.sensor_transfer}"
+        raise TrainCliError(msg)
     if not (args.ema == 0.0 or 0.0 < args.ema < 1.0):  # also catches NaN
         msg = f"--ema must be 0 (off) or a decay between 0 and 1, got {args.ema}"
         raise TrainCliError(msg)
@@ -117,6 +120,7 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         weight_decay=args.weight_decay,
         max_shift=args.max_shift,
         max_crosstalk=args.max_crosstalk,
+        sensor_transfer=args.sensor_transfer,
         loss_weights=parse_loss_weights(args.loss_weights),
         seed=args.seed,
         max_minutes=args.max_minutes,
@@ -299,7 +303,7 @@ def _benchmark(
 ) -> None:
     """Print naive vs chunked (fp32, CPU) and fp32 vs bf16 (chunked, on ``device``)."""
     cfg = model.cfg
-    plain = replace(opts, max_shift=0, max_crosstalk=0.0)
+    plain = replace(opts, max_shift=0, max_crosstalk=0.0, sensor_transfer=0.0)
     rates = measure_throughput(model, data.train, plain, args.benchmark)
     print(
         f"E={cfg.embed_dim} T={cfg.window} batch={opts.batch} chunk={opts.chunk} "
