@@ -194,6 +194,13 @@ def format_report(report: dict[str, Any]) -> list[str]:
             f"{s['evaluated']} scored, {s['window_restarts']} window restarts, "
             f"{s['degraded_pairs']} degraded pairs, {s['decode_errors']} decode errors"
         )
+        for foot, n in s.get("silent_pairs", {}).items():
+            if n:
+                lines.append(
+                    f"  {s['path']}: {foot} insole silent on {n} of {s['pairs']} pairs"
+                    " (zero-filled: an insole off, or a one-foot recording; the model"
+                    " never learnt one foot, its predictions there are not to be trusted)"
+                )
     for path in report.get("plots", []):
         lines.append(f"  wrote {path}")
     return lines

@@ -57,6 +57,8 @@ class SessionReplay:
     window_restarts: int = 0
     decode_errors: int = 0
     degraded_pairs: int = 0  # pairs with a held, filled or patched foot
+    # pairs with a foot zero-filled: silent past the hold (an insole off, or a one-foot file)
+    silent_pairs: dict[str, int] = field(default_factory=lambda: {"left": 0, "right": 0})
     step_ms: list[float] = field(default_factory=list, repr=False)  # step graph, batch 1
     step_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)  # (ms, rows)
     window_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)
@@ -80,6 +82,7 @@ class SessionReplay:
             "window_restarts": self.window_restarts,
             "decode_errors": self.decode_errors,
             "degraded_pairs": self.degraded_pairs,
+            "silent_pairs": dict(self.silent_pairs),
         }
         return out
 
@@ -140,8 +143,12 @@ def replay_session_models(
             graphs = window_graphs(runtimes) if windows is None else windows
             tracks = [SampledTrack(w, every, SessionReplay(str(path), subject)) for w in graphs]
 
+        silent = {"left": 0, "right": 0}
+
         def take(pair: PairedFrame) -> None:
             ext = clock.unwrap(pair.seqs[0] if pair.seqs[0] >= 0 else pair.seqs[1])
+            for foot in silent:
+                silent[foot] += f"{foot}_filled" in pair.flags
             for track in tracks:
                 track.take(pair, ext)
 
@@ -168,6 +175,7 @@ def replay_session_models(
         out.predictions = len(out.made)
         out.window_restarts = track.restarts
         out.decode_errors = decoder.counters.errors
+        out.silent_pairs = dict(silent)
         out.frames, out.unlabelled = align(track.made, labels)
         out.evaluated = len(out.frames)
         out.scores = FrameScores.of(out.frames)

@@ -82,11 +82,18 @@ def _imported(info: dict[str, Any]) -> str:
     """Where an imported session came from, in one line."""
     parts = []
     p = info.get("pressure") or {}
-    if p:
+    if p and p.get("format", "table") != "table":  # a vendor's export: its format, units
+        parts.append(
+            f"{p.get('file')} ({p.get('format')}, {p.get('units')}, {p.get('frames')} frames at"
+            f" {float(p.get('rate_hz') or 0):.3g} Hz)"
+        )
+    elif p:
         parts.append(
             f"{p.get('file')} ({p.get('rows')} x {p.get('cols')}, {p.get('frames')} frames at"
             f" {float(p.get('rate_hz') or 0):.3g} Hz)"
         )
+    for foot in p.get("absent_feet") or []:
+        parts.append(f"{foot} foot absent (one-foot recording: no {foot} packets)")
     counts = info.get("counts") or {}
     if counts:
         parts.append(f"counts {counts.get('method')}")

@@ -1,13 +1,17 @@
-"""``scotti import [CONFIG.toml] -o OUT.scotti``: another recording into a session file.
+"""``scotti import [CONFIG.toml | RECORDING] -o OUT.scotti``: another recording into a session file.
 
     scotti import walk.toml -o data/real/p01-walk.scotti
+    scotti import pedar_example.asc -o p01.scotti          # a vendor's export, by its header
     scotti import --pressure p.npz --grid 16x8 --counts-per-kpa 10 \\
                   --keypoints pose.csv --keypoint-set body25 --up=-y \\
                   --action walking --subject p01 -o p01.scotti
 
 A TOML file describes everything (importers/config.py, importers/IMPORT.md);
-the flags cover the simple cases and override the file's keys. Any mistake
-in a file is one line naming the file, the line and the column, exit 2.
+the flags cover the simple cases and override the file's keys. A vendor's
+export (novel pedar .asc, Tekscan F-Scan .asf, XSENSOR .csv, Moticon
+OpenGo .txt, PhysioNet gaitpdb .txt[.gz]) is recognised by its own header
+(``--format`` names it outright). Any mistake in a file is one line naming
+the file, the line and the column, exit 2.
 """
 
 from __future__ import annotations
@@ -23,10 +27,25 @@ from scotti.importers.errors import ImporterError
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.description = __doc__
-    parser.add_argument("config", nargs="?", type=Path, help="import TOML (optional)")
+    parser.add_argument(
+        "config",
+        nargs="?",
+        type=Path,
+        help="import TOML, or a pressure recording (a vendor's export or a table)",
+    )
     parser.add_argument("-o", "--output", type=Path, required=True, help="session file to write")
     parser.add_argument("--force", action="store_true", help="replace an existing output")
-    parser.add_argument("--pressure", help="pressure file (.csv, .npz, .h5)")
+    parser.add_argument("--pressure", help="pressure file (a vendor's export, .csv, .npz, .h5)")
+    parser.add_argument(
+        "--format",
+        choices=("auto", "table", "pedar", "fscan", "xsensor", "moticon", "gaitpdb"),
+        help="the pressure file's format (default auto: from its own header)",
+    )
+    parser.add_argument(
+        "--mass-kg",
+        type=float,
+        help="the wearer's mass: into the header, and the scale of a file that states none",
+    )
     parser.add_argument("--grid", metavar="ROWSxCOLS", help="the source grid of one foot")
     parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"))
     scale = parser.add_mutually_exclusive_group()
@@ -69,6 +88,8 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
         pressure |= {"rows": rows, "cols": cols}
     if args.time_unit is not None:
         pressure["time_unit"] = args.time_unit
+    if args.format is not None:
+        pressure["format"] = args.format
     if pressure:
         out["pressure"] = pressure
     if args.counts_per_kpa is not None:
@@ -90,6 +111,8 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
         out["labels"] = {"action": args.action}
     if args.subject is not None:
         out["subject"] = args.subject
+    if args.mass_kg is not None:
+        out["mass_kg"] = args.mass_kg
     return out
 
 
@@ -99,7 +122,13 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         extra = overrides(args)
-        if args.config is not None:
+        if args.config is not None and not _is_toml(args.config):
+            if args.pressure is not None:
+                msg = f"{args.config}: a recording and --pressure; give one of them"
+                raise ImporterError(msg)
+            extra.setdefault("pressure", {})["file"] = str(args.config.resolve())
+            cfg = config_from_dict(extra, name="the command line")
+        elif args.config is not None:
             cfg = load_config(args.config, extra)
         else:
             cfg = config_from_dict(extra, name="the command line")
@@ -113,3 +142,7 @@ def run(args: argparse.Namespace) -> int:
     for line in report.lines():
         print(line)
     return 0
+
+
+def _is_toml(path: Path) -> bool:
+    return path.suffix.lower() == ".toml"

@@ -57,8 +57,11 @@ class FootGrid(_Strict):
 
 class PressureConfig(_Strict):
     file: str
-    rows: int = Field(gt=0, le=1024)  # source taxel rows of one foot (as stored)
-    cols: int = Field(gt=0, le=1024)
+    # auto: a vendor's export by its own header (importers/vendors/), else a table.
+    format: Literal["auto", "table", "pedar", "fscan", "xsensor", "moticon", "gaitpdb"] = "auto"
+    # A table's grid of one foot, as stored (vendor files say their own).
+    rows: int | None = Field(default=None, gt=0, le=1024)
+    cols: int | None = Field(default=None, gt=0, le=1024)
     time_unit: Literal["s", "ms", "us", "ns"] = "s"
     # CSV: the time column (name or 0-based index), the first taxel column, the
     # foot blocks in order and the order of taxels inside a block.

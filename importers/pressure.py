@@ -1,8 +1,11 @@
-"""Pressure recordings: read, check, then onto 16 Hz, the 32 x 22 grid and our counts.
+"""Pressure tables (CSV, ``.npz``, HDF5): read, check, and each foot's map onto our counts.
 
-The order is time, then space, then scale: resampling in time and remapping
-in space are both linear, so they act on the source's own values; the count
-scale (models/insole.py) may be a curve, so it comes last, on our grid.
+A table holds both feet as grids of the size the configuration names. The
+import's path from here is importers/feet.py's: time, then space, then
+scale. Resampling in time and remapping in space are both linear, so they
+act on the source's own values; the count scale (models/insole.py) may be
+a curve, so it comes last, on our grid. Vendor files come in through
+importers/vendors/ onto the same path.
 """
 
 from __future__ import annotations
@@ -15,15 +18,13 @@ from typing import Final
 import numpy as np
 from scotti.importers.config import TIME_UNITS, CountsConfig, FootGrid, ImportConfig
 from scotti.importers.errors import InputError
+from scotti.importers.feet import FEET, FeetSource, FootMap
 from scotti.importers.grid import GridMapper, Orientation
 from scotti.importers.tables import describe_value, first_bad, load_arrays, read_csv
-from scotti.importers.timebase import Timeline, box_average
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
 from scotti.models.insole import counts_from_kpa
 
 G: Final = 9.81  # m/s^2
-_CHUNK: Final = 256  # output frames taken from source values to counts at once
-FEET: Final = ("left", "right")  # the order of axis 1 of every (N, 2, ...) array here
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,16 @@ class PressureSource:
         return (self.times.size - 1) / span if span > 0 else 0.0
 
 
+def table_grid(cfg: ImportConfig) -> tuple[int, int]:
+    """A table's grid of one foot (rows, cols): the configuration must say it."""
+    p = cfg.pressure
+    if p.rows is None or p.cols is None:
+        problem = "a pressure table needs its grid: pressure.rows and pressure.cols "
+        problem += "(--grid ROWSxCOLS)"
+        raise InputError(cfg.path(p.file), problem)
+    return p.rows, p.cols
+
+
 def read_pressure(cfg: ImportConfig) -> PressureSource:
     p = cfg.pressure
     path = cfg.path(p.file)
@@ -52,7 +63,8 @@ def read_pressure(cfg: ImportConfig) -> PressureSource:
 
 def _from_csv(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     p = cfg.pressure
-    taxels = p.rows * p.cols
+    rows, cols = table_grid(cfg)
+    taxels = rows * cols
     table = read_csv(path)  # every line as wide as the header (or the first line)
     time_col = table.column_of(p.time_column)
     first = p.first_column if p.first_column is not None else time_col + 1
@@ -61,7 +73,7 @@ def _from_csv(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     width = max(time_col + 1, first + 2 * taxels)
     if table.values.shape[1] != width:
         problem = f"{table.values.shape[1]} columns, expected {width}"
-        problem += f" (time + 2 feet x {p.rows} x {p.cols} taxels)"
+        problem += f" (time + 2 feet x {rows} x {cols} taxels)"
         line = table.header_line if table.header_line is not None else int(table.lines[0])
         raise InputError(path, problem, line=line)
     times = table.values[:, time_col] * TIME_UNITS[p.time_unit]
@@ -71,9 +83,9 @@ def _from_csv(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     if bad is not None:
         raise table.fail(bad[0], first + bad[1], describe_value(float(block[bad])))
     feet = block.reshape(-1, 2, taxels)
-    frames = np.empty((len(times), 2, p.rows, p.cols), dtype=np.float32)
+    frames = np.empty((len(times), 2, rows, cols), dtype=np.float32)
     for k, foot in enumerate(p.feet):
-        frames[:, FEET.index(foot)] = _unflatten(feet[:, k], p.rows, p.cols, p.taxel_order)
+        frames[:, FEET.index(foot)] = _unflatten(feet[:, k], rows, cols, p.taxel_order)
     return times, frames
 
 
@@ -85,6 +97,7 @@ def _unflatten(values: np.ndarray, rows: int, cols: int, order: str) -> np.ndarr
 
 def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     p = cfg.pressure
+    rows, cols = table_grid(cfg)
     keys = [p.time_key] + ([p.frames_key] if p.frames_key else [p.left_key, p.right_key])
     if p.right_time_key is not None:
         keys.append(p.right_time_key)
@@ -94,13 +107,11 @@ def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]
     if p.right_time_key is not None:
         own["right"] = _times(path, arrays, p.right_time_key, TIME_UNITS[p.time_unit])
     n = times.size
-    frames = np.empty((n, 2, p.rows, p.cols), dtype=np.float32)
+    frames = np.empty((n, 2, rows, cols), dtype=np.float32)
     if p.frames_key:
         both = np.asarray(arrays[p.frames_key])
         if both.shape[:2] != (n, 2):
-            problem = (
-                f"{p.frames_key} has shape {both.shape}, expected ({n}, 2, {p.rows}, {p.cols})"
-            )
+            problem = f"{p.frames_key} has shape {both.shape}, expected ({n}, 2, {rows}, {cols})"
             raise InputError(path, problem)
         parts = {foot: (f"{p.frames_key}[:, {k}]", both[:, k]) for k, foot in enumerate(p.feet)}
     else:
@@ -110,11 +121,11 @@ def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]
         }
     for foot, (name, values) in parts.items():
         count = own[foot].size
-        if values.ndim == 2 and values.shape == (count, p.rows * p.cols):
-            values = _unflatten(values, p.rows, p.cols, p.taxel_order)
-        if values.shape != (count, p.rows, p.cols):
+        if values.ndim == 2 and values.shape == (count, rows * cols):
+            values = _unflatten(values, rows, cols, p.taxel_order)
+        if values.shape != (count, rows, cols):
             problem = f"{name} has shape {values.shape}; declared {count} frames of "
-            problem += f"{p.rows} x {p.cols}"
+            problem += f"{rows} x {cols}"
             raise InputError(path, problem)
         if values.dtype.kind not in "fiu":
             raise InputError(path, f"{name} holds {values.dtype}, not numbers")
@@ -175,6 +186,7 @@ def orientations(cfg: ImportConfig) -> tuple[Orientation, Orientation]:
 def source_masks(cfg: ImportConfig) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Each foot's outline (rows, cols) as stored, None when every taxel is live."""
     p = cfg.pressure
+    rows, cols = table_grid(cfg)
     out: list[np.ndarray | None] = []
     for grid in (p.left, p.right):
         if grid.outline is None:
@@ -185,9 +197,9 @@ def source_masks(cfg: ImportConfig) -> tuple[np.ndarray | None, np.ndarray | Non
             mask = np.load(path) if path.suffix == ".npy" else read_csv(path).values
         except (OSError, ValueError) as exc:
             raise InputError(path, f"cannot read the outline ({exc.__class__.__name__})") from None
-        if mask.shape != (p.rows, p.cols):
+        if mask.shape != (rows, cols):
             shape = " x ".join(map(str, mask.shape))
-            problem = f"outline is {shape}, the grid {p.rows} x {p.cols}"
+            problem = f"outline is {shape}, the grid {rows} x {cols}"
             raise InputError(path, problem)
         out.append(np.asarray(mask) > 0)
     return out[0], out[1]
@@ -197,12 +209,13 @@ class CountMapper:
     """Source frames (N, 2, rows, cols) -> our counts (N, 2, 32, 22) uint16."""
 
     def __init__(self, cfg: ImportConfig, source: PressureSource) -> None:
+        rows, cols = table_grid(cfg)
         self.orient = orientations(cfg)
         masks = source_masks(cfg)
         self.source_masks = masks
         self.mappers = []
         for o, m in zip(self.orient, masks, strict=True):
-            oriented = o.apply(np.zeros((1, cfg.pressure.rows, cfg.pressure.cols)))[0]
+            oriented = o.apply(np.zeros((1, rows, cols)))[0]
             mask = None if m is None else o.apply_mask(m)
             self.mappers.append(GridMapper(oriented.shape[0], oriented.shape[1], mask))
         self.counts = cfg.counts
@@ -212,8 +225,20 @@ class CountMapper:
         """(N, 2, rows, cols) source units -> (N, 2, 32, 22) float32 source units."""
         out = np.empty((frames.shape[0], 2, FRAME_ROWS, FRAME_COLS), dtype=np.float32)
         for foot in range(2):
-            out[:, foot] = self.mappers[foot](self.orient[foot].apply(frames[:, foot]))
+            out[:, foot] = self.foot_on_grid(foot, frames[:, foot])
         return out
+
+    def foot_on_grid(self, foot: int, frames: np.ndarray) -> np.ndarray:
+        """One foot's (N, rows, cols) source units -> (N, 32, 22) float32 source units."""
+        return np.asarray(self.mappers[foot](self.orient[foot].apply(frames)))
+
+    def foot_map(self, foot: int, rows: int, cols: int) -> FootMap:
+        """The foot's map for importers/feet.py: (n, rows * cols) -> (n, 32, 22) counts."""
+
+        def counts(flat: np.ndarray) -> np.ndarray:
+            return self.to_counts(self.foot_on_grid(foot, flat.reshape(-1, rows, cols)))
+
+        return counts
 
     def to_counts(self, on_grid: np.ndarray) -> np.ndarray:
         """Source units on our grid -> counts (float32, unrounded)."""
@@ -252,15 +277,14 @@ def _kpa_per_unit(
     return c.mass_kg * G / mean_units / 1000.0  # Pa per unit -> kPa per unit
 
 
-def resample_counts(source: PressureSource, timeline: Timeline, mapper: CountMapper) -> np.ndarray:
-    """(M, 2, 32, 22) uint16 counts at the timeline's frames."""
-    out = np.empty((len(timeline), 2, FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
-    flat = source.frames.reshape(source.frames.shape[0], -1)
-    for index, (a, b) in enumerate(timeline.source_ranges):
-        rows = np.flatnonzero(timeline.segment == index)
-        # A chunk at a time, from resampling to counts: the arrays stay in cache.
-        for s in range(0, rows.size, _CHUNK):
-            chunk = rows[s : s + _CHUNK]
-            values = box_average(source.times[a : b + 1], flat[a : b + 1], timeline.times[chunk])
-            out[chunk] = mapper(values.reshape(chunk.size, *source.frames.shape[1:]))
-    return out
+def feet_from_table(source: PressureSource, mapper: CountMapper) -> FeetSource:
+    """A table's two feet as the import's source: its frames, flat, and each foot's map."""
+    n, _, rows, cols = source.frames.shape
+    taxels = rows * cols
+    return FeetSource(
+        path=source.path,
+        times=source.times,
+        values=source.frames.reshape(n, 2 * taxels),  # a view: left's taxels, then right's
+        columns={"left": slice(0, taxels), "right": slice(taxels, 2 * taxels)},
+        maps={foot: mapper.foot_map(k, rows, cols) for k, foot in enumerate(FEET)},
+    )

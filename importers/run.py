@@ -8,17 +8,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scotti.firmware_protocol.session import SourceFrameRecord
 from scotti.importers.config import ImportConfig
+from scotti.importers.feet import resample_feet
 from scotti.importers.labels import frame_actions, frame_progress, read_segments
 from scotti.importers.pose import pose_frame, read_keypoints, to_world
-from scotti.importers.pressure import (
-    CountMapper,
-    PressureSource,
-    read_pressure,
-    resample_counts,
-)
 from scotti.importers.session_out import ImportedFrames, write_imported
+from scotti.importers.sources import LoadedPressure, load_pressure
 from scotti.importers.timebase import Timeline, interpolate_points, plan_timeline
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ, NO_ACTION
 
@@ -39,6 +34,8 @@ class ImportReport:
     actions: dict[str, int] = field(default_factory=dict)  # frames per action
     progress_frames: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
+    source: str = ""  # what the pressure file was, in a few words (vendor files)
+    absent_feet: list[str] = field(default_factory=list)
 
     def lines(self) -> list[str]:
         out = [
@@ -46,6 +43,12 @@ class ImportReport:
             f"{self.segments} segment(s) from {self.source_frames} source frames at "
             f"{self.source_rate_hz:.3g} Hz; {self.labels} labels",
         ]
+        if self.source:
+            out.append(f"  pressure: {self.source}")
+        for foot in self.absent_feet:
+            out.append(
+                f"  {foot} foot: absent from the file, no packets for it (a one-foot recording)"
+            )
         if self.keypoints_mapped:
             out.append(
                 f"  keypoints: {len(self.keypoints_mapped)} of 19 mapped, "
@@ -62,11 +65,11 @@ def import_recording(
 ) -> ImportReport:
     """Import what ``cfg`` describes into the session file ``output``."""
     clock = _Stopwatch()
-    source = read_pressure(cfg)
+    pressure = load_pressure(cfg)
+    source = pressure.feet
     clock.lap("read_pressure")
     timeline = plan_timeline(source.times)
-    mapper = CountMapper(cfg, source)
-    counts = resample_counts(source, timeline, mapper)
+    counts = resample_feet(source, timeline)
     clock.lap("resample_pressure")
 
     keypoints = None
@@ -116,15 +119,17 @@ def import_recording(
     frames = ImportedFrames(
         timeline.times, timeline.seq, counts, keypoints, action, progress, repetition
     )
-    provenance = _provenance(cfg, source, timeline, mapper, kp_info, label_info)
+    provenance = _provenance(pressure, timeline, kp_info, label_info)
+    created = pressure.start_unix if pressure.start_unix is not None else _mtime(source.path)
     labels = write_imported(
         output,
         frames,
         device=cfg.device,
-        created_unix=_mtime(source.path),
-        subject=_subject(cfg, Path(output)),
+        created_unix=created,
+        subject=_subject(cfg, Path(output), pressure),
         provenance=provenance,
-        source_frames=_source_frames(source, cfg.source_every_s),
+        source_frames=pressure.source_frames,
+        feet=source.feet,
         overwrite=overwrite,
     )
     clock.lap("write")
@@ -138,6 +143,8 @@ def import_recording(
         labels=labels,
         keypoints_mapped=list(mapped),
         seconds=clock.laps,
+        source=_describe(pressure),
+        absent_feet=list(source.absent),
     )
     if keypoints is not None:
         has = np.isfinite(keypoints).all(axis=2)
@@ -153,13 +160,27 @@ def import_recording(
     return report
 
 
-def _subject(cfg: ImportConfig, output: Path) -> dict[str, Any]:
-    subject: dict[str, Any] = {"id": cfg.subject or output.stem}
+def _subject(cfg: ImportConfig, output: Path, pressure: LoadedPressure) -> dict[str, Any]:
+    subject: dict[str, Any] = {"id": cfg.subject or output.stem, **pressure.subject}
     if cfg.mass_kg is not None:
         subject["mass_kg"] = cfg.mass_kg
     if cfg.height_m is not None:
         subject["height_m"] = cfg.height_m
     return subject
+
+
+def _describe(pressure: LoadedPressure) -> str:
+    """A vendor file in a few words: format, feet, grid or cells, units, scale."""
+    if pressure.format == "table":
+        return ""
+    p = pressure.provenance["pressure"]
+    feet = []
+    for foot, d in p["feet"].items():
+        shape = " x ".join(map(str, d["grid"])) if "grid" in d else f"{d['cells']} cells"
+        feet.append(f"{foot} {shape}")
+    events = len(pressure.provenance.get("events", []))
+    text = f"{p['format']}, {', '.join(feet)}, {p['units']} ({pressure.counts['method']})"
+    return text + (f", {events} events" if events else "")
 
 
 def _mtime(path: Path) -> float:
@@ -169,47 +190,17 @@ def _mtime(path: Path) -> float:
         return 0.0
 
 
-def _source_frames(source: PressureSource, every_s: float) -> list[SourceFrameRecord]:
-    """One source frame per ``every_s`` seconds (the first of each interval)."""
-    if every_s <= 0:
-        return []
-    bucket = np.floor((source.times - source.times[0]) / every_s)
-    keep = np.flatnonzero(np.r_[True, bucket[1:] != bucket[:-1]])
-    return [
-        SourceFrameRecord(round(float(source.times[i]) * 1e9), source.frames[i])
-        for i in keep.tolist()
-    ]
-
-
 def _provenance(
-    cfg: ImportConfig,
-    source: PressureSource,
+    pressure: LoadedPressure,
     timeline: Timeline,
-    mapper: CountMapper,
     keypoints: dict[str, Any] | None,
     labels: dict[str, Any] | None,
 ) -> dict[str, Any]:
-    p = cfg.pressure
+    times = pressure.feet.times
     return {
-        "pressure": {
-            "file": source.path.name,
-            "rows": p.rows,
-            "cols": p.cols,
-            "frames": int(source.times.size),
-            "rate_hz": source.rate_hz,
-            "first_s": float(source.times[0]),
-            "last_s": float(source.times[-1]),
-            "left": p.left.model_dump(),
-            "right": p.right.model_dump(),
-        },
-        "counts": {
-            "method": cfg.counts.method,
-            "gain": cfg.counts.gain,
-            "kpa_per_unit": mapper.kpa_per_unit,
-        },
-        "segments": [
-            [float(source.times[a]), float(source.times[b])] for a, b in timeline.source_ranges
-        ],
+        **pressure.provenance,
+        "counts": pressure.counts,
+        "segments": [[float(times[a]), float(times[b])] for a, b in timeline.source_ranges],
         "keypoints": keypoints,
         "labels": labels,
     }

@@ -61,9 +61,15 @@ def write_imported(
     subject: dict[str, Any] | None,
     provenance: dict[str, Any],
     source_frames: Sequence[SourceFrameRecord] = (),
+    feet: Sequence[str] = ("left", "right"),
     overwrite: bool = False,
 ) -> int:
-    """Write the session; returns the number of label records written."""
+    """Write the session; returns the number of label records written.
+
+    Packets go out for the ``feet`` named only: a foot the recording does
+    not hold sends nothing, as an insole that is off sends nothing to its
+    receiver (the daemon then reports it silent).
+    """
     header = SessionHeader(
         source="imported",
         device=device,
@@ -83,15 +89,17 @@ def write_imported(
     pending_sources = sorted(source_frames, key=lambda r: r.t_ns)
     next_source = 0
     labels = 0
+    held = [k for k, name in enumerate(("left", "right")) if name in feet]
+    codes = [(int(Foot.LEFT), int(Foot.RIGHT))[k] for k in held]
+    per = len(held)  # packets per frame
     with SessionWriter(path, header, flush_each=False, overwrite=overwrite) as writer:
         for start in range(0, len(t_ns), _BATCH):
             stop = min(start + _BATCH, len(t_ns))
-            feet = np.tile([int(Foot.LEFT), int(Foot.RIGHT)], stop - start)
             encoded = encode_whole_frames(
-                feet,
-                np.repeat(seq[start:stop], 2),
-                np.repeat(clock[start:stop], 2),
-                frames.counts[start:stop].reshape(-1, FRAME_ROWS, FRAME_COLS),
+                np.tile(codes, stop - start),
+                np.repeat(seq[start:stop], per),
+                np.repeat(clock[start:stop], per),
+                _held(frames.counts[start:stop], held).reshape(-1, FRAME_ROWS, FRAME_COLS),
                 SAMPLE_BITS,
             )
             for k in range(start, stop):
@@ -103,11 +111,16 @@ def write_imported(
                 if labelled[k]:
                     writer.write_label(_label(frames, k, seq_list[k], t_ns[k]))
                     labels += 1
-                i = 2 * (k - start)
-                writer.write_packet(t_ns[k], encoded[i] + encoded[i + 1])
+                i = per * (k - start)
+                writer.write_packet(t_ns[k], b"".join(encoded[i : i + per]))
         for record in pending_sources[next_source:]:
             writer.write(record)
     return labels
+
+
+def _held(counts: np.ndarray, held: list[int]) -> np.ndarray:
+    """(n, len(held), 32, 22): both feet as they are (a view), or the one held."""
+    return counts if len(held) == counts.shape[1] else counts[:, held]
 
 
 def _labelled(frames: ImportedFrames) -> np.ndarray:

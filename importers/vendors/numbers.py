@@ -1,0 +1,55 @@
+"""Cells of a text line into numbers, with the column of the first one that is not."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from scotti.importers.vendors.lines import TextLines
+
+
+def numbers(
+    cells: Sequence[str], lines: TextLines, *, first_column: int = 1, empty_is_nan: bool = False
+) -> np.ndarray:
+    """float64 of each cell; an InputError naming the line and 1-based column otherwise."""
+    out = np.empty(len(cells))
+    for i, cell in enumerate(cells):
+        text = cell.strip()
+        if not text and empty_is_nan:
+            out[i] = math.nan
+            continue
+        try:
+            out[i] = float(text)
+        except ValueError:
+            shown = text if len(text) <= 20 else text[:17] + "..."
+            raise lines.fail(f"{shown!r} is not a number", column=first_column + i) from None
+    return out
+
+
+def check_pressures(
+    values: np.ndarray, lines: TextLines, *, first_column: int = 1, allow_nan: bool = False
+) -> None:
+    """Pressures and forces are finite and not negative (NaN allowed where a cell was empty)."""
+    bad = ~np.isfinite(values) | (values < 0)
+    if allow_nan:
+        bad &= ~np.isnan(values)
+    if bad.any():
+        i = int(np.argmax(bad))
+        value = float(values[i])
+        problem = "an infinite value" if math.isinf(value) else f"negative value {value:g}"
+        if math.isnan(value):
+            problem = "NaN"
+        raise lines.fail(problem, column=first_column + i)
+
+
+def field_number(text: str, lines: TextLines, what: str) -> float:
+    """The first number in ``text`` (a header field's value), or an error naming ``what``."""
+    for token in text.replace(",", " ").split():
+        try:
+            value = float(token)
+        except ValueError:
+            continue
+        if math.isfinite(value):
+            return value
+    raise lines.fail(f"{what}: no number in {text.strip()[:40]!r}")
