@@ -17,19 +17,20 @@ that never saw them reads a softer insole's squat as standing:
   a recording was scaled by), from 0.5 to 2 times ours;
 - time: another rate (8-100 Hz), box-averaged onto our 16 Hz.
 
-``render`` takes counts back to pressure (``kpa_from_counts``, the inverse
-of our curve: 0 stays 0, a taxel at our rail stays at the rail's pressure),
-lets a ``ForeignSensor`` read that pressure (its cells' area means, its
-gains, its own curve, in its own count scale), takes the reading as our
-importer does (through the inverse of our curve, the ``per_kpa`` route: a
-reading is taken for the pressure our insole would report it as), resamples
-it in time and space as the importer does, and puts it on our counts
-through our curve, rounded as an imported session file holds them.
-Resampling in time and remapping in space are both linear, so they commute:
-the time step runs on whichever of the two grids is smaller. The sensor's
-curve acts on its 16 Hz readings, before the time step; the importer sees
-readings taken at the source's rate, so fast transitions of a slow sensor
-are a little smoother here than in a real import.
+``render`` takes counts back to pressure (``kpa_from_counts`` of
+models/input_checks.py, the inverse of our curve: 0 stays 0, a taxel at our
+rail stays at the rail's pressure), lets a ``ForeignSensor`` read that
+pressure (its cells' area means, its gains, its own curve, in its own count
+scale), takes the reading as our importer does (through the inverse of our
+curve, the ``per_kpa`` route: a reading is taken for the pressure our
+insole would report it as), resamples it in time and space as the importer
+does, and puts it on our counts through our curve, rounded as an imported
+session file holds them. Resampling in time and remapping in space are both
+linear, so they commute: the time step runs on whichever of the two grids
+is smaller. The sensor's curve acts on its 16 Hz readings, before the time
+step; the importer sees readings taken at the source's rate, so fast
+transitions of a slow sensor are a little smoother here than in a real
+import.
 
 A sensor with our grid, our curve, gain 1, no cell spread and our rate is
 the identity (up to the rail: an import never gives more than our curve's
@@ -52,6 +53,7 @@ import numpy as np
 from scotti.importers.grid import overlap_weights
 from scotti.importers.timebase import box_average
 from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, MAX_COUNT
+from scotti.models.input_checks import kpa_from_counts
 from scotti.models.insole import DEFAULT_TRANSFER, Transfer, counts_from_kpa, insole_mask
 
 # What draw_sensor draws, and why so far:
@@ -76,33 +78,10 @@ _MAX_CACHED_OPERATORS: Final = 512
 # --- our count curve, both ways ------------------------------------------------
 
 
-def kpa_from_counts(counts: np.ndarray, transfer: Transfer = DEFAULT_TRANSFER) -> np.ndarray:
-    """Float32 pressure (kPa) that ``counts_from_kpa`` maps onto these counts.
-
-    0 counts read 0 kPa (below the threshold nothing is known, and nothing
-    is pressed as far as the count says). Counts at or above the curve's
-    saturation read the pressure where the curve reaches it: the rail hides
-    how far above it the real pressure was, and that pressure maps back onto
-    the rail.
-    """
-    f32 = np.float32
-    c = np.asarray(counts, dtype=f32)
-    kpa = np.zeros(c.shape, f32)
-    pressed = c > 0.0
-    v = np.minimum(c[pressed], f32(min(transfer.saturation_counts, MAX_COUNT - 0.5)))
-    v /= f32(MAX_COUNT) - v  # (q / p_half)^n
-    if transfer.exponent != 1.0:
-        v **= f32(1.0 / transfer.exponent)
-    v *= f32(transfer.p_half_kpa)
-    v += f32(transfer.threshold_kpa)
-    kpa[pressed] = v
-    return kpa
-
-
 @functools.lru_cache(maxsize=1)
 def _kpa_of_each_count() -> np.ndarray:
     """(4096,) float32: ``kpa_from_counts`` of every whole count, our curve."""
-    return kpa_from_counts(np.arange(MAX_COUNT + 1, dtype=np.float32))
+    return kpa_from_counts(np.arange(MAX_COUNT + 1)).astype(np.float32)
 
 
 def kpa_from_whole_counts(counts: np.ndarray) -> np.ndarray:
@@ -129,7 +108,7 @@ def read_as_ours(kpa: np.ndarray, transfer: Transfer) -> np.ndarray:
     out = np.zeros(q.shape, f32)
     v = q[pressed] / f32(transfer.p_half_kpa)
     v **= f32(transfer.exponent / ours.exponent)
-    rail = min(transfer.saturation_counts, ours.saturation_counts, MAX_COUNT - 0.5)
+    rail = min(transfer.saturation_counts, ours.saturation_counts, MAX_COUNT - 1.0)
     np.minimum(v, f32((rail / (MAX_COUNT - rail)) ** (1.0 / ours.exponent)), out=v)
     v *= f32(ours.p_half_kpa)
     v += f32(ours.threshold_kpa)
