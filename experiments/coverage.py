@@ -1,0 +1,173 @@
+"""Coverage: the shipped model over every parameter a scene may set, action by action.
+
+    python experiments/coverage.py [--people 3] [--seconds 40] [--model M] [--jobs 1]
+        [--max-minutes MIN] [--cache runs/coverage] [--write docs/coverage.md]
+        [--action A ...] [--param PREFIX ...] [--scenes DIR | --no-scenes] [--keep-sessions]
+
+For every action of the contract (standing included) and every field of the
+scene schema (experiments/coverage_grid.py reads them from sim/scene.py, the
+insole and the effect registry), a cell simulates ``--people`` people doing
+the action for ``--seconds`` with that field at its schema minimum, then at its
+maximum, everything else at the scene's default; each person's session is
+replayed through the daemon's path as ``scotti eval`` does (the shipped model
+unless ``--model``) and the cell keeps accuracy, APP, MPJPE, progress MSE, the
+flag shares, and how many predictions were wrong and went out unflagged
+(experiments/coverage_score.py). Every scene file of sim/scenes is scored as
+shipped too. docs/coverage.md gets the headline (the worst cell), the goals,
+the unfamiliar flag as a detector of wrong predictions and the tables
+(experiments/coverage_doc.py).
+
+Each cell is checkpointed in the cache as it is scored; a rerun takes what is
+there (``--fresh`` ignores it) and ``--max-minutes`` stops starting cells, so a
+long sweep can be run in pieces. ``--action`` and ``--param`` (a prefix of the
+field's path, e.g. ``insole`` or ``subject.depth``) restrict the grid.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from common import ROOT, from_root, utc_now
+from coverage_doc import Row, Summary, markdown
+from coverage_grid import Cell, GridError, cells, digest, parameters, people
+from coverage_run import Job, cell_job, code_digest, run_jobs, scene_file_job
+from scotti.models.contract import ACTIONS
+from scotti.sim import SimError
+from scotti.sim.scene import Scene
+
+SCENES = ROOT / "sim" / "scenes"
+DEFAULT_MODEL = ROOT / "models" / "scotti-default.onnx"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python experiments/coverage.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--people", type=int, default=3, help="simulated people per cell")
+    p.add_argument("--seconds", type=float, default=40.0, help="seconds of the action per cell")
+    p.add_argument("--model", type=Path, default=DEFAULT_MODEL, help="streaming step graph")
+    p.add_argument("--jobs", type=int, default=1, help="processes side by side")
+    p.add_argument("--max-minutes", type=float, default=None, help="start no cell after this")
+    p.add_argument("--cache", type=Path, default=ROOT / "runs" / "coverage")
+    p.add_argument("--fresh", action="store_true", help="ignore the cache's checkpoints")
+    p.add_argument("--write", type=Path, default=ROOT / "docs" / "coverage.md")
+    p.add_argument("--action", action="append", choices=ACTIONS, help="only these actions")
+    p.add_argument("--param", action="append", help="only fields whose path starts so")
+    p.add_argument("--scenes", type=Path, default=SCENES, help="scene files scored as shipped")
+    p.add_argument("--no-scenes", action="store_true", help="skip the scene files")
+    p.add_argument("--keep-sessions", action="store_true", help="keep the session files")
+    return p
+
+
+def plan(args: argparse.Namespace, salt: str) -> tuple[list[Job], list[Job], Summary]:
+    """The grid's jobs, the scene files' jobs, and the doc's summary (figures to come)."""
+    swept = [
+        p for p in parameters() if not args.param or any(p.path.startswith(x) for x in args.param)
+    ]
+    actions = tuple(args.action) if args.action else ACTIONS
+    persons = people(args.people)
+    moving = {p.path for p in swept if p.moves_only}
+    grid = []
+    for cell in cells(actions, swept):
+        scenes = [cell.scene(person, args.seconds) for person in persons]
+        for raw in scenes:
+            _validate(raw, cell)
+        baselines = None
+        if cell.path in moving:
+            baselines = [Cell(cell.action).scene(person, args.seconds) for person in persons]
+        grid.append(cell_job(cell, scenes, baselines, salt))
+    found = [] if args.no_scenes else sorted(args.scenes.glob("*.toml"))
+    files = [scene_file_job(f, salt) for f in found]
+    summary = Summary(
+        command="",
+        people=args.people,
+        seconds=args.seconds,
+        model=from_root(args.model),
+        model_sha="",
+        commit=_commit(),
+        date=utc_now(),
+        actions=actions,
+        parameters=tuple(swept),
+        cpu_minutes=0.0,
+        wall_minutes=0.0,
+        jobs_left=0,
+    )
+    return grid, files, summary
+
+
+def _validate(raw: dict[str, object], cell: Cell) -> None:
+    """A cell's scene must be one the schema accepts: else the grid is wrong (one line)."""
+    try:
+        scene = Scene.model_validate(raw)
+        scene.check_effects()
+    except (ValueError, SimError) as exc:
+        first = str(exc).splitlines()[0]
+        msg = f"{cell.action}, {cell.label}: the schema refuses the cell's scene: {first}"
+        raise GridError(msg) from None
+
+
+def _commit() -> str:
+    proc = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+    )
+    return proc.stdout.strip() or "unknown"
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    shown = " ".join(argv if argv is not None else sys.argv[1:])
+    try:
+        if args.people < 1 or args.seconds <= 0 or args.jobs < 1:
+            msg = "--people and --jobs must be at least 1, --seconds above 0"
+            raise GridError(msg)
+        if not args.model.is_file():
+            msg = f"{args.model}: no such model"
+            raise GridError(msg)
+        model_sha = hashlib.sha256(args.model.read_bytes()).hexdigest()
+        salt = digest({"model": model_sha, "code": code_digest()})
+        grid, files, summary = plan(args, salt)
+        if args.fresh and (args.cache / "cells").is_dir():
+            shutil.rmtree(args.cache / "cells")
+        outcome = run_jobs(
+            grid + files,
+            model=args.model,
+            cache=args.cache,
+            processes=args.jobs,
+            max_minutes=args.max_minutes,
+            keep=args.keep_sessions,
+        )
+    except (GridError, SimError, OSError) as exc:
+        print(f"coverage: {exc}", file=sys.stderr)
+        return 2
+    results = outcome.results
+    rows = [Row(results[j.key]) for j in grid if j.key in results]
+    scenes = [results[j.key] for j in files if j.key in results]
+    cpu = sum(float(results[j.key].get("cpu_s", 0.0)) for j in grid + files if j.key in results)
+    summary = Summary(
+        **{
+            **summary.__dict__,
+            "command": f"python experiments/coverage.py {shown}".strip(),
+            "model_sha": model_sha,
+            "cpu_minutes": cpu / 60.0,
+            "wall_minutes": outcome.wall_s / 60.0,
+            "jobs_left": outcome.left,
+        }
+    )
+    args.write.parent.mkdir(parents=True, exist_ok=True)
+    args.write.write_text(markdown(summary, rows, scenes))
+    print(
+        f"coverage: {outcome.simulated} cells scored, {outcome.unchanged} unchanged, "
+        f"{outcome.reused} from the cache, {outcome.left} left; wrote {args.write}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

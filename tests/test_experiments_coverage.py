@@ -1,0 +1,219 @@
+"""The coverage grid (experiments/coverage*.py): it sweeps every field a scene may set
+over the whole range the schema accepts, and a tiny run scores a cell with every
+metric and reuses its checkpoint.
+
+The schema is read here from pydantic's JSON schema, apart from the grid's own
+reading, so a new field or a changed range of sim/scene.py, the insole or an
+effect fails the first test until the grid sweeps it or declares why not.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from scotti.models.contract import ACTIONS
+from scotti.sim.effects.registry import EFFECT_MODELS
+from scotti.sim.scene import Scene
+
+from tests.support.fixtures_models import TINY_STEP
+from tests.test_experiments_docs import EXPERIMENTS
+
+sys.path.insert(0, str(EXPERIMENTS))
+
+import coverage
+import coverage_grid
+from coverage_score import Counts, detector
+
+SCENES = Path(__file__).resolve().parent.parent / "sim" / "scenes"
+
+
+def _properties(schema: dict[str, Any], node: dict[str, Any], prefix: str) -> Iterator[Any]:
+    """(path, property schema, default) of every leaf field, following $refs and arrays."""
+    defs = schema.get("$defs", {})
+    for name, prop in node.get("properties", {}).items():
+        path = prefix + name
+        target = _target(prop, defs)
+        if target is not None and path in ("subject", "script", "insole"):
+            yield from _properties(schema, target, path + ".")
+        else:
+            yield path, prop, prop.get("default")
+
+
+def _target(prop: dict[str, Any], defs: dict[str, Any]) -> dict[str, Any] | None:
+    """The model a property holds (directly, in a list, or optional), if any."""
+    for candidate in (prop, prop.get("items", {}), *prop.get("anyOf", [])):
+        ref = candidate.get("$ref")
+        if ref:
+            return dict(defs[ref.rsplit("/", 1)[-1]])
+    return None
+
+
+def _bounds(prop: dict[str, Any]) -> tuple[Any, Any, Any, Any]:
+    """(minimum, exclusive minimum, maximum, exclusive maximum) of a number, else Nones."""
+    for variant in (prop, *prop.get("anyOf", [])):
+        if variant.get("type") in ("number", "integer"):
+            return (
+                variant.get("minimum"),
+                variant.get("exclusiveMinimum"),
+                variant.get("maximum"),
+                variant.get("exclusiveMaximum"),
+            )
+    return None, None, None, None
+
+
+def _choices(prop: dict[str, Any]) -> list[Any] | None:
+    for variant in (prop, *prop.get("anyOf", [])):
+        if "enum" in variant:
+            return list(variant["enum"])
+        if variant.get("type") == "boolean":
+            return [False, True]
+    return None
+
+
+def _schema_leaves() -> list[tuple[str, dict[str, Any], Any]]:
+    scene = Scene.model_json_schema()
+    leaves = list(_properties(scene, scene, ""))
+    for name, model in EFFECT_MODELS.items():
+        schema = model.model_json_schema()
+        leaves += list(_properties(schema, schema, f"effects.{name}."))
+    return leaves
+
+
+def _near(value: Any, bound: float, span: float) -> bool:
+    return isinstance(value, int | float) and abs(value - bound) <= 1e-3 * span
+
+
+def test_every_scene_field_is_swept_over_its_whole_range_or_declared_with_a_reason() -> None:
+    swept = {p.path: p for p in coverage_grid.parameters()}
+    problems = []
+    leaves = _schema_leaves()
+    assert {"subject.height_m", "script.tempo", "insole.gain_sigma"} <= {p for p, _, _ in leaves}
+    for path, prop, default in leaves:
+        if path in coverage_grid.SKIPPED:
+            assert coverage_grid.SKIPPED[path].strip(), path
+            continue
+        if path not in swept:
+            problems.append(f"{path}: not swept and not declared skipped")
+            continue
+        values = {*swept[path].values, default}  # the default is the baseline's cell
+        if path in coverage_grid.NOT_RANGE:
+            why, declared = coverage_grid.NOT_RANGE[path]
+            assert why.strip()
+            assert set(declared) <= values, path
+            continue
+        if path == "effects":
+            missing = {"realistic", *EFFECT_MODELS} - values
+            problems += [f"effects: {m} not swept" for m in sorted(missing)]
+            continue
+        choices = _choices(prop)
+        if choices is not None:
+            problems += [f"{path}: {c!r} not swept" for c in choices if c not in values]
+            continue
+        low, low_open, high, high_open = _bounds(prop)
+        if (low is None and low_open is None) or (high is None and high_open is None):
+            problems.append(f"{path}: no range in the schema and no declared values")
+            continue
+        lo = low if low is not None else low_open
+        hi = high if high is not None else high_open
+        span = hi - lo
+        if not any(_near(v, lo, span) and (low_open is None or v > lo) for v in values):
+            problems.append(
+                f"{path}: the schema's minimum {lo} is not swept ({sorted(values, key=str)})"
+            )
+        if not any(_near(v, hi, span) and (high_open is None or v < hi) for v in values):
+            problems.append(
+                f"{path}: the schema's maximum {hi} is not swept ({sorted(values, key=str)})"
+            )
+    assert not problems, "\n".join(problems)
+
+
+def test_a_field_without_a_range_must_be_declared() -> None:
+    field = coverage_grid.SchemaField("subject.new_trait", "number", low=0.0)
+    with pytest.raises(coverage_grid.GridError, match=r"subject\.new_trait has no range"):
+        coverage_grid.parameters([field])
+
+
+def test_every_cell_of_the_grid_is_a_scene_the_schema_accepts() -> None:
+    person = coverage_grid.people(1)[0]
+    grid = coverage_grid.cells()
+    assert len({(c.action, c.path, str(c.value)) for c in grid}) == len(grid)
+    assert {c.action for c in grid} == set(ACTIONS)
+    for cell in grid:
+        raw = cell.scene(person, 10.0)
+        scene = Scene.model_validate(raw)
+        scene.check_effects()
+        if cell.path is not None and cell.path.startswith("subject."):
+            assert getattr(scene.subject, cell.path.split(".")[1]) == cell.value
+
+
+def test_the_flag_as_detector_counts_precision_and_recall_of_wrong_predictions() -> None:
+    a = Counts(predictions=100, wrong=20, unfamiliar=10, flagged=15, wrong_unfamiliar=5,
+               wrong_flagged=12, wrong_unflagged=8, wrong_unflagged_confident=3)  # fmt: skip
+    b = Counts(predictions=100, wrong=0, unfamiliar=10, flagged=10)
+    both = a + b
+    assert both.predictions == 200
+    assert both.share("wrong_unflagged") == pytest.approx(0.04)
+    unfamiliar = detector(both, "unfamiliar")
+    assert unfamiliar.precision == pytest.approx(5 / 20)
+    assert unfamiliar.recall == pytest.approx(5 / 20)
+    assert unfamiliar.base_rate == pytest.approx(0.1)
+    anyflag = detector(both, "flagged")
+    assert anyflag.precision == pytest.approx(12 / 25)
+    assert anyflag.recall == pytest.approx(12 / 20)
+    assert detector(Counts(), "unfamiliar").precision is None
+
+
+@pytest.mark.slow
+def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    text = (SCENES / "squat.toml").read_text().replace("reps = 6", "reps = 2")
+    (scenes / "squat.toml").write_text(text)
+    doc = tmp_path / "coverage.md"
+    cache = tmp_path / "cache"
+    argv = ["--action", "squat", "--param", "insole.model", "--people", "1", "--seconds", "5",
+            "--model", str(TINY_STEP), "--cache", str(cache), "--write", str(doc),
+            "--scenes", str(scenes)]  # fmt: skip
+    assert coverage.main(argv) == 0
+    first = capsys.readouterr().out
+    assert "3 cells scored, 0 unchanged, 0 from the cache, 0 left" in first
+    checkpoints = sorted((cache / "cells").glob("*.json"))
+    assert len(checkpoints) == 3  # the baseline, insole.model = ideal, the scene file
+    results = [json.loads(p.read_text()) for p in checkpoints]
+    cell = next(r for r in results if r.get("path") == "insole.model")
+    assert cell["action"] == "squat"
+    assert cell["value"] == "ideal"
+    m = cell["metrics"]
+    for name in ("action_accuracy", "app", "mpjpe_mm", "progress_mse"):
+        assert isinstance(m[name], float), name
+    assert 0.0 <= m["action_accuracy"] <= 1.0
+    counts = Counts.of(cell["counts"])
+    assert counts.predictions == m["frames_action"] > 0
+    for name in ("unloaded", "out_of_range", "unfamiliar", "wrong_unflagged",
+                 "wrong_unflagged_confident"):  # fmt: skip
+        share = counts.share(name)
+        assert share is not None
+        assert 0.0 <= share <= 1.0
+    assert counts.wrong == round((1 - m["action_accuracy"]) * counts.predictions)
+    assert counts.wrong == counts.wrong_flagged + counts.wrong_unflagged
+    assert not list((cache / "sessions").rglob("*.ses"))  # sessions go once scored
+    text = doc.read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| insole.model = ideal |"))
+    assert f"{100 * m['action_accuracy']:.1f}" in row
+    assert "**Worst cell: squat with" in text
+    assert "squat.toml`" in text
+    assert "precision (flagged that are wrong)" in text
+    stamps = [p.stat().st_mtime_ns for p in checkpoints]
+
+    assert coverage.main(argv) == 0
+    second = capsys.readouterr().out
+    assert "0 cells scored, 0 unchanged, 3 from the cache, 0 left" in second
+    assert [p.stat().st_mtime_ns for p in checkpoints] == stamps
+    assert doc.read_text().split("## Goals")[1] == text.split("## Goals")[1]
