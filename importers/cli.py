@@ -42,6 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the pressure file's format (default auto: from its own header)",
     )
     parser.add_argument(
+        "--foot",
+        choices=("left", "right"),
+        help="which insole a one-insole file is, where the file cannot say (F-Scan)",
+    )
+    parser.add_argument(
         "--mass-kg",
         type=float,
         help="the wearer's mass: into the header, and the scale of a file that states none",
@@ -90,6 +95,8 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
         pressure["time_unit"] = args.time_unit
     if args.format is not None:
         pressure["format"] = args.format
+    if args.foot is not None:
+        pressure["foot"] = args.foot
     if pressure:
         out["pressure"] = pressure
     if args.counts_per_kpa is not None:
@@ -138,6 +145,12 @@ def run(args: argparse.Namespace) -> int:
         report = import_recording(cfg, args.output, overwrite=args.force)
     except ImporterError as exc:
         print(f"scotti import: {exc}", file=sys.stderr)
+        return 2
+    except MemoryError:  # a last resort: the readers check every size before allocating
+        print(
+            "scotti import: out of memory (the machine is busy, or the recording is too long)",
+            file=sys.stderr,
+        )
         return 2
     for line in report.lines():
         print(line)

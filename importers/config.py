@@ -59,6 +59,8 @@ class PressureConfig(_Strict):
     file: str
     # auto: a vendor's export by its own header (importers/vendors/), else a table.
     format: Literal["auto", "table", "pedar", "fscan", "xsensor", "moticon", "gaitpdb"] = "auto"
+    # Which insole a one-insole vendor file is, where it cannot say (F-Scan).
+    foot: Literal["left", "right"] | None = None
     # A table's grid of one foot, as stored (vendor files say their own).
     rows: int | None = Field(default=None, gt=0, le=1024)
     cols: int | None = Field(default=None, gt=0, le=1024)

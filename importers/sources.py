@@ -48,7 +48,7 @@ def load_pressure(cfg: ImportConfig) -> LoadedPressure:
     if name == "table":
         return _table(cfg)
     _check_vendor_config(cfg, name)
-    recording = read_vendor(cfg.path(cfg.pressure.file), name)
+    recording = read_vendor(cfg.path(cfg.pressure.file), name, foot=cfg.pressure.foot)
     return _vendor(cfg, recording)
 
 

@@ -32,14 +32,22 @@ READERS: Final[dict[str, Callable[[Path], VendorRecording]]] = {
 }
 
 
-def read_vendor(path: str | Path, format: str | None = None) -> VendorRecording:
-    """Read a vendor export; ``format`` (one of ``VENDOR_FORMATS``) skips detection."""
+def read_vendor(
+    path: str | Path, format: str | None = None, *, foot: str | None = None
+) -> VendorRecording:
+    """Read a vendor export; ``format`` (one of ``VENDOR_FORMATS``) skips detection.
+
+    ``foot``: which insole a one-insole file is, where the file cannot say
+    (F-Scan; the others name their insoles).
+    """
     p = Path(path)
     name = format or detect(p)
     if name not in READERS:
         raise InputError(p, f"{name!r} is not a vendor format ({', '.join(VENDOR_FORMATS)})")
     if not p.is_file():
         raise InputError(p, "no such file")
+    if name == "fscan":
+        return read_fscan(p, foot)
     return READERS[name](p)
 
 

@@ -56,9 +56,11 @@ MAX_CELLS: Final = 1 << 16  # rows x cols of any insole sensor, with room to spa
 _MIN_CELL_BYTES: Final = 2  # "0,"
 _FRAME: Final = re.compile(r"^\s*Frame\s+(\d+)\s*$", re.IGNORECASE)
 _HEADER: Final = re.compile(r"^\s*([A-Z][A-Z0-9_]*)\s*(.*?)\s*$")
+MIN_LEAN_COLS: Final = 0.25  # a toe end leaning less than this says nothing of the foot
 
 
-def read_fscan(path: Path) -> VendorRecording:
+def read_fscan(path: Path, foot: str | None = None) -> VendorRecording:
+    """``foot``: which insole it is, where the file cannot tell (else from its outline)."""
     fields: dict[str, str] = {}
     comments: list[str] = []
     with TextLines(path) as lines:
@@ -116,7 +118,7 @@ def read_fscan(path: Path) -> VendorRecording:
         assert outline is not None
         times = _times(path, fields, frame_numbers, lines)
     values = body.array().reshape(-1, rows, cols)
-    return _recording(path, times, values, outline, fields, comments, frame_numbers)
+    return _recording(path, times, values, outline, fields, comments, frame_numbers, foot)
 
 
 def _size(fields: dict[str, str], lines: TextLines) -> tuple[int, int]:
@@ -206,12 +208,14 @@ def _first_number(text: str) -> float | None:
     return float(found.group(0)) if found else None
 
 
-def foot_from_outline(outline: np.ndarray) -> tuple[str, float]:
-    """("left" | "right", lean) from a grid seen from above, toes at row 0.
+def foot_from_outline(outline: np.ndarray) -> tuple[str | None, float]:
+    """("left" | "right" | None, lean) from a grid seen from above, toes at row 0.
 
     ``lean`` is how far the centre of the outline's toe end (its first tenth
     of live rows) lies from the centre of the whole outline, in columns:
     positive toward the last column, the big-toe side of a left insole.
+    None where the toe end does not lean by a quarter of a column: a
+    symmetric outline says nothing.
     """
     live_rows = np.flatnonzero(outline.any(axis=1))
     cols = np.arange(outline.shape[1], dtype=np.float64)
@@ -220,7 +224,26 @@ def foot_from_outline(outline: np.ndarray) -> tuple[str, float]:
     toe = outline[toe_rows]
     toe_centre = float((toe * cols).sum() / max(toe.sum(), 1))
     lean = toe_centre - whole
+    if abs(lean) < MIN_LEAN_COLS:
+        return None, lean
     return ("left" if lean > 0 else "right"), lean
+
+
+def foot_from_name(*names: str) -> str | None:
+    """A name's last letter L or R (``FrasP01L``, ``walk_r``), or a final left / right."""
+    for name in names:
+        stem = re.split(r"[\\/]", name.strip())[-1].rsplit(".", 1)[0]
+        lowered = stem.lower()
+        for side in ("left", "right"):
+            letter = side[0].upper()
+            if lowered.endswith(side):
+                return side
+            lone = len(stem) <= 1 or not stem[-2].isalpha() or stem[-2].islower()
+            if stem.endswith(letter) and lone:  # capital after a digit or lower case
+                return side
+            if re.search(rf"[^a-z0-9]{letter.lower()}$", lowered):  # walk_r, walk-l
+                return side
+    return None
 
 
 def _recording(
@@ -231,12 +254,20 @@ def _recording(
     fields: dict[str, str],
     comments: list[str],
     numbers: list[int],
+    given: str | None,
 ) -> VendorRecording:
     mirror_rows = _first_number(fields.get("MIRROR_ROW", "0")) == 1
     mirror_cols = _first_number(fields.get("MIRROR_COL", "0")) == 1
     seen_from_above = outline[::-1] if mirror_rows else outline
     seen_from_above = seen_from_above[:, ::-1] if mirror_cols else seen_from_above
-    foot, lean = foot_from_outline(seen_from_above)
+    found, lean = foot_from_outline(seen_from_above)
+    named = foot_from_name(path.name, fields.get("FILENAME", ""))
+    foot = given or found or named
+    if foot is None:
+        problem = "which foot? the sensor's outline is symmetric and the file's name ends "
+        problem += "in neither L nor R: --foot left or right"
+        raise InputError(path, problem)
+    how = "given" if given else ("outline" if found else "file name")
     medial_last = (foot == "left") != mirror_cols
     orientation = Orientation(toes_first_row=not mirror_rows, medial_first_col=not medial_last)
     units, kpa, how = scale(fields)
@@ -255,7 +286,7 @@ def _recording(
         "comments": comments,
         "sensor_type": fields.get("SENSOR_TYPE", ""),
         "frame_numbers": [numbers[0], numbers[-1]],
-        "foot": {"side": foot, "from": "outline", "toe_lean_cols": round(lean, 2)},
+        "foot": {"side": foot, "from": how, "toe_lean_cols": round(lean, 2), "name_says": named},
         "calibration": how,
         "outline_cells": int(outline.sum()),
     }

@@ -72,24 +72,29 @@ class TextLines:
         self.path = path
         self.number = 0  # the line last given
         self._raw: BinaryIO | None = None
+        self._opened: list[Any] = []  # outermost last: closed in reverse
 
     def __enter__(self) -> TextLines:
         size = file_size(self.path)
         try:
-            raw: BinaryIO = self.path.open("rb")
+            raw: Any = self.path.open("rb")
+            self._opened.append(raw)
             if is_gzip(self.path):
                 inflated = gzip.GzipFile(fileobj=raw, mode="rb")
-                raw = io.BufferedReader(
-                    _Capped(inflated, MAX_GZIP_RATIO * size + (1 << 20), self.path)
-                )  # type: ignore[assignment]
+                self._opened.append(inflated)
+                limit = MAX_GZIP_RATIO * size + (1 << 20)
+                raw = io.BufferedReader(_Capped(inflated, limit, self.path))
+                self._opened.append(raw)
         except OSError as exc:
+            self.__exit__()
             raise InputError(self.path, f"cannot read ({exc.__class__.__name__})") from None
         self._raw = raw
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self._raw is not None:
-            self._raw.close()
+        for stream in reversed(self._opened):
+            stream.close()
+        self._opened.clear()
 
     def __iter__(self) -> Iterator[tuple[int, str]]:
         assert self._raw is not None, "use TextLines in a with block"
