@@ -10,7 +10,10 @@ recording, so the pictures show what the code does:
 - pose.png: a camera frame with y down, and the same pose in the contract's
   pose frame;
 - counts.png: the count scale (models/insole.py) with a counts-per-kPa and
-  a body-mass calibration.
+  a body-mass calibration;
+- layout-<name>.png: each discrete-cell layout (importers/layouts.py) on our
+  grid, left foot: which cell feeds each taxel, and a load seen through the
+  cells (``--layouts`` draws only these).
 """
 
 from __future__ import annotations
@@ -22,10 +25,11 @@ from typing import Any
 
 import numpy as np
 from scotti.importers.grid import GridMapper, Orientation
+from scotti.importers.layouts import CellRenderer, known_layouts, layout
 from scotti.importers.pose import STANDING_POSE, pose_frame, up_rotation
 from scotti.importers.timebase import PERIOD_S, box_average, plan_timeline
 from scotti.models.contract import BONES, KEYPOINTS, KP
-from scotti.models.insole import counts_from_kpa, insole_mask
+from scotti.models.insole import INSOLE_WIDTH_RATIO, counts_from_kpa, insole_mask
 
 
 def _plt() -> Any:
@@ -175,19 +179,71 @@ def draw_counts(path: Path) -> None:
     plt.close(fig)
 
 
+def draw_layout(path: Path, name: str) -> None:
+    plt = _plt()
+    cells = layout(name).for_foot("left")
+    render = CellRenderer(cells)
+    top = render.membership.argmax(axis=1).reshape(32, 22)
+    live = insole_mask()
+    # Neighbouring cells get far-apart hues: golden-ratio steps around the circle.
+    hue = (np.arange(cells.cells) * 0.618034) % 1.0
+    colours = plt.get_cmap("hsv")(hue)[:, :3] * 0.55 + 0.45
+    rgb = np.where(live[..., None], colours[top], 1.0)
+    example = _example_foot(32, 22) * live
+    seen = render(render.cell_means(example[None]))[0]
+    fig, axes = plt.subplots(1, 3, figsize=(10.5, 5.6), dpi=100)
+    axes[0].imshow(rgb, extent=(0, 22, 32, 0), interpolation="nearest")
+    if cells.outlines is not None:
+        for poly in cells.outlines:
+            xy = np.r_[poly, poly[:1]]
+            axes[0].plot(xy[:, 1] * 22, xy[:, 0] * 32, color="k", lw=0.4)
+    small = 4.5 if cells.cells > 30 else 8
+    for i, (a, c) in enumerate(cells.centres):
+        axes[0].text(c * 22, a * 32, str(i + 1), fontsize=small, ha="center", va="center")
+    kind = "point sensors, tiles" if cells.point_sensors else "tiles" if cells.tiled else "outlines"
+    axes[0].set_title(f"{name}: {cells.cells} cells ({kind})\neach taxel coloured by its cell",
+                      fontsize=9)  # fmt: skip
+    vmax = float(example.max())
+    for ax, image, title in (
+        (axes[1], example, "a load on our grid (kPa)"),
+        (axes[2], seen, "seen through the cells, rendered back\n(cell means, then the renderer)"),
+    ):
+        ax.imshow(np.where(live, image, np.nan), cmap="inferno", vmin=0, vmax=vmax,
+                  extent=(0, 22, 32, 0), interpolation="nearest")  # fmt: skip
+        ax.set_title(title, fontsize=9)
+    force = [float(x.sum() * cells.taxel_area_mm2 * 1e-3) for x in (example, seen)]
+    axes[2].set_xlabel(f"force {force[0]:.0f} N on the left, {force[1]:.0f} N here", fontsize=8)
+    for ax in axes:
+        ax.contour(np.arange(22) + 0.5, np.arange(32) + 0.5, live.astype(float), levels=[0.5],
+                   colors="0.3", linewidths=0.8)  # fmt: skip
+        ax.set_xlim(0, 22)
+        ax.set_ylim(32, 0)
+        ax.set_xticks([0, 11, 22], ["medial", "", "lateral"], fontsize=7)
+        ax.set_yticks([0, 16, 32], ["toes", "", "heel"], fontsize=7)
+        ax.set_aspect(22 / (32 * INSOLE_WIDTH_RATIO))  # a taxel as long and wide as on the sole
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m scotti.importers.pictures")
     parser.add_argument("-o", "--output", type=Path, default=Path("importers/img"))
+    parser.add_argument("--layouts", action="store_true", help="only the cell layouts' pictures")
     args = parser.parse_args(argv)
     args.output.mkdir(parents=True, exist_ok=True)
-    for name, draw in (
+    pictures = [] if args.layouts else [
         ("grid", draw_grid),
         ("time", draw_time),
         ("pose", draw_pose),
         ("counts", draw_counts),
-    ):
+    ]  # fmt: skip
+    for name, draw in pictures:
         draw(args.output / f"{name}.png")
         print(args.output / f"{name}.png")
+    for name in known_layouts():
+        draw_layout(args.output / f"layout-{name}.png", name)
+        print(args.output / f"layout-{name}.png")
     return 0
 
 
