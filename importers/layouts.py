@@ -145,7 +145,7 @@ class CellLayout:
     outlines: tuple[np.ndarray, ...] | None = None
     right_mirrored: bool = True
     foot: Foot = "left"
-    size: str = ""  # the vendor's insole size the areas are for ("" when it has one)
+    size: str = ""  # the vendor's insole size the areas are for ("" when it has no sizes)
 
     def __post_init__(self) -> None:
         n = len(self.centres)
