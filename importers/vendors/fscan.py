@@ -267,10 +267,10 @@ def _recording(
         problem = "which foot? the sensor's outline is symmetric and the file's name ends "
         problem += "in neither L nor R: --foot left or right"
         raise InputError(path, problem)
-    how = "given" if given else ("outline" if found else "file name")
+    side_from = "given" if given else ("outline" if found else "file name")
     medial_last = (foot == "left") != mirror_cols
     orientation = Orientation(toes_first_row=not mirror_rows, medial_first_col=not medial_last)
-    units, kpa, how = scale(fields)
+    units, kpa, calibration = scale(fields)
     area = _first_number(fields.get("SENSEL_AREA", ""))
     data = FootData(
         values,
@@ -286,8 +286,8 @@ def _recording(
         "comments": comments,
         "sensor_type": fields.get("SENSOR_TYPE", ""),
         "frame_numbers": [numbers[0], numbers[-1]],
-        "foot": {"side": foot, "from": how, "toe_lean_cols": round(lean, 2), "name_says": named},
-        "calibration": how,
+        "foot": {"side": foot, "from": side_from, "toe_lean_cols": round(lean, 2), "name_says": named},
+        "calibration": calibration,
         "outline_cells": int(outline.sum()),
     }
     return VendorRecording("fscan", path, times, {foot: data}, rate, units, [], info)
