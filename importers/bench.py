@@ -1,12 +1,23 @@
-"""Import speed on one core: ``python -m scotti.importers.bench [--frames N] [--format F]``.
+"""Import speed per format on one core: ``python -m scotti.importers.bench``.
 
-Builds a synthetic recording of another insole (a 16 x 8 grid per foot at
-100 Hz by default, with MediaPipe-33 keypoints at 30 Hz in a camera frame
-and one action segment; ``--format`` csv, npz or h5), imports it, and
-prints source frames and output (16 Hz) frames per second, with the time
-of each stage. BLAS is held to one thread; the rates are given per second
-of wall time and per second of this process's CPU time (what one core
-does, whatever else the machine is running).
+    python -m scotti.importers.bench                        # csv, npz, h5; vendor samples
+    python -m scotti.importers.bench --frames 20000 --formats csv
+    python -m scotti.importers.bench --baseline csv --realdata ../shared/realdata
+
+The table formats (CSV, ``.npz``, HDF5) import one synthetic recording of
+another insole, written in each: a 16 x 8 grid per foot at 100 Hz by
+default, MediaPipe-33 keypoints at 30 Hz in a camera frame and one action
+segment. The vendor formats import a real sample of each from
+``../shared/realdata`` (``VENDOR_SAMPLES``; a format without a sample, or
+without the folder, gets a row saying so): pressure only, at the size the
+vendor's file has.
+
+Each row gives the source frames and the output (16 Hz) frames, the CPU
+seconds of reading the pressure alone and of the whole import, and frames
+per CPU second (what one core does, whatever else the machine runs; BLAS
+held to one thread), with the whole import's rate as a ratio to the
+baseline format's in the same run. A second table says where the import's
+time went (wall seconds per stage).
 """
 
 from __future__ import annotations
@@ -20,13 +31,45 @@ import argparse  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
+from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
+from typing import Any, Final  # noqa: E402
 
 import numpy as np  # noqa: E402
-from scotti.importers.config import config_from_dict  # noqa: E402
+from scotti.importers.config import ImportConfig, config_from_dict  # noqa: E402
 from scotti.importers.keypoint_sets import MEDIAPIPE33, SET_MAPPINGS  # noqa: E402
 from scotti.importers.run import import_recording  # noqa: E402
+from scotti.importers.sources import load_pressure  # noqa: E402
+from scotti.importers.vendors import VENDOR_FORMATS  # noqa: E402
+
+TABLE_FORMATS: Final = ("csv", "npz", "h5")
+# One real file per vendor format, relative to the realdata folder. A new vendor
+# reader adds its sample here; until then its row says it has none.
+VENDOR_SAMPLES: Final[dict[str, str]] = {
+    "pedar": "pressure-r/pedar_example.asc",
+    "fscan": "pressure-r/fscan_testL.asf",
+    "xsensor": "pressure-r/xsensor_data.csv",
+    "moticon": "moticon-opengo/230927_102137.txt",
+    "gaitpdb": "physionet-gaitpdb/GaCo01_01.txt.gz",
+}
+REALDATA: Final = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
+
+
+@dataclass
+class Row:
+    """One format's figures (CPU seconds; None where the format was not run)."""
+
+    format: str
+    source: str
+    source_frames: int = 0
+    frames: int = 0
+    read_cpu: float | None = None
+    import_cpu: float | None = None
+    stages: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
+    note: str = ""
+
+    def rate(self, frames: int, cpu: float | None) -> float | None:
+        return frames / cpu if cpu else None
 
 
 def synthetic(
@@ -79,35 +122,108 @@ def synthetic(
     }
 
 
+def measure(row: Row, cfg: ImportConfig, output: Path) -> Row:
+    """Read the pressure alone, then import the whole recording; CPU seconds of each."""
+    load_pressure(cfg)  # once untimed: the file in the page cache, the reader's modules loaded
+    started = time.process_time()
+    load_pressure(cfg)
+    row.read_cpu = time.process_time() - started
+    started = time.process_time()
+    report = import_recording(cfg, output, overwrite=True)
+    row.import_cpu = time.process_time() - started
+    row.source_frames, row.frames, row.stages = report.source_frames, report.frames, report.seconds
+    return row
+
+
+def table_row(folder: Path, fmt: str, frames: int, grid: tuple[int, int], rate: float) -> Row:
+    rows, cols = grid
+    raw = synthetic(folder, frames, rows, cols, rate, fmt)
+    row = Row(fmt, f"synthetic {rows} x {cols} at {rate:g} Hz, keypoints, labels")
+    return measure(row, config_from_dict(raw), folder / f"{fmt}.scotti")
+
+
+def vendor_row(folder: Path, fmt: str, realdata: Path) -> Row:
+    sample = VENDOR_SAMPLES.get(fmt)
+    if sample is None:
+        return Row(fmt, "-", note=f"no sample: add one to {__name__}.VENDOR_SAMPLES")
+    path = realdata / sample
+    if not path.is_file():
+        return Row(fmt, sample, note=f"no {path} here")
+    cfg = config_from_dict({"pressure": {"file": str(path)}, "source_every_s": 1.0})
+    return measure(Row(fmt, sample), cfg, folder / f"{fmt}.scotti")
+
+
+def _figure(value: float | None, digits: int = 0) -> str:
+    return "-" if value is None else f"{value:,.{digits}f}"
+
+
+def print_tables(rows: list[Row], baseline: str) -> None:
+    base = next((r for r in rows if r.format == baseline), None)
+    base_rate = base.rate(base.frames, base.import_cpu) if base is not None else None
+    print(
+        "| format | source | source frames | output frames | read (CPU s) | import (CPU s) "
+        "| read: source frames/s | import: source frames/s | import: output frames/s "
+        f"| output frames/s / {baseline}'s |"
+    )
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        if r.import_cpu is None:
+            print(f"| {r.format} | {r.source} | {r.note} | | | | | | | |")
+            continue
+        out_rate = r.rate(r.frames, r.import_cpu)
+        ratio = out_rate / base_rate if out_rate and base_rate else None
+        print(
+            f"| {r.format} | {r.source} | {r.source_frames:,} | {r.frames:,} "
+            f"| {_figure(r.read_cpu, 3)} | {_figure(r.import_cpu, 3)} "
+            f"| {_figure(r.rate(r.source_frames, r.read_cpu))} "
+            f"| {_figure(r.rate(r.source_frames, r.import_cpu))} | {_figure(out_rate)} "
+            f"| {_figure(ratio, 2)} |"
+        )
+    stages = list(dict.fromkeys(k for r in rows for k in r.stages))
+    if stages:
+        print()
+        print("| format | " + " | ".join(f"{s} (s)" for s in stages) + " |")
+        print("|---|" + "---:|" * len(stages))
+        for r in rows:
+            if r.stages:
+                cells = " | ".join(_figure(r.stages.get(s), 3) for s in stages)
+                print(f"| {r.format} | {cells} |")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m scotti.importers.bench", description=__doc__)
-    parser.add_argument("--frames", type=int, default=60_000, help="source frames")
-    parser.add_argument("--grid", default="16x8", help="ROWSxCOLS per foot")
+    parser = argparse.ArgumentParser(
+        prog="python -m scotti.importers.bench",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    formats = (*TABLE_FORMATS, *VENDOR_FORMATS)
+    parser.add_argument("--frames", type=int, default=20_000, help="source frames (tables)")
+    parser.add_argument("--grid", default="16x8", help="ROWSxCOLS per foot (tables)")
     parser.add_argument("--rate", type=float, default=100.0, help="source frame rate, Hz")
-    parser.add_argument("--format", choices=("csv", "npz", "h5"), default="npz")
+    parser.add_argument(
+        "--formats", default=",".join(formats), help=f"comma-separated, of {', '.join(formats)}"
+    )
+    parser.add_argument("--baseline", default="npz", help="the format the ratios are to")
+    parser.add_argument("--realdata", type=Path, default=REALDATA, help="vendor samples' folder")
     args = parser.parse_args(argv)
-    rows, cols = (int(x) for x in args.grid.split("x"))
-    with tempfile.TemporaryDirectory() as tmp:
+    chosen = [f.strip() for f in args.formats.split(",") if f.strip()]
+    unknown = [f for f in chosen if f not in formats]
+    try:
+        grid = tuple(int(x) for x in args.grid.lower().split("x"))
+    except ValueError:
+        grid = ()
+    if unknown or len(grid) != 2 or args.frames < 2:
+        parser.error(f"--formats of {', '.join(formats)}; --grid ROWSxCOLS; --frames >= 2")
+    rows: list[Row] = []
+    with tempfile.TemporaryDirectory(prefix="scotti-import-bench-") as tmp:
         folder = Path(tmp)
-        raw = synthetic(folder, args.frames, rows, cols, args.rate, args.format)
-        cfg = config_from_dict(raw)
-        started, cpu_started = time.perf_counter(), time.process_time()
-        report = import_recording(cfg, folder / "out.scotti")
-        seconds = time.perf_counter() - started
-        cpu = time.process_time() - cpu_started
-    print(
-        f"{args.format} {rows}x{cols} at {args.rate:g} Hz: {report.source_frames} source frames"
-        f" -> {report.frames} frames at 16 Hz in {seconds:.2f} s wall, {cpu:.2f} s CPU"
-    )
-    print(
-        f"  per wall second: {report.source_frames / seconds:,.0f} source frames/s, "
-        f"{report.frames / seconds:,.0f} output frames/s"
-    )
-    print(
-        f"  per CPU second (one core): {report.source_frames / cpu:,.0f} source frames/s, "
-        f"{report.frames / cpu:,.0f} output frames/s"
-    )
-    print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in report.seconds.items()))
+        table_row(folder, "npz", 400, (2, 2), 100.0)  # untimed: the import's modules loaded
+        for fmt in chosen:
+            if fmt in TABLE_FORMATS:
+                rows.append(table_row(folder, fmt, args.frames, (grid[0], grid[1]), args.rate))
+            else:
+                rows.append(vendor_row(folder, fmt, args.realdata))
+    print_tables(rows, args.baseline)
     return 0
 
 
