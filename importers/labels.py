@@ -8,6 +8,14 @@ ACTIONS). A frame at time t belongs to the segment with start <= t < end;
 frames in no segment have no action (``NO_ACTION``: left out of the action
 and progress losses).
 
+With keypoints, the segments' actions follow the labelling convention
+(models/contract.py), the same as the simulator's: a segment of a repeated
+action keeps at most ``SET_EDGE_REST_S`` of still standing before its first
+movement and after its last, and the stillness beyond is ``standing``
+(models/set_edges.py); a pause between repetitions inside the segment stays
+the segment's action, progress ~0. Where the keypoints do not show it (none,
+or masked at the edge), the segment file's action stands.
+
 Progress comes from the keypoints by the paper's indicators
 (models/progress.py), one run of one action at a time, never across a
 gap. Where the indicator cannot be computed (its keypoints are masked, or
@@ -19,14 +27,15 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Final, NamedTuple
 
 import numpy as np
 from scotti.importers.config import TIME_UNITS, LabelsConfig
 from scotti.importers.errors import InputError
-from scotti.models.contract import ACTIONS, NO_ACTION
+from scotti.models.contract import ACTIONS, FRAME_RATE_HZ, NO_ACTION
 from scotti.models.errors import ModelInputError
 from scotti.models.progress import progress_from_indicator, progress_indicator
+from scotti.models.set_edges import set_edges
 
 # Actions that are states, not exercises: no repetitions, so no progress.
 NO_PROGRESS: Final = frozenset({"standing"})
@@ -97,6 +106,21 @@ def frame_actions(times: np.ndarray, segments: list[Segment]) -> np.ndarray:
     for s in segments:
         action[(times >= s.start_s) & (times < s.end_s)] = s.action
     return action
+
+
+class FrameLabels(NamedTuple):
+    action: np.ndarray  # (M,) int64, NO_ACTION where none
+    progress: np.ndarray  # (M,) float32, NaN where missing
+    repetition: np.ndarray  # (M,) int32, -1 where none
+
+
+def frame_labels(keypoints: np.ndarray, action: np.ndarray, segment: np.ndarray) -> FrameLabels:
+    """The segment file's ``action`` (M,) held to the labelling convention where the
+    keypoints (M, 19, 3, pose frame) show it, and its progress; ``segment`` (M,) the
+    timeline's gap-free stretches. Frames come at the contract's rate."""
+    held = set_edges(keypoints, action, FRAME_RATE_HZ, segment)
+    progress, repetition = frame_progress(keypoints, held, segment)
+    return FrameLabels(held, progress, repetition)
 
 
 def frame_progress(

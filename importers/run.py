@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from scotti.importers.config import ImportConfig
 from scotti.importers.feet import resample_feet
-from scotti.importers.labels import frame_actions, frame_progress, read_segments
+from scotti.importers.labels import frame_actions, frame_labels, read_segments
 from scotti.importers.pose import pose_frame, read_keypoints, to_world
 from scotti.importers.session_out import ImportedFrames, write_imported
 from scotti.importers.sources import LoadedPressure, load_pressure
@@ -113,7 +113,7 @@ def import_recording(
             action = np.full(len(timeline), ACTIONS.index(cfg.labels.action), dtype=np.int64)
             label_info = {"action": cfg.labels.action}
         if keypoints is not None:
-            progress, repetition = frame_progress(keypoints, action, timeline.segment)
+            action, progress, repetition = frame_labels(keypoints, action, timeline.segment)
         clock.lap("labels")
 
     frames = ImportedFrames(

@@ -143,6 +143,44 @@ def has_progress(action: int) -> bool:
     return action in REPEATED_ACTIONS
 
 
+# --- The labelling convention: one for every source of labels --------------
+# Script scenes and lab sessions (sim/scene.py ``build_motion``, the recipes in
+# sim/actions, sim/session.py) and imported recordings (importers/labels.py) label
+# the same motion the same way:
+#
+# - A set is one run of a repeated action's label: consecutive frames with its
+#   index. The recipe of a script entry or of a lab set labels it; in an import,
+#   a segment of the segment file (two segments of one action with nothing
+#   between are one run).
+# - Repetitions are cut where the person rests (models/progress.py): squat and
+#   lunge standing tall, step-up on the floor, walking in place with both feet
+#   down, jump in the crouch; a repetition runs from its cut to the next.
+# - A pause between repetitions, standing at that rest, is part of the set: it
+#   carries the set's action, progress ~0 (it belongs to the repetition that
+#   follows), and the repetition just finished is complete on arrival. However
+#   long it is: only a label ends a set.
+# - Still standing before a set's first movement and after its last belongs to
+#   the set for at most ``SET_EDGE_REST_S`` (a moment of getting ready, a hold
+#   at the top; it reads ~0 like a pause); beyond that it is ``standing``
+#   (models/set_edges.py applies this to every source). "Still": no keypoint
+#   faster than ``STILL_SPEED_MPS``. A set with no movement at all keeps its label.
+# - Standing: ``STANDING``, no progress (NaN), repetition -1.
+# - Transitions, ``NO_ACTION``: movement that is neither a set nor standing:
+#   walking to the next spot or turning round between lab sets, a jump set's
+#   sink before its first crouch and rise after its last landing, and between
+#   the jumps of a paused set the rise, the stand and the sink (a jump rests in
+#   the crouch, so standing upright between jumps is no pause at its rest). In
+#   an import: every frame in no segment. No action, no progress.
+#
+# The simulator's sets hold at most 0.6 s of still standing at their edges at
+# tempo 1 (the recipes' lead-in and a repetition's hold at the top), so at its
+# own tempo the rule changes none of its labels: a lab session's labels are
+# the same with and without it (tests/test_labelling_convention.py).
+SET_EDGE_REST_S: Final = 1.0
+# Faster than a simulated quiet stand's sway (under 0.085 m/s, the same test).
+STILL_SPEED_MPS: Final = 0.1
+
+
 # --- ONNX graph I/O names --------------------------------------------------
 # Streaming step: one new frame + cached embeddings of the previous T-1.
 STEP_INPUT_FRAME: Final = "frame"  # float32 (B, H, 2W) raw counts, left|right

@@ -9,6 +9,12 @@ hmax and hmin its extremes and "mid" the frame where h is smallest,
 
 so p runs 0 -> 0.5 -> 1 as h goes top -> bottom -> top.
 
+Which frames carry which action (a pause between repetitions is its set's,
+standing at a set's edges beyond a second is ``standing``, transitions
+``NO_ACTION``) is the labelling convention in models/contract.py, the same
+for every source of labels; this module labels progress inside the runs of
+actions it is given.
+
 Choices the paper leaves open, fixed here:
 - Repetitions are cut where the person rests between them, which must be a
   peak of h. Squats and lunges rest standing tall: h is the mid-hip height.

@@ -34,6 +34,7 @@ Instead of a script, a scene can ask for a lab session (``scotti.sim.session``):
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import tomllib
 from pathlib import Path
@@ -43,6 +44,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from pydantic import model_validator as _model_validator
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
+from scotti.models.set_edges import set_edges
 from scotti.sim import SimError
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place, Segment, stand
 from scotti.sim.foot import BALL_WIDTH_RANGE, ArchType
@@ -236,7 +238,8 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def build_motion(scene: Scene, oversample: int = 1) -> Motion:
-    """Run the script (lead-in stand, then each action followed by its stand) or the session.
+    """Run the script (lead-in stand, then each action followed by its stand) or the session,
+    labelled by the convention (models/contract.py, "The labelling convention").
 
     ``oversample`` multiplies the scene's rate: 1 for kinematics and labels
     alone, ``PHYSICS_OVERSAMPLE`` for a motion whose forces are computed.
@@ -250,18 +253,31 @@ def build_motion(scene: Scene, oversample: int = 1) -> Motion:
     rng = np.random.default_rng(np.random.SeedSequence([scene.seed, subject.style_seed]))
     ctx = Context(body, subject, rate, rng)
     if scene.session is not None:
-        return motion_from_segments(
-            body, subject, rate, session_segments(scene.session, ctx, scene.seed)
-        )
+        segments = session_segments(scene.session, ctx, scene.seed)
+    else:
+        segments = script_segments(ctx, scene.script)
+    return with_set_edges(motion_from_segments(body, subject, rate, segments))
+
+
+def script_segments(ctx: Context, script: list[ScriptEntry]) -> list[Segment]:
+    """A script's segments: the lead-in stand, then each entry's recipe and its stand."""
     place = Place(0.0, 0.0, 0.0)
-    segments: list[Segment] = [stand(ctx, place, LEAD_IN_S)]
-    for entry in scene.script:
+    segments = [stand(ctx, place, LEAD_IN_S)]
+    for entry in script:
         segment = RECIPES[entry.action](ctx, entry.spec(), place)
         place = segment.end
         segments.append(segment)
         if entry.stand_s > 0:
             segments.append(stand(ctx, place, entry.stand_s))
-    return motion_from_segments(body, subject, rate, segments)
+    return segments
+
+
+def with_set_edges(motion: Motion) -> Motion:
+    """``motion`` with its sets' edges labelled by the convention (models/set_edges.py):
+    a set keeps at most ``SET_EDGE_REST_S`` of still standing before its first movement
+    and after its last, the rest is ``standing``. Scripts and lab sessions alike."""
+    action = set_edges(motion.pose_frame(), motion.action, motion.rate_hz)
+    return dataclasses.replace(motion, action=action)
 
 
 def motion_from_segments(

@@ -1,0 +1,93 @@
+"""Where a set's label ends: the still standing at its edges (models/contract.py,
+"The labelling convention").
+
+A run of a repeated action may begin and end standing still: the recipe's
+moment of getting ready, the hold at the top of its last repetition, or a
+segment file drawn loosely around the set. At most ``SET_EDGE_REST_S`` of that
+stillness next to the set's first and last movement keeps the set's label;
+the stillness beyond it becomes ``STANDING``. Pauses between movements inside
+the run are never touched (a pause is part of its set).
+
+Stillness is read from the keypoints of the run itself (pose frame, metres):
+a frame is still when no keypoint moved faster than ``STILL_SPEED_MPS`` since
+the previous frame (the run's first frame: up to the second). A frame with no
+keypoint seen in both is unknown, and an edge with an unknown frame is left as
+it is: what the keypoints do not show is not relabelled. Numpy only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from scotti.models.contract import (
+    NUM_KEYPOINTS,
+    SET_EDGE_REST_S,
+    STANDING,
+    STILL_SPEED_MPS,
+    has_progress,
+)
+from scotti.models.errors import ModelInputError
+
+IntArray = npt.NDArray[np.int64]
+
+
+def frame_speeds(keypoints: npt.ArrayLike, rate_hz: float) -> npt.NDArray[np.float64]:
+    """(N,) the fastest keypoint's speed (m/s) into each frame from the one before;
+    frame 0 takes frame 1's. NaN where no keypoint is seen in both frames."""
+    k = np.asarray(keypoints, dtype=np.float64)
+    if k.ndim != 3 or k.shape[1:] != (NUM_KEYPOINTS, 3):
+        msg = f"keypoints must be (N, {NUM_KEYPOINTS}, 3), got {k.shape}"
+        raise ModelInputError(msg)
+    if len(k) < 2:
+        return np.full(len(k), np.nan)
+    step = np.linalg.norm(np.diff(k, axis=0), axis=-1)  # (N-1, 19), NaN where unseen
+    seen = np.isfinite(step)
+    fastest = np.where(seen, step, -np.inf).max(axis=1) * rate_hz
+    fastest = np.where(seen.any(axis=1), fastest, np.nan)
+    return np.asarray(np.r_[fastest[0], fastest], dtype=np.float64)
+
+
+def set_edges(
+    keypoints: npt.ArrayLike,
+    actions: npt.ArrayLike,
+    rate_hz: float,
+    segment: npt.ArrayLike | None = None,
+) -> IntArray:
+    """``actions`` with every run of a repeated action held to the convention at its edges.
+
+    ``keypoints`` (N, 19, 3) pose frame, metres; ``actions`` (N,) ints; ``segment``
+    (N,) optional ids of stretches recorded without a gap (a run never spans two).
+    Returns a new array; standing, transitions and pauses inside a run are kept.
+    """
+    k = np.asarray(keypoints, dtype=np.float64)
+    out = np.array(actions, dtype=np.int64, copy=True)
+    if out.shape != (len(k),):
+        msg = f"actions must be ({len(k)},), got {out.shape}"
+        raise ModelInputError(msg)
+    part = np.zeros(len(k), np.int64) if segment is None else np.asarray(segment)
+    keep = round(SET_EDGE_REST_S * rate_hz)
+    for start, end in _runs(out, part):
+        if not has_progress(int(out[start])):
+            continue
+        speed = frame_speeds(k[start:end], rate_hz)
+        moving = np.flatnonzero(speed >= STILL_SPEED_MPS)
+        if moving.size == 0:
+            continue  # no movement seen: nothing to measure the edges from
+        first, last = int(moving[0]), int(moving[-1])
+        lead_known = bool(np.isfinite(speed[:first]).all())
+        tail_known = bool(np.isfinite(speed[last + 1 :]).all())
+        if lead_known and first > keep:
+            out[start : start + first - keep] = STANDING
+        if tail_known and end - start - 1 - last > keep:
+            out[start + last + 1 + keep : end] = STANDING
+    return out
+
+
+def _runs(actions: IntArray, segment: npt.NDArray[np.generic]) -> list[tuple[int, int]]:
+    """[start, end) of each maximal run of one action within one segment."""
+    if actions.size == 0:
+        return []
+    change = (actions[1:] != actions[:-1]) | (segment[1:] != segment[:-1])
+    starts = np.flatnonzero(np.r_[True, change])
+    ends = np.r_[starts[1:], actions.size]
+    return list(zip(starts.tolist(), ends.tolist(), strict=True))

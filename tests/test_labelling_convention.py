@@ -1,0 +1,284 @@
+"""One labelling convention for every source of labels (models/contract.py, "The labelling
+convention"): the same squats with pauses, asked by a script, by a lab session and brought
+in by ``scotti import``, get the same labels frame for frame; the edges of a set keep at
+most SET_EDGE_REST_S of still standing, wherever the labels come from."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scotti.cli.main import main
+from scotti.firmware_protocol.session import read_session
+from scotti.models.contract import (
+    ACTIONS,
+    FRAME_RATE_HZ,
+    KEYPOINTS,
+    NO_ACTION,
+    SET_EDGE_REST_S,
+    STANDING,
+    STILL_SPEED_MPS,
+)
+from scotti.models.set_edges import frame_speeds, set_edges
+from scotti.sim.actions import Context, Segment
+from scotti.sim.motion import Labels, Motion, labels
+from scotti.sim.scene import (
+    LEAD_IN_S,
+    Scene,
+    ScriptEntry,
+    SubjectModel,
+    build_motion,
+    motion_from_segments,
+    script_segments,
+    with_set_edges,
+)
+from scotti.sim.session import Item, SessionModel, build_session
+
+SQUAT = ACTIONS.index("squat")
+REPS = 4
+STAND_S = 1.5
+# Pauses of about a second between repetitions (the trait's top is 1.5 s).
+SUBJECT = SubjectModel(height_m=1.75, mass_kg=72.0, style_seed=11, rep_pause_s=1.2)
+EDGE = round(SET_EDGE_REST_S * FRAME_RATE_HZ)
+
+
+def _context(seed: int) -> Context:
+    subject = SUBJECT.subject()
+    return Context(subject.body(), subject, FRAME_RATE_HZ, np.random.default_rng(seed))
+
+
+def _labelled(ctx: Context, segments: list[Segment]) -> tuple[Motion, Labels]:
+    motion = with_set_edges(motion_from_segments(ctx.body, ctx.subject, ctx.rate_hz, segments))
+    return motion, labels(motion)
+
+
+def scripted(seed: int) -> tuple[Motion, Labels]:
+    """A script's set: lead-in stand, REPS squats, a stand of STAND_S."""
+    ctx = _context(seed)
+    entry = ScriptEntry(action="squat", reps=REPS, stand_s=STAND_S)
+    return _labelled(ctx, script_segments(ctx, [entry]))
+
+
+def in_the_lab(seed: int) -> tuple[Motion, Labels]:
+    """The same set as a lab session asks it: a set of so many seconds (which makes REPS
+    repetitions), with the stands of the same lengths around it."""
+    ctx = _context(seed)
+    traits = ctx.subject.traits
+    seconds = (REPS - 0.5) * (traits.squat_rep_s + traits.rep_pause_s)
+    items = [Item("stand", LEAD_IN_S), Item("set", seconds, "squat"), Item("stand", STAND_S)]
+    # Minutes far below the set: no set is topped up.
+    segments, _ = build_session(ctx, items, {"squat": 0.01}, (5.0, 20.0), np.random.default_rng(0))
+    return _labelled(ctx, segments)
+
+
+def _runs(values: np.ndarray) -> list[tuple[int, int]]:
+    starts = np.flatnonzero(np.r_[True, values[1:] != values[:-1]])
+    return list(zip(starts.tolist(), np.r_[starts[1:], values.size].tolist(), strict=True))
+
+
+def test_a_script_and_a_lab_session_label_the_same_set_the_same() -> None:
+    script_motion, script = scripted(seed=4)
+    lab_motion, lab = in_the_lab(seed=4)
+    # The same request makes the same motion (the precondition), and the same labels.
+    np.testing.assert_array_equal(script_motion.world, lab_motion.world)
+    np.testing.assert_array_equal(script.action, lab.action)
+    np.testing.assert_array_equal(script.progress, lab.progress)
+    np.testing.assert_array_equal(script.repetition, lab.repetition)
+
+
+def test_pauses_are_the_set_and_the_stands_around_it_are_standing() -> None:
+    motion, lab = scripted(seed=4)
+    runs = _runs(lab.action)
+    assert [int(lab.action[s]) for s, _ in runs] == [STANDING, SQUAT, STANDING]
+    (_, lead_end), (start, end), _ = runs
+    assert lead_end == round(LEAD_IN_S * FRAME_RATE_HZ)
+    assert np.isnan(lab.progress[lab.action == STANDING]).all()
+    assert (lab.repetition[lab.action == STANDING] == -1).all()
+
+    moving = frame_speeds(lab.keypoints[start:end], FRAME_RATE_HZ) >= STILL_SPEED_MPS
+    first, last = np.flatnonzero(moving)[[0, -1]]
+    # The set's still edges are the recipe's own, shorter than the convention's bound.
+    assert 0 < first <= EDGE
+    assert 0 < end - start - 1 - last <= EDGE
+    # Pauses between repetitions: still frames at the top between the first and the last
+    # movement (the bottom of a squat is held a moment too: no pause).
+    hips = lab.keypoints[start:end, 7:9, 2].mean(axis=1)
+    inner = np.arange(first, last + 1)
+    paused = inner[~moving[inner] & (hips[inner] > hips.max() - 0.01)]
+    assert paused.size >= (REPS - 1) * round(0.5 * FRAME_RATE_HZ)  # half a second or more each
+    assert (lab.action[paused + start] == SQUAT).all()
+    assert lab.progress[paused + start].max() < 0.05  # the start of the repetition that follows
+    # A repetition ends on arrival at the top: the count steps up as the hips get there.
+    steps = np.flatnonzero(np.diff(lab.repetition[start:end])) + 1
+    assert steps.size == REPS  # REPS - 1 pauses and the rest after the last repetition
+    for step in steps:
+        assert hips[step] > hips.max() - 0.04 > hips[step - 2]  # just risen to the top
+    assert (lab.repetition[start + steps[-1] : end] == REPS).all()  # the last complete on arrival
+    del motion
+
+
+def test_lab_sessions_hold_the_convention_without_a_change() -> None:
+    """The figures in contract.py: at tempo 1 the sets' still edges stay within 0.6 s and a
+    quiet stand's sway under 0.085 m/s (< STILL_SPEED_MPS), so the edge rule relabels nothing."""
+    scene = Scene(
+        seed=5,
+        subject=SubjectModel(height_m=1.68, mass_kg=63.0, style_seed=8),
+        session=SessionModel(minutes_per_action=0.5, set_s=(15.0, 25.0), rest_s=(5.0, 10.0)),
+    )
+    motion = build_motion(scene)
+    keypoints = motion.pose_frame()
+    untouched = set_edges(keypoints, motion.action, FRAME_RATE_HZ)
+    np.testing.assert_array_equal(untouched, motion.action)
+    speed = frame_speeds(keypoints, FRAME_RATE_HZ)
+    assert speed[motion.action == STANDING].max() < 0.085
+    edges = []
+    for start, end in _runs(motion.action):
+        if int(motion.action[start]) in (STANDING, NO_ACTION):
+            continue
+        moving = np.flatnonzero(frame_speeds(keypoints[start:end], FRAME_RATE_HZ) >= 0.1)
+        assert moving.size, ACTIONS[motion.action[start]]
+        edges += [moving[0], end - start - 1 - moving[-1]]
+    assert max(edges) / FRAME_RATE_HZ <= 0.6
+
+
+def _import(session: Labels, d: Path, segments: str) -> Labels:
+    """``scotti import`` of the session's keypoints (world frame, metres, z up) with a
+    segment file; pressure is a flat 50 kPa (labels do not read it)."""
+    n = len(session.action)
+    t = np.arange(n) / FRAME_RATE_HZ
+    np.savez(d / "p.npz", time=t, left=np.full((n, 4, 4), 50.0), right=np.full((n, 4, 4), 50.0))
+    (d / "segments.csv").write_text(segments)
+    mapping = ", ".join(f'{name} = "{name}"' for name in KEYPOINTS)
+    names = np.array(KEYPOINTS)
+    np.savez(d / "pose.npz", time=t, keypoints=session.keypoints.astype(np.float64), names=names)
+    (d / "import.toml").write_text(
+        'subject = "p01"\n[pressure]\nfile = "p.npz"\nrows = 4\ncols = 4\n'
+        '[counts]\nmethod = "per_kpa"\nunits_per_kpa = 1.0\n'
+        '[keypoints]\nfile = "pose.npz"\nset = "custom"\nfloor_z = 0.0\n'
+        f"mapping = {{ {mapping} }}\n"
+        '[labels]\nsegments = "segments.csv"\n'
+    )
+    out = d / "p01.scotti"
+    assert main(["import", str(d / "import.toml"), "-o", str(out), "--force"]) == 0
+    records = read_session(out).labels
+    assert len(records) == n
+    return Labels(
+        np.stack([r.keypoints for r in records]),
+        np.array([r.action for r in records]),
+        np.array([r.progress for r in records], dtype=np.float32),
+        np.array([r.rep for r in records]),
+    )
+
+
+def _segment_file(rows: list[tuple[int, int, int]]) -> str:
+    """Frames [s, e) as segments; each ends half a frame after its last frame (the
+    recording's last frame has nothing after it)."""
+    lines = ["start,end,action"]
+    rate = FRAME_RATE_HZ
+    lines += [f"{s / rate:g},{(e - 0.5) / rate:g},{ACTIONS[a]}" for s, e, a in rows]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.fixture(scope="module")
+def lab_set() -> Labels:
+    """The lab's set in the session's pose frame, as the session file holds it; standing
+    for 3 s before and after, longer than the convention keeps with a set."""
+    ctx = _context(seed=4)
+    traits = ctx.subject.traits
+    seconds = (REPS - 0.5) * (traits.squat_rep_s + traits.rep_pause_s)
+    items = [Item("stand", 3.0), Item("set", seconds, "squat"), Item("stand", 3.0)]
+    segments, _ = build_session(ctx, items, {"squat": 0.01}, (5.0, 20.0), np.random.default_rng(0))
+    return _labelled(ctx, segments)[1]
+
+
+def test_an_import_of_the_same_motion_gets_the_same_labels(lab_set: Labels, tmp_path: Path) -> None:
+    rows = [(s, e, int(lab_set.action[s])) for s, e in _runs(lab_set.action)]
+    imported = _import(lab_set, tmp_path, _segment_file(rows))
+    np.testing.assert_array_equal(imported.action, lab_set.action)
+    np.testing.assert_array_equal(np.isnan(imported.progress), np.isnan(lab_set.progress))
+    np.testing.assert_allclose(imported.progress, lab_set.progress, atol=1e-5)
+    np.testing.assert_array_equal(imported.repetition, lab_set.repetition)
+
+
+def test_an_import_that_calls_the_stands_squat_keeps_a_second_of_them(
+    lab_set: Labels, tmp_path: Path
+) -> None:
+    """A loose segment file (squat from the first frame to the last): the pauses stay squat
+    as in the lab; the stands beyond SET_EDGE_REST_S of the first and last movement become
+    standing; within it the importer cannot know where the set began, and keeps squat."""
+    n = len(lab_set.action)
+    imported = _import(lab_set, tmp_path, _segment_file([(0, n, SQUAT)]))
+    moving = frame_speeds(imported.keypoints, FRAME_RATE_HZ) >= STILL_SPEED_MPS
+    first, last = np.flatnonzero(moving)[[0, -1]]
+    margin = np.zeros(n, dtype=bool)
+    margin[first - EDGE : first] = True
+    margin[last + 1 : last + 1 + EDGE] = True
+    margin &= lab_set.action == STANDING  # where the lab's own set edge ends sooner
+    assert margin.sum() >= EDGE  # the two sources do differ there ...
+    assert (imported.action[margin] == SQUAT).all()  # ... the import keeps squat, ~0
+    assert np.nanmax(imported.progress[margin]) < 0.05
+    same = ~margin
+    np.testing.assert_array_equal(imported.action[same], lab_set.action[same])
+    assert (imported.action[: first - EDGE] == STANDING).all()
+    assert (imported.action[last + 1 + EDGE :] == STANDING).all()
+    # Progress and repetitions inside the set hardly depend on where the file put its edges
+    # (the longer lead's hip sway, under a millimetre, enters the first repetition's extremes).
+    inside = same & (lab_set.action == SQUAT)
+    np.testing.assert_allclose(imported.progress[inside], lab_set.progress[inside], atol=1e-3)
+    steps = np.flatnonzero(np.diff(imported.repetition[inside]))
+    np.testing.assert_array_equal(steps, np.flatnonzero(np.diff(lab_set.repetition[inside])))
+
+
+# --- the edge rule itself, on hand-made keypoints -------------------------------------
+
+
+def _bobbing(still_before: float, still_after: float, pause: float = 0.0) -> np.ndarray:
+    """(N, 19, 3): every keypoint still, then two 2 s dips of 0.3 m (a pause between them),
+    then still again."""
+    rate = FRAME_RATE_HZ
+    pieces = [np.zeros(round(still_before * rate))]
+    dip = 0.15 * (1.0 - np.cos(2.0 * math.pi * np.arange(round(2.0 * rate)) / (2.0 * rate)))
+    pieces += [dip, np.zeros(round(pause * rate)), dip, np.zeros(round(still_after * rate))]
+    z = -np.concatenate(pieces)
+    k = np.zeros((z.size, len(KEYPOINTS), 3))
+    k[:, :, 2] = 1.0 + z[:, None]
+    return k
+
+
+def test_still_edges_beyond_the_bound_become_standing_pauses_never() -> None:
+    k = _bobbing(3.0, 2.5, pause=4.0)
+    action = np.full(len(k), SQUAT)
+    out = set_edges(k, action, FRAME_RATE_HZ)
+    moving = np.flatnonzero(frame_speeds(k, FRAME_RATE_HZ) >= STILL_SPEED_MPS)
+    first, last = moving[0], moving[-1]
+    assert (out[: first - EDGE] == STANDING).all()
+    assert (out[first - EDGE : last + 1 + EDGE] == SQUAT).all()  # the 4 s pause included
+    assert (out[last + 1 + EDGE :] == STANDING).all()
+    np.testing.assert_array_equal(action, SQUAT)  # the input is left as it was
+
+
+def test_what_the_keypoints_do_not_show_keeps_its_label() -> None:
+    k = _bobbing(3.0, 3.0)
+    action = np.full(len(k), SQUAT)
+    masked = k.copy()
+    masked[5] = np.nan  # an unseen frame in the leading stand
+    out = set_edges(masked, action, FRAME_RATE_HZ)
+    assert (out[:10] == SQUAT).all()
+    assert out[-1] == STANDING  # the trailing stand is seen: held to the bound
+    still = np.zeros((80, len(KEYPOINTS), 3))  # a "set" with no movement at all
+    np.testing.assert_array_equal(set_edges(still, np.full(80, SQUAT), FRAME_RATE_HZ), SQUAT)
+    # Standing, transitions and actions without repetitions are never relabelled.
+    for other in (STANDING, NO_ACTION):
+        np.testing.assert_array_equal(set_edges(k, np.full(len(k), other), FRAME_RATE_HZ), other)
+
+
+def test_a_gap_ends_a_run() -> None:
+    k = np.concatenate([_bobbing(0.0, 3.0), _bobbing(3.0, 0.0)])
+    action = np.full(len(k), SQUAT)
+    half = len(k) // 2
+    # One run: the 6 s still in the middle is a pause, and the run has no still edge.
+    np.testing.assert_array_equal(set_edges(k, action, FRAME_RATE_HZ), SQUAT)
+    split = set_edges(k, action, FRAME_RATE_HZ, segment=np.repeat([0, 1], half))
+    assert (split[half - 10 : half + 10] == STANDING).all()  # two runs: each edge held
