@@ -170,17 +170,32 @@ def _subject(cfg: ImportConfig, output: Path, pressure: LoadedPressure) -> dict[
 
 
 def _describe(pressure: LoadedPressure) -> str:
-    """A vendor file in a few words: format, feet, grid or cells, units, scale."""
+    """A vendor file in a few words: format, feet, grid or cells, units, scale, what was cut."""
     if pressure.format == "table":
         return ""
     p = pressure.provenance["pressure"]
-    feet = []
+    feet: list[str] = []
+    scales: dict[str, None] = {}  # in the order met
     for foot, d in p["feet"].items():
         shape = " x ".join(map(str, d["grid"])) if "grid" in d else f"{d['cells']} cells"
         feet.append(f"{foot} {shape}")
+        scales[_SCALES.get(d["method"], d["method"])] = None
+        if d.get("scaled_to_file_total"):
+            scales["each foot scaled to the file's total force"] = None
+    text = f"{p['format']}, {', '.join(feet)}, {p['units']} ({'; '.join(scales)})"
     events = len(pressure.provenance.get("events", []))
-    text = f"{p['format']}, {', '.join(feet)}, {p['units']} ({pressure.counts['method']})"
-    return text + (f", {events} events" if events else "")
+    text += f", {events} events" if events else ""
+    cut = pressure.provenance.get("vendor", {}).get("cut_s") or [0.0, 0.0]
+    if any(cut):
+        text += f"; cut {cut[0]:g} s at the start, {cut[1]:g} s at the end (one insole silent)"
+    return text
+
+
+_SCALES = {
+    "units": "its units",
+    "sensor_area": "newtons over each sensor's area",
+    "body_mass": "scaled by --mass-kg",
+}
 
 
 def _mtime(path: Path) -> float:

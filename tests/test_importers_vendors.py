@@ -221,7 +221,8 @@ def test_grid_units_reach_our_count_scale(
         for counts in session_feet(out).values():
             assert (counts[:, mask] == OURS_AT_128_KPA).all()
             assert (counts[:, ~mask] == 0).all()
-    assert "pressure: xsensor, left 31 x 11, right 31 x 11, mmHg (units)" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "pressure: xsensor, left 31 x 11, right 31 x 11, mmHg (its units)" in said
 
 
 def test_cells_are_rendered_by_their_layout(tmp_path: Path) -> None:
