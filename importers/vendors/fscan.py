@@ -286,7 +286,12 @@ def _recording(
         "comments": comments,
         "sensor_type": fields.get("SENSOR_TYPE", ""),
         "frame_numbers": [numbers[0], numbers[-1]],
-        "foot": {"side": foot, "from": side_from, "toe_lean_cols": round(lean, 2), "name_says": named},
+        "foot": {
+            "side": foot,
+            "from": side_from,
+            "toe_lean_cols": round(lean, 2),
+            "name_says": named,
+        },
         "calibration": calibration,
         "outline_cells": int(outline.sum()),
     }

@@ -45,7 +45,7 @@ def file_size(path: Path) -> int:
 class _Capped(io.RawIOBase):
     """A gzip stream that refuses to give more than ``limit`` bytes."""
 
-    def __init__(self, inner: BinaryIO, limit: int, path: Path) -> None:
+    def __init__(self, inner: gzip.GzipFile, limit: int, path: Path) -> None:
         self.inner, self.limit, self.path, self.given = inner, limit, path, 0
 
     def readable(self) -> bool:

@@ -92,9 +92,9 @@ def feet_from_vendor(
     described: dict[str, Any] = {}
     start = 0
     for foot in ("left", "right"):
-        data = recording.feet.get(foot)
-        if data is None:
+        if foot not in recording.feet:
             continue
+        data = recording.feet[foot]
         if data.is_grid:
             orientation = (orientations or {}).get(foot) or data.orientation or Orientation()
             rows, cols = data.frame_shape
