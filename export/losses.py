@@ -126,7 +126,7 @@ def scotti_loss(
     # Progress counts only for a repeated action with a finite label: the label is
     # NaN where progress is undefined (standing, transitions, unlabelled), and a
     # stray number on a standing frame is not trusted either.
-    repeated = torch.isin(targets.action, _REPEATED)  # (B,)
+    repeated = torch.isin(targets.action, _REPEATED.to(targets.action.device))  # (B,)
     has_progress = repeated & torch.isfinite(targets.progress)  # (B,)
     progress_target = torch.where(has_progress, targets.progress, 0.0)
     progress = _masked_mean((outputs.progress - progress_target) ** 2, has_progress)
