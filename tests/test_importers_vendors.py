@@ -394,10 +394,12 @@ def test_malformed_files_fail_on_one_line_with_their_place(
         .read_text()
         .splitlines()
     )
-    g[4] = g[4].rsplit("\t", 1)[0] + "\t99.00"
-    case(
-        "total.txt", "\n".join(g), r"total\.txt line 5, column 19: right total 99 N is not the sum"
-    )
+    total = [*g[:4], g[4].rsplit("\t", 1)[0] + "\t99.00", *g[5:]]
+    case("total.txt", "\n".join(total), r"total\.txt line 5, column 19: right total 99 N is not")
+    back = [*g[:6], g[6].replace("0.0600", "0.0400", 1), *g[7:]]
+    case("back.txt", "\n".join(back), r"back\.txt line 7, column 1: time stamp earlier than")
+    same = [*m_lines[:11], m_lines[11].replace("0.01", "0.00", 1), *m_lines[12:]]
+    case("same.txt", "\n".join(same), r"same\.txt line 12, column 1: time stamp duplicate")
     for name, text, expected in cases:
         path = tmp_path / name
         path.write_text(text + "\n", encoding="utf-8")

@@ -22,7 +22,7 @@ from typing import Any, Final
 import numpy as np
 from scotti.importers.errors import InputError
 from scotti.importers.vendors.lines import Rows, TextLines
-from scotti.importers.vendors.numbers import check_pressures, numbers
+from scotti.importers.vendors.numbers import Clock, check_pressures, numbers
 from scotti.importers.vendors.recording import FootData, VendorRecording
 
 SENSORS: Final = 8
@@ -36,6 +36,7 @@ _SUBJECT: Final = re.compile(r"^((?:Ga|Ju|Si)(?:Co|Pt)\d+)_\d+", re.IGNORECASE)
 def read_gaitpdb(path: Path) -> VendorRecording:
     with TextLines(path) as lines:
         body = Rows(COLUMNS, np.float64)
+        clock = Clock()
         for _, line in lines:
             if not line.strip():
                 continue
@@ -45,6 +46,7 @@ def read_gaitpdb(path: Path) -> VendorRecording:
                     f"{len(cells)} values, expected {COLUMNS} (time, 8 + 8 sensors, 2 totals)"
                 )
             row = numbers(cells, lines)
+            clock.check(float(row[0]), lines)
             check_pressures(row[1:], lines, first_column=2)
             for k, first in enumerate((1, 1 + SENSORS)):
                 total = row[1 + 2 * SENSORS + k]

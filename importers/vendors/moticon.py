@@ -33,7 +33,7 @@ from typing import Any, Final
 import numpy as np
 from scotti.importers.errors import InputError
 from scotti.importers.vendors.lines import Rows, TextLines
-from scotti.importers.vendors.numbers import check_pressures, numbers
+from scotti.importers.vendors.numbers import Clock, check_pressures, numbers
 from scotti.importers.vendors.recording import FOOT_NAMES, FootData, VendorRecording, kpa_per_unit
 
 CELLS: Final = 16
@@ -68,6 +68,7 @@ def read_moticon(path: Path) -> VendorRecording:
     with TextLines(path) as lines:
         columns: _Columns | None = None
         body: Rows | None = None
+        clock = Clock()
         for _, line in lines:
             if line.startswith("#"):
                 text = line[1:].strip()
@@ -82,7 +83,9 @@ def read_moticon(path: Path) -> VendorRecording:
                 continue
             if columns is None or body is None:
                 raise lines.fail("data before the '# time' column line: not a Moticon export")
-            body.add(_row(line, columns, lines, events))
+            row = _row(line, columns, lines, events)
+            clock.check(float(row[0]), lines, columns.time + 1)
+            body.add(row)
         if columns is None or body is None:
             raise InputError(path, "no '# time' column line: not a Moticon text export")
         if not len(body):

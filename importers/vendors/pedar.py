@@ -28,7 +28,7 @@ from typing import Any, Final
 import numpy as np
 from scotti.importers.errors import InputError
 from scotti.importers.vendors.lines import Rows, TextLines, file_size, is_gzip
-from scotti.importers.vendors.numbers import check_pressures, field_number, numbers
+from scotti.importers.vendors.numbers import Clock, check_pressures, field_number, numbers
 from scotti.importers.vendors.recording import FootData, VendorRecording, kpa_per_unit
 
 CELLS: Final = 99  # sensors of a pedar-x insole
@@ -46,6 +46,7 @@ def read_pedar(path: Path) -> VendorRecording:
         width = 0
         body: Rows | None = None
         feet: list[str] = []
+        clock = Clock()
         for _, line in lines:
             if body is None:
                 if line.lstrip().lower().startswith("time["):
@@ -73,6 +74,7 @@ def read_pedar(path: Path) -> VendorRecording:
                 expected = f"{width} (time + {len(feet)} x {CELLS} cells)"
                 raise lines.fail(f"{len(cells)} values, expected {expected}")
             row = numbers(cells, lines)
+            clock.check(float(row[0]), lines)
             check_pressures(row[1:], lines, first_column=2)
             body.add(row)
         if body is None:

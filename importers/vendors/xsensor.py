@@ -40,7 +40,7 @@ import numpy as np
 from scotti.importers.errors import InputError
 from scotti.importers.grid import Orientation
 from scotti.importers.vendors.lines import Rows, TextLines
-from scotti.importers.vendors.numbers import check_pressures, field_number, numbers
+from scotti.importers.vendors.numbers import Clock, check_pressures, field_number, numbers
 from scotti.importers.vendors.recording import FootData, VendorRecording, kpa_per_unit
 
 MAX_CELLS: Final = 1 << 16
@@ -67,6 +67,7 @@ def read_xsensor(path: Path) -> VendorRecording:
         fields: dict[str, str] = {}
         grid: list[np.ndarray] | None = None
         date = ""
+        clock = Clock()
         for _, line in lines:
             cells = next(csv.reader([line])) if line else []
             if not any(c.strip() for c in cells):
@@ -90,6 +91,7 @@ def read_xsensor(path: Path) -> VendorRecording:
                 date = _value(cells)
             elif key == "Time":
                 stamps.append(_stamp(date, _value(cells), lines))
+                clock.check((stamps[-1] - stamps[0]).total_seconds(), lines, 2)
             elif key == "SENSOR":
                 foot, fields = _sensor_foot(_value(cells), lines), {}
                 if foot in sensors and len(sensors[foot].load) >= len(frame_numbers):
