@@ -113,6 +113,7 @@ def test_fscan_grid_outline_scale_and_foot(tmp_path: Path) -> None:
     assert list(rec.feet) == ["left"]
     assert rec.absent_feet == ["right"]
     np.testing.assert_array_equal(data.mask, outline)
+    assert rec.info["outline"][0] == "".join("1" if v else "0" for v in outline[0])
     np.testing.assert_array_equal(data.values, np.nan_to_num(frames))
     np.testing.assert_allclose(rec.times_s, np.arange(10) * 0.032)
     assert rec.rate_hz == pytest.approx(31.25)

@@ -294,5 +294,6 @@ def _recording(
         },
         "calibration": calibration,
         "outline_cells": int(outline.sum()),
+        "outline": ["".join("1" if v else "0" for v in row) for row in outline],  # 0: a B
     }
     return VendorRecording("fscan", path, times, {foot: data}, rate, units, [], info)
