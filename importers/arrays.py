@@ -17,6 +17,7 @@ is read.
 from __future__ import annotations
 
 import math
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -68,6 +69,8 @@ def _check_dtype(path: Path, name: str, dtype: np.dtype[Any]) -> None:
     if dtype.kind not in _KINDS or dtype.fields is not None or dtype.subdtype is not None:
         problem = f"holds {clip(str(dtype), 60)} values, not numbers or text"
         raise InputError(path, problem, column=name)
+    if dtype.itemsize == 0:  # numpy would make them one byte each: sizes would not add up
+        raise InputError(path, f"holds values of no size ({dtype})", column=name)
 
 
 # --- .npz ---------------------------------------------------------------------------------
@@ -83,7 +86,14 @@ def _read_npz(
             for name in names:
                 if name in members and name not in found:
                     found[name] = _read_member(path, z, members[name], name, budget)
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError) as exc:
+    except (
+        zipfile.BadZipFile,
+        zipfile.LargeZipFile,
+        OSError,
+        EOFError,
+        ValueError,
+        NotImplementedError,  # a zip version or a compression zipfile does not know
+    ) as exc:
         raise InputError(path, f"not a readable .npz ({exc.__class__.__name__})") from None
     return found, list(members)
 
@@ -108,7 +118,15 @@ def _read_member(
             _fill(path, name, f, flat)
     except InputError:
         raise
-    except (ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile) as exc:
+    except (
+        ValueError,
+        OSError,
+        EOFError,
+        zlib.error,
+        zipfile.BadZipFile,
+        tokenize.TokenError,  # numpy's reading of an old-style header
+        RecursionError,
+    ) as exc:
         problem = f"not a readable array ({exc.__class__.__name__}: {clip(str(exc), 60)})"
         raise InputError(path, problem, column=name) from None
     except (NotImplementedError, RuntimeError) as exc:  # compression or encryption

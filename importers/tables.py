@@ -40,6 +40,7 @@ _BOM: Final = b"\xef\xbb\xbf"
 _HEADER_CELL_BYTES: Final = 96  # what one header name costs in memory, about
 _DECIMAL_COMMA: Final = re.compile(r"[+-]?\d+,\d+")
 _NEWLINE: Final = ord("\n")
+FLOAT32_MAX: Final = float(np.finfo(np.float32).max)
 # Bytes a blank line or a comment can start with (a line starting so is looked at closely).
 _MAYBE_SKIPPED: Final = np.isin(np.arange(256), [ord(c) for c in "\n\r\t #"])
 
@@ -381,13 +382,17 @@ class _Rows:
 
 
 def first_bad(values: np.ndarray) -> tuple[int, ...] | None:
-    """Index of the first NaN, infinite or negative value (C order), None when all good."""
+    """Index of the first NaN, infinite, negative or too large value (C order), None when
+    all good. Too large: past float32's range, which the frames are kept in."""
     if values.size == 0:
         return None
     low, high = values.min(), values.max()  # NaN propagates: two passes, no temporaries
-    if np.isfinite(low) and np.isfinite(high) and low >= 0:
+    wide = values.dtype.kind == "f" and values.dtype.itemsize > 4  # others cannot be too large
+    if np.isfinite(low) and np.isfinite(high) and low >= 0 and not (wide and high > FLOAT32_MAX):
         return None
     bad = ~np.isfinite(values) | (values < 0)
+    if wide:
+        bad |= values > FLOAT32_MAX
     if not bad.any():
         return None
     flat = int(np.argmax(bad.reshape(-1)))
@@ -399,4 +404,6 @@ def describe_value(value: float) -> str:
         return "NaN"
     if math.isinf(value):
         return "an infinite value"
+    if value > FLOAT32_MAX:
+        return f"value {value:g} too large (float32 holds {FLOAT32_MAX:.3g})"
     return f"negative value {value:g}"

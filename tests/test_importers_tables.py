@@ -258,3 +258,29 @@ def test_hdf5_names_and_strings(tmp_path: Path) -> None:
     assert "a.h5: no array 'x' (it has: grp/t, names)" in arrays_error(path, ["x"])
     (tmp_path / "b.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
     assert "b.h5: not a readable HDF5 file" in arrays_error(tmp_path / "b.h5", ["t"])
+
+
+def test_values_past_float32_s_range_are_bad_and_float16_is_not_compared_past_its_own() -> None:
+    assert tables.first_bad(np.array([[1.0, 2.0], [3.0, 1e300]])) == (1, 1)
+    assert "value 1e+300 too large" in tables.describe_value(1e300)
+    half = np.array([1.0, 65504.0], dtype=np.float16)  # float16's largest: fine
+    assert tables.first_bad(half) is None
+    assert tables.first_bad(np.array([1.0, np.inf], dtype=np.float16)) == (1,)
+
+
+def test_the_fuzzer_s_npz_findings_stay_fixed(tmp_path: Path) -> None:
+    """Zero-size values numpy would allocate a byte each for; a header numpy's tokenizer
+    chokes on; a zip version zipfile refuses: each one line, none a traceback."""
+    path = tmp_path / "a.npz"
+    npz_member(path, "t", {"descr": "|S0", "fortran_order": True, "shape": (10**9, 2)}, b"")
+    assert "a.npz t: holds values of no size" in arrays_error(path, ["t"])
+    path.unlink()
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("t.npy", b"\x93NUMPY\x01\x00\x20\x00{'descr': '<f8', 'shape': (10,\n" + bytes(8))
+    assert "a.npz t: not a readable array" in arrays_error(path, ["t"])
+    np.savez(path, t=np.arange(3))
+    data = bytearray(path.read_bytes())
+    central = data.find(b"PK\x01\x02")
+    data[central + 6 : central + 8] = (221).to_bytes(2, "little")  # "version needed": 22.1
+    path.write_bytes(bytes(data))
+    assert "a.npz: not a readable .npz (NotImplementedError)" in arrays_error(path, ["t"])

@@ -13,14 +13,26 @@ Targets (each input must give a result or the target's own error, nothing else):
 - ``config``: TOML files (the daemon's real keys with hostile values, or a
   valid file mutated) through ``load_settings``; ``Settings`` or one
   ``ConfigError`` line.
+- ``csv``, ``npz``, ``h5``, ``vendor``: files of other insoles (tables, and
+  vendor exports from the heads of ``--realdata``'s samples), valid ones made
+  hostile (cut, garbage, NaN and huge cells, megabyte lines, shapes of 10^9
+  declared, zip directories that lie, compression bombs, HDF5 datasets never
+  written) through ``scotti import``'s whole path in a worker process under a
+  2 GiB address-space limit; a clean import or one ``ImporterError`` line
+  that is not out-of-memory (``fuzz_imports``). A crash or a hang of the
+  worker is a finding too.
 
 Inputs come from a seeded ``random.Random`` (``fuzz_inputs``): fast enough for
 a million in well under an hour on one core, where Hypothesis' own drawing
 costs milliseconds per input; the test suite runs the same inputs and checks
-through Hypothesis at a small count. Anything else raised is a finding, kept
-with the first input that caused it, and the run goes on.
+through Hypothesis at a small count (the import targets, a whole import each,
+run tens of inputs a second, so a long run of them wants ``--max-minutes``;
+the suite runs them a few hundred, seeded). Anything else raised is a finding, kept with the
+first input that caused it, and the run goes on; ``--keep DIR`` writes each
+finding's first file there.
 
     python -m scotti.daemon.tools.fuzz [--inputs 1000000] [--max-minutes M] [--targets ...]
+    python -m scotti.daemon.tools.fuzz --targets csv,npz,h5,vendor --max-minutes 60 --keep f/
 
 With ``--max-minutes`` each target gets an equal share of what is left of the
 budget (a target done early leaves its time to the next); the table says how
@@ -41,10 +53,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+from scotti.daemon.tools import fuzz_imports
 from scotti.daemon.tools import fuzz_inputs as inputs
 
 DEFAULT_INPUTS: Final = 1_000_000  # in all, shared equally by the targets
-TARGETS: Final = ("decoder", "assembler", "session", "config")
+TARGETS: Final = ("decoder", "assembler", "session", "config", *fuzz_imports.IMPORT_TARGETS)
 
 
 @dataclass
@@ -56,9 +69,16 @@ class Outcome:
 
 
 def target(
-    name: str, workdir: Path
+    name: str, workdir: Path, realdata: Path = fuzz_imports.REALDATA
 ) -> tuple[Callable[[random.Random], Any], Callable[[Any], None]]:
     """(make an input, check it) for ``name``."""
+    if name in fuzz_imports.IMPORT_TARGETS:
+        seeds = fuzz_imports.Seeds(workdir, realdata)
+        make_import = fuzz_imports.MAKERS[name]
+        return (
+            lambda rnd: make_import(rnd, seeds),
+            fuzz_imports.IsolatedCheck(workdir / f"worker-{name}"),
+        )
     if name == "decoder":
         return inputs.make_decoder_input, inputs.check_decoder
     if name == "assembler":
@@ -73,6 +93,8 @@ def target(
 
 
 def _where(exc: BaseException) -> str:
+    if isinstance(exc, fuzz_imports.FindingError):  # described where it happened, in the worker
+        return str(exc)
     frames = traceback.extract_tb(exc.__traceback__)
     last = frames[-1] if frames else None
     place = f" at {Path(last.filename).name}:{last.lineno}" if last else ""
@@ -80,26 +102,50 @@ def _where(exc: BaseException) -> str:
 
 
 def fuzz(
-    name: str, count: int, seed: int, workdir: Path, progress_every: int, deadline: float
+    name: str,
+    count: int,
+    seed: int,
+    workdir: Path,
+    progress_every: int,
+    deadline: float,
+    keep: Path | None = None,
+    realdata: Path = fuzz_imports.REALDATA,
 ) -> Outcome:
-    make, check = target(name, workdir)
+    make, check = target(name, workdir, realdata)
     rnd = random.Random(f"{seed}:{name}")
     outcome = Outcome(name)
     start = time.monotonic()
-    for i in range(count):
-        if i % 256 == 0 and time.monotonic() > deadline:
-            break
-        data = make(rnd)
-        try:
-            check(data)
-        except Exception as exc:  # a finding: keep the first input of each kind, go on
-            outcome.findings.setdefault(_where(exc), repr(data)[:300])
-        outcome.inputs += 1
-        if progress_every and (i + 1) % progress_every == 0:
-            rate = (i + 1) / (time.monotonic() - start)
-            print(f"  {name}: {i + 1} inputs, {rate:.0f}/s", file=sys.stderr, flush=True)
+    every = 256 if name not in fuzz_imports.IMPORT_TARGETS else 8  # imports are slower
+    try:
+        for i in range(count):
+            if i % every == 0 and time.monotonic() > deadline:
+                break
+            data = make(rnd)
+            try:
+                check(data)
+            except Exception as exc:  # a finding: keep the first input of each kind, go on
+                where = _where(exc)
+                if where not in outcome.findings and keep is not None:
+                    _keep(keep, name, len(outcome.findings), data)
+                outcome.findings.setdefault(where, repr(data)[:300])
+            outcome.inputs += 1
+            if progress_every and (i + 1) % progress_every == 0:
+                rate = (i + 1) / (time.monotonic() - start)
+                print(f"  {name}: {i + 1} inputs, {rate:.0f}/s", file=sys.stderr, flush=True)
+    finally:
+        close = getattr(check, "close", None)
+        if close is not None:
+            close()
     outcome.seconds = time.monotonic() - start
     return outcome
+
+
+def _keep(folder: Path, name: str, index: int, data: Any) -> None:
+    """A finding's input as a file (import cases: the file itself)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    if isinstance(data, fuzz_imports.ImportCase):
+        (folder / f"{name}-{index}{data.suffix}").write_bytes(data.data)
+    (folder / f"{name}-{index}.input.txt").write_text(repr(data) + "\n")
 
 
 def print_table(outcomes: list[Outcome]) -> None:
@@ -123,6 +169,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--progress", type=int, default=50_000, help="inputs between progress lines")
     p.add_argument("--max-minutes", type=float, default=0.0, help="time budget (0: none)")
+    p.add_argument("--keep", type=Path, help="write each finding's first input here")
+    p.add_argument(
+        "--realdata", type=Path, default=fuzz_imports.REALDATA, help="vendor samples' folder"
+    )
     args = p.parse_args(argv)
     names = [n.strip() for n in args.targets.split(",") if n.strip()]
     unknown = [n for n in names if n not in TARGETS]
@@ -140,7 +190,18 @@ def main(argv: list[str] | None = None) -> int:
         for n, name in enumerate(names):
             share = (end - time.monotonic()) / (len(names) - n)  # inf without a budget
             deadline = time.monotonic() + share
-            outcomes.append(fuzz(name, per_target, args.seed, Path(tmp), args.progress, deadline))
+            outcomes.append(
+                fuzz(
+                    name,
+                    per_target,
+                    args.seed,
+                    Path(tmp),
+                    args.progress,
+                    deadline,
+                    args.keep,
+                    args.realdata,
+                )
+            )
     print_table(outcomes)
     return 1 if any(o.findings for o in outcomes) else 0
 
