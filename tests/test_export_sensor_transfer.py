@@ -331,3 +331,57 @@ def test_scotti_train_takes_the_flag_and_records_it(
         err = capsys.readouterr().err.strip()
         assert err.startswith("scotti train: --sensor-transfer must be a share between 0 and 1")
         assert "\n" not in err
+
+
+# --- experiments/insole_transfer.py: whole sessions, labels kept ---------------------
+
+
+def test_a_session_rendered_through_a_sensor_keeps_its_labels(
+    sessions_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+    import insole_transfer
+    from scotti.export.data import load_session
+
+    monkeypatch.setattr(insole_transfer, "WORK", tmp_path)
+    source = sessions_dir / "a.scotti"
+    sensor = st.ForeignSensor(rows=16, cols=8, rate_hz=50.0, phase=0.5, gain=(1.2, 0.8))
+    path = insole_transfer.rendered(source, sensor, "grid")
+    assert insole_transfer.rendered(source, sensor, "grid") == path  # reused
+    before, after = load_session(source), load_session(path)
+    assert after.subject == before.subject
+    np.testing.assert_array_equal(after.action, before.action)
+    np.testing.assert_array_equal(after.has_label, before.has_label)
+    np.testing.assert_allclose(after.keypoints, before.keypoints, equal_nan=True)
+    np.testing.assert_allclose(after.progress, before.progress, equal_nan=True)
+    expected = st.render(before.frames, sensor, whole=True)
+    np.testing.assert_array_equal(after.frames, expected.astype(np.uint16))
+    assert not np.array_equal(after.frames, before.frames)
+
+
+def test_pooled_figures_count_wrong_unflagged_predictions() -> None:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+    import insole_transfer
+    from scotti.models.contract import ACTIONS, NO_ACTION, STANDING
+
+    squat, walking = ACTIONS.index("squat"), ACTIONS.index("walking")
+    result = {
+        "predictions": 6,
+        "action_true": [squat, squat, walking, STANDING, STANDING, NO_ACTION],
+        "action_pred": [squat, walking, walking, squat, STANDING, squat],
+        "progress_true": [0.2, 0.4, 0.5, float("nan"), float("nan"), float("nan")],
+        "progress_pred": [0.2, 0.4, 0.5, 0.0, 0.0, 0.0],
+        "flags": [[], ["unfamiliar"], [], [], [], []],
+        "unfamiliar_all": 1,
+    }
+    figures = insole_transfer.pooled([result])
+    assert figures["accuracy"] == pytest.approx(3 / 5)  # the transition is not scored
+    assert figures["squat"] == pytest.approx(0.5)
+    assert figures["standing"] == pytest.approx(0.5)
+    assert figures["walking"] == 1.0
+    assert figures["wrong_unflagged"] == pytest.approx(1 / 5)  # the flagged miss is not
+    assert figures["unfamiliar"] == pytest.approx(1 / 6)
