@@ -1,0 +1,246 @@
+"""Real recordings of other insoles, imported and scored per file: docs/real-data.md.
+
+    python experiments/real_data.py                                  # the shipped model
+    python experiments/real_data.py --model models/scotti-default.onnx \\
+        --model runs/v13-p1-wide/models/scotti-ship.onnx --write docs/real-data.md
+
+Each file of ``../shared/realdata`` (its README names sources and licences) is
+imported by ``scotti import FILE -o data/realdata/NAME.scotti`` with no option
+beyond what the file cannot say, then replayed through the daemon's path
+(``evaluation.replay``) with each model. None of the files has labels; what the
+person does is known from the sources (the table ``RECORDINGS`` below, with the
+spans of quiet standing read off the force trace). Per file and model:
+
+- walking / standing: the share of predictions for a time in a walking
+  (standing) span whose action is ``walking`` (``standing``), flagged or not;
+- out_of_range, unfamiliar: the share of predictions carrying that flag
+  (models/ood.py); one-foot recordings must be out_of_range;
+- confident wrong: the share of predictions at probability > 0.9 for an action
+  other than the one the person does (running counts as walking), and the share
+  of those that went out unflagged (what a robot would act on).
+
+Goals (issue 37): walking >= 80 % of walking windows, standing >= 90 % of
+standing windows, no confident exercise on any file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ROOT, ExperimentError, run, scotti_command
+from partition_table import write_between_markers
+
+REALDATA = ROOT.parent / "shared" / "realdata"
+WORK = ROOT / "data" / "realdata"
+CONFIDENT: Final = 0.9
+BEGIN, END = "<!-- real-data:begin -->", "<!-- real-data:end -->"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One real file and what the person does in it (seconds from its first frame)."""
+
+    path: str  # under the realdata folder
+    sensor: str
+    activity: str  # walking | running | standing
+    standing: tuple[tuple[float, float], ...] = ()  # spans of quiet standing
+    one_foot: bool = False
+
+    @property
+    def name(self) -> str:
+        return Path(self.path).name.split(".")[0]
+
+
+RECORDINGS: Final = (
+    Recording("pressure-r/pedar_example.asc", "novel pedar-x, 99 cells", "walking", ((0.0, 2.4),)),
+    Recording("pressure-r/fscan_testL.asf", "Tekscan F-Scan, 60 x 21", "walking", one_foot=True),
+    # Both feet, though the folder's README says left only (101 -LF and 101 -RF blocks);
+    # 1.4 s: shorter than one window, so no prediction is made.
+    Recording("pressure-r/xsensor_data.csv", "XSENSOR X4, 31 x 11", "running"),
+    Recording("moticon-opengo/230927_102114.txt", "Moticon OpenGo, 16 cells", "walking"),
+    Recording("moticon-opengo/230927_102137.txt", "Moticon OpenGo, 16 cells", "walking"),
+    Recording("moticon-opengo/230927_102231.txt", "Moticon OpenGo, 16 cells", "walking"),
+    Recording(
+        "moticon-opengo/walk_data_with_events/text_export.txt",
+        "Moticon OpenGo, 16 cells",
+        "walking",
+    ),
+    *(
+        Recording(f"physionet-gaitpdb/{name}_01.txt.gz", "gaitpdb, 8 sensors", "walking")
+        for name in ("GaCo01", "GaCo02", "JuCo01", "JuCo02", "SiCo01", "GaPt03", "JuPt01", "SiPt02")
+    ),
+)
+
+
+def import_file(rec: Recording, realdata: Path, work: Path) -> Path:
+    """``scotti import`` the file once (kept in ``work``; remade when the source is newer)."""
+    source = realdata / rec.path
+    out = work / f"{rec.name}.scotti"
+    if out.is_file() and out.stat().st_mtime >= source.stat().st_mtime:
+        return out
+    work.mkdir(parents=True, exist_ok=True)
+    run(scotti_command("import", source, "-o", out, "--force"), work / "import.log")
+    return out
+
+
+def truth_at(rec: Recording, t: np.ndarray) -> np.ndarray:
+    """The action the person does at each time: walking (running) or standing."""
+    from scotti.models.contract import ACTIONS
+
+    moving = "walking"
+    out = np.full(t.shape, ACTIONS.index(moving))
+    for a, b in rec.standing:
+        out[(t >= a) & (t <= b)] = ACTIONS.index("standing")
+    if rec.activity == "standing":
+        out[:] = ACTIONS.index("standing")
+    return out
+
+
+def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[str, Any]]:
+    from scotti.evaluation.replay import replay_session_models
+    from scotti.models.contract import ACTIONS
+    from scotti.models.ood import withheld
+    from scotti.models.runtime import ScottiRuntime
+
+    runtimes = [ScottiRuntime(m, threads=1) for m in models]
+    replays = replay_session_models(session, runtimes)
+    rows = []
+    walking, standing = ACTIONS.index("walking"), ACTIONS.index("standing")
+    for model, replay in zip(models, replays, strict=True):
+        made = replay.made
+        if not made:
+            rows.append({"file": rec.name, "model": model.name, "predictions": 0})
+            continue
+        ext = np.array([m.ext for m in made], dtype=np.int64)
+        t = (ext - ext.min() + 40) / 16.0  # the first prediction is for frame T=40
+        truth = truth_at(rec, t)
+        probs = np.stack([m.probs for m in made])
+        action = probs.argmax(axis=1)
+        confident = probs.max(axis=1) > CONFIDENT
+        flagged = np.array([withheld(set(m.flags)) is not None for m in made])
+        flags = [set(m.flags) for m in made]
+        wrong = action != truth
+        on_walk, on_stand = truth == walking, truth == standing
+        seen = np.unique(action, return_counts=True)
+        rows.append(
+            {
+                "file": rec.name,
+                "model": model.name,
+                "predictions": len(made),
+                "walking_windows": int(on_walk.sum()),
+                "walking": _share(action[on_walk] == walking),
+                "standing_windows": int(on_stand.sum()),
+                "standing": _share(action[on_stand] == standing),
+                "out_of_range": _share(np.array(["out_of_range" in f for f in flags])),
+                "unfamiliar": _share(np.array(["unfamiliar" in f for f in flags])),
+                "confident_wrong": _share(confident & wrong),
+                "confident_wrong_unflagged": _share(confident & wrong & ~flagged),
+                "actions": {ACTIONS[a]: int(n) for a, n in zip(*seen, strict=True)},
+            }
+        )
+    return rows
+
+
+def _share(mask: np.ndarray) -> float | None:
+    return float(mask.mean()) if mask.size else None
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.0f} %"
+
+
+def table(recordings: list[Recording], rows: list[dict[str, Any]], command: str) -> str:
+    by_file = {r.name: r for r in recordings}
+    models = list(dict.fromkeys(r["model"] for r in rows))
+    lines = [
+        f"Written by `{command}` on {time.strftime('%Y-%m-%d')}.",
+        "",
+        "| file | sensor | does | model | windows | walking | standing | out_of_range "
+        "| unfamiliar | confident wrong | of which unflagged | read as (most) |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for row in rows:
+        rec = by_file[row["file"]]
+        does = rec.activity + (" (one foot)" if rec.one_foot else "")
+        if rec.standing:
+            does += ", stands first"
+        top = sorted(row.get("actions", {}).items(), key=lambda kv: -kv[1])[:2]
+        read = ", ".join(f"{a} {n}" for a, n in top)
+        lines.append(
+            f"| {row['file']} | {rec.sensor} | {does} | {row['model']} | {row['predictions']} "
+            f"| {_pct(row.get('walking'))} | {_pct(row.get('standing'))} "
+            f"| {_pct(row.get('out_of_range'))} | {_pct(row.get('unfamiliar'))} "
+            f"| {_pct(row.get('confident_wrong'))} | {_pct(row.get('confident_wrong_unflagged'))} "
+            f"| {read} |"
+        )
+    lines += ["", "Pooled over the files (both feet present), per model:", ""]
+    lines += ["| model | walking | standing | unfamiliar | confident wrong | unflagged |"]
+    lines += ["|---|---:|---:|---:|---:|---:|"]
+    for model in models:
+        mine = [r for r in rows if r["model"] == model and not by_file[r["file"]].one_foot]
+        lines.append(
+            f"| {model} | {_pooled(mine, 'walking', 'walking_windows')} "
+            f"| {_pooled(mine, 'standing', 'standing_windows')} "
+            f"| {_pooled(mine, 'unfamiliar', 'predictions')} "
+            f"| {_pooled(mine, 'confident_wrong', 'predictions')} "
+            f"| {_pooled(mine, 'confident_wrong_unflagged', 'predictions')} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _pooled(rows: list[dict[str, Any]], key: str, weight: str) -> str:
+    total = sum(r.get(weight, 0) for r in rows if r.get(key) is not None)
+    if not total:
+        return "-"
+    return _pct(sum(r[key] * r[weight] for r in rows if r.get(key) is not None) / total)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/real_data.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--model", type=Path, action="append", default=[])
+    parser.add_argument("--realdata", type=Path, default=REALDATA)
+    parser.add_argument("--work", type=Path, default=WORK, help="imported session files")
+    parser.add_argument("--only", nargs="*", default=[], help="files whose name has this")
+    parser.add_argument("--json", type=Path, help="also write the rows here")
+    parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
+    args = parser.parse_args(argv)
+    models = args.model or [ROOT / "models" / "scotti-default.onnx"]
+    command = "python experiments/real_data.py " + " ".join(
+        argv if argv is not None else sys.argv[1:]
+    )
+    try:
+        if not args.realdata.is_dir():
+            raise ExperimentError(f"{args.realdata}: no such folder (see its README)")
+        chosen = [r for r in RECORDINGS if not args.only or any(o in r.path for o in args.only)]
+        rows: list[dict[str, Any]] = []
+        for rec in chosen:
+            session = import_file(rec, args.realdata, args.work)
+            rows += score_file(rec, session, models)
+            print(json.dumps(rows[-1]), flush=True)
+        text = table(chosen, rows, command.strip())
+        print(text)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=1) + "\n")
+        if args.write:
+            write_between_markers(args.write, text, BEGIN, END)
+    except ExperimentError as exc:
+        print(f"real_data: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

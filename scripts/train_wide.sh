@@ -1,0 +1,100 @@
+#!/usr/bin/env bash
+# The generalisation recipe (docs/generalisation.md): partition p1's training people,
+# the 18 extra people, and 48 more rendered through wide insoles with mixed effects,
+# trained by the shipped recipe plus sensor transfer, then exported and calibrated.
+#
+#   scripts/train_wide.sh                      # CPU: hours; data/corpus13, runs/v13-p1-wide
+#   DEVICE=cuda JOBS=16 scripts/train_wide.sh  # a GPU host: minutes
+#   SMOKE=1 scripts/train_wide.sh              # the whole chain on two tiny people first
+#
+# Every step is checkpointed: the people already rendered and decoded are not redone,
+# and training resumes from RUN/last.pt. Nothing here needs a GPU.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SCOTTI=${SCOTTI:-scotti}
+DATA=${DATA:-data/corpus13}
+CACHE=${CACHE:-data/cache13}
+RUN=${RUN:-runs/v13-p1-wide}
+JOBS=${JOBS:-$(nproc)}
+DEVICE=${DEVICE:-auto}
+EPOCHS=${EPOCHS:-6}
+STRIDE=${STRIDE:-16}
+MINUTES=${MINUTES:-0}              # training's --max-minutes (0: none)
+TRANSFER=${TRANSFER:-0.5}          # share of windows seen through a drawn foreign sensor
+WORKERS=${WORKERS:-$((JOBS > 2 ? JOBS - 2 : 0))}
+MORE=${MORE:-48}                   # people rendered through wide insoles (subject-033 on)
+MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-}
+# p1 of experiments/partitions.json: training people; 011/012 and 031/032 validate.
+P1_TRAIN=(000 001 002 003 004 006 008 009 011 012)
+VALIDATION=(subject-011 subject-012 subject-031 subject-032)
+
+# One person a process, each in a folder of its own (corpus writes a manifest per call).
+render() {  # PART FIRST_INDEX MINUTES_PER_ACTION [corpus options...]
+  local part=$1 index=$2 minutes=$3
+  shift 3
+  local name
+  name=$(printf 'subject-%03d.ses' "$index")
+  [[ -f $DATA/$part/$name ]] && return 0
+  local tmp=$DATA/$part/.one-$index
+  "$SCOTTI" sim corpus -o "$tmp" --first-subject "$index" --subjects 1 --seed 1 \
+    --minutes-per-action "$minutes" "$@" >/dev/null
+  mv "$tmp/$name" "$DATA/$part/$name"
+  rm -rf "$tmp"
+}
+export -f render
+export SCOTTI DATA
+
+jobs=()
+if [[ ${SMOKE:-0} == 1 ]]; then
+  DATA=$DATA-smoke CACHE=$CACHE-smoke RUN=$RUN-smoke EPOCHS=1
+  MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-0.2}
+  P1_TRAIN=(011 012) VALIDATION=(subject-011 subject-012) MORE=1
+fi
+export DATA
+mkdir -p "$DATA"/{realistic,extra,more}
+for i in "${P1_TRAIN[@]}"; do
+  jobs+=("realistic $((10#$i)) ${MINUTES_PER_ACTION:-4} --effects realistic")
+done
+if [[ ${SMOKE:-0} != 1 ]]; then
+  for i in $(seq 15 32); do jobs+=("extra $i ${MINUTES_PER_ACTION:-2} --effects realistic"); done
+fi
+for i in $(seq 33 $((33 + MORE - 1))); do
+  jobs+=("more $i ${MINUTES_PER_ACTION:-2} --effects mixed --insoles wide")
+done
+echo "train_wide: rendering ${#jobs[@]} people on $JOBS processes into $DATA"
+printf '%s\n' "${jobs[@]}" | xargs -P "$JOBS" -L 1 bash -c 'render "$@"' _
+
+shopt -s nullglob
+files=()
+for i in "${P1_TRAIN[@]}"; do files+=("$DATA/realistic/subject-$i.ses"); done
+files+=("$DATA"/extra/subject-*.ses "$DATA"/more/subject-*.ses)
+echo "train_wide: decoding ${#files[@]} sessions into $CACHE"
+python - "$CACHE" "$JOBS" "${files[@]}" <<'EOF'
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from scotti.export.data import load_session
+cache, jobs, files = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
+with ProcessPoolExecutor(jobs) as pool:
+    list(pool.map(load_session, files, [cache] * len(files)))
+EOF
+
+resume=()
+[[ -f $RUN/last.pt ]] && resume=(--resume)
+transfer=()
+[[ $TRANSFER != 0 ]] && transfer=(--sensor-transfer "$TRANSFER")
+echo "train_wide: training $RUN on $DEVICE"
+"$SCOTTI" train "${files[@]}" -o "$RUN" --config small \
+  --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
+  --stride "$STRIDE" --val-stride 8 --lr 1e-3 --loss-weights 0.01,1,3 \
+  --max-crosstalk 0.03 --ema 0.999 "${transfer[@]}" \
+  --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" \
+  --cache "$CACHE" --no-progress "${resume[@]}"
+
+model=$RUN/models/scotti-ship.onnx
+echo "train_wide: exporting $model"
+"$SCOTTI" export "$RUN/best.pt" -o "$model" --calibrate "${files[@]}" --cache-dir "$CACHE"
+val=()
+for s in "${VALIDATION[@]}"; do val+=("$DATA"/*/"$s.ses"); done
+# Two tiny smoke people hold too few repetitions to fit the progress map.
+"$SCOTTI" calibrate "$model" "${val[@]}" || [[ ${SMOKE:-0} == 1 ]]
+echo "train_wide: done: $model"

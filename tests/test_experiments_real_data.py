@@ -1,0 +1,50 @@
+"""experiments/real_data.py: a real recording imported, replayed and scored per file.
+
+The committed 5 s cut of gaitpdb GaCo01 (tests/data/vendors, source in its
+README) goes through ``scotti import`` and the daemon's path with the shipped
+model, as the command does with every file of ../shared/realdata.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
+sys.path.insert(0, str(EXPERIMENTS))
+
+import real_data  # noqa: E402
+
+FIXTURE = Path(__file__).resolve().parent / "data" / "vendors"
+MODEL = Path(__file__).resolve().parent.parent / "models" / "scotti-default.onnx"
+
+
+def test_the_truth_follows_the_spans_of_quiet_standing() -> None:
+    rec = real_data.Recording("x/a.txt", "s", "walking", standing=((0.0, 2.0),))
+    truth = real_data.truth_at(rec, np.array([0.5, 2.0, 2.1, 9.0]))
+    from scotti.models.contract import ACTIONS
+
+    assert [ACTIONS[a] for a in truth] == ["standing", "standing", "walking", "walking"]
+
+
+@pytest.mark.slow
+def test_a_real_cut_is_imported_scored_and_tabled(tmp_path: Path) -> None:
+    rec = real_data.Recording("GaCo01_01_first5s.txt", "gaitpdb, 8 sensors", "walking")
+    session = real_data.import_file(rec, FIXTURE, tmp_path)
+    assert session.is_file()
+    again = real_data.import_file(rec, FIXTURE, tmp_path)  # kept, not imported twice
+    assert again.stat().st_mtime == session.stat().st_mtime
+    (row,) = real_data.score_file(rec, session, [MODEL])
+    # 5 s at 16 Hz is 80 frames; the first prediction is for frame T = 40.
+    assert 35 <= row["predictions"] <= 41
+    assert row["walking_windows"] == row["predictions"]
+    for key in ("walking", "unfamiliar", "out_of_range", "confident_wrong"):
+        assert 0.0 <= row[key] <= 1.0
+    assert sum(row["actions"].values()) == row["predictions"]
+    assert row["confident_wrong_unflagged"] <= row["confident_wrong"]
+    text = real_data.table([rec], [row], "python experiments/real_data.py")
+    assert "| GaCo01_01_first5s |" in text
+    assert "Pooled over the files" in text
