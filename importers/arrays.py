@@ -17,7 +17,9 @@ is read.
 from __future__ import annotations
 
 import math
+import struct
 import tokenize
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
@@ -32,6 +34,21 @@ _KINDS: Final = "biufSU"  # numbers and text; h5py's variable-length strings bes
 _MAX_TEXT_ITEMS: Final = 100_000  # strings in one array: names, not data
 _LISTED: Final = 12  # array names an error lists
 _READ_BYTES: Final = 1 << 20  # what a member is read in
+# What zipfile and zlib raise on a damaged archive (zipfile's own checks are not all
+# BadZipFile: a cut directory entry is an IndexError, a bad extra field a struct.error).
+_ZIP_ERRORS: Final = (
+    zipfile.BadZipFile,
+    zipfile.LargeZipFile,
+    zlib.error,
+    struct.error,
+    OSError,
+    EOFError,
+    ValueError,
+    IndexError,
+    KeyError,
+    OverflowError,
+    NotImplementedError,  # a zip version, a compression or an encryption it does not know
+)
 
 
 def load_arrays(path: Path, keys: list[str]) -> dict[str, np.ndarray]:
@@ -82,18 +99,15 @@ def _read_npz(
     found: dict[str, np.ndarray] = {}
     try:
         with zipfile.ZipFile(path) as z:
-            members = {i.filename.removesuffix(".npy"): i for i in z.infolist() if not i.is_dir()}
+            members = {
+                i.filename.removesuffix(".npy"): i
+                for i in z.infolist()
+                if i.filename and not i.filename.endswith("/")
+            }
             for name in names:
                 if name in members and name not in found:
                     found[name] = _read_member(path, z, members[name], name, budget)
-    except (
-        zipfile.BadZipFile,
-        zipfile.LargeZipFile,
-        OSError,
-        EOFError,
-        ValueError,
-        NotImplementedError,  # a zip version or a compression zipfile does not know
-    ) as exc:
+    except _ZIP_ERRORS as exc:
         raise InputError(path, f"not a readable .npz ({exc.__class__.__name__})") from None
     return found, list(members)
 
@@ -118,19 +132,9 @@ def _read_member(
             _fill(path, name, f, flat)
     except InputError:
         raise
-    except (
-        ValueError,
-        OSError,
-        EOFError,
-        zlib.error,
-        zipfile.BadZipFile,
-        tokenize.TokenError,  # numpy's reading of an old-style header
-        RecursionError,
-    ) as exc:
+    except (*_ZIP_ERRORS, tokenize.TokenError, RecursionError, RuntimeError) as exc:
         problem = f"not a readable array ({exc.__class__.__name__}: {clip(str(exc), 60)})"
         raise InputError(path, problem, column=name) from None
-    except (NotImplementedError, RuntimeError) as exc:  # compression or encryption
-        raise InputError(path, f"cannot unpack it ({clip(str(exc), 60)})", column=name) from None
     if fortran:
         return flat.reshape(shape[::-1]).transpose()
     return flat.reshape(shape)
@@ -140,12 +144,14 @@ def _npy_header(f: IO[bytes]) -> tuple[tuple[int, ...], bool, np.dtype[Any], int
     """(shape, Fortran order, dtype, bytes before the data) of an .npy stream."""
     fmt = np.lib.format
     version = fmt.read_magic(f)
-    if version == (1, 0):
-        shape, fortran, dtype = fmt.read_array_header_1_0(f)
-    elif version == (2, 0):
-        shape, fortran, dtype = fmt.read_array_header_2_0(f)
-    else:
-        raise ValueError(f"npy format {version[0]}.{version[1]}")
+    with warnings.catch_warnings():  # a header written by Python 2 is read all the same
+        warnings.simplefilter("ignore", UserWarning)
+        if version == (1, 0):
+            shape, fortran, dtype = fmt.read_array_header_1_0(f)
+        elif version == (2, 0):
+            shape, fortran, dtype = fmt.read_array_header_2_0(f)
+        else:
+            raise ValueError(f"npy format {version[0]}.{version[1]}")
     return tuple(int(n) for n in shape), bool(fortran), np.dtype(dtype), f.tell()
 
 
@@ -179,9 +185,9 @@ def _read_hdf5(
     try:
         with h5py.File(path, "r") as f:
 
-            def listed(name: str, obj: Any) -> bool | None:
-                if isinstance(obj, h5py.Dataset):
-                    available.append(name)
+            def listed(name: str | bytes, obj: Any) -> bool | None:
+                if isinstance(obj, h5py.Dataset):  # a name that is not UTF-8 comes as bytes
+                    available.append(name if isinstance(name, str) else name.decode("latin-1"))
                 return len(available) > _LISTED or None  # enough for a message: stop
 
             f.visititems(listed)

@@ -119,14 +119,17 @@ def _blocks(path: Path, f: BinaryIO) -> Iterator[bytes]:
     offset = 0  # of the carry's first byte in the file
     data = f.read(BLOCK_BYTES).removeprefix(_BOM)
     while data:
-        data = carry + data
         cut = data.rfind(b"\n") + 1
-        if cut == 0 and len(data) > MAX_LINE_BYTES:
-            problem = f"a line longer than {size_text(MAX_LINE_BYTES)} (not a table of numbers)"
-            raise InputError(path, problem, column=f"from byte {offset}")
-        if cut:
-            yield data[:cut]
-        carry, offset = data[cut:], offset + cut
+        if cut == 0:
+            carry += data
+            if len(carry) > MAX_LINE_BYTES:
+                problem = f"a line longer than {size_text(MAX_LINE_BYTES)} (not a table of numbers)"
+                raise InputError(path, problem, column=f"from byte {offset}")
+        else:
+            # One copy at most: the carried start of a line and the whole lines read now.
+            yield b"".join((carry, memoryview(data)[:cut])) if carry or cut < len(data) else data
+            offset += len(carry) + cut
+            carry = data[cut:]
         data = f.read(BLOCK_BYTES)
     if carry:
         yield carry
@@ -371,8 +374,12 @@ class _Rows:
             capacity = max(needed, min(capacity, math.ceil(1.5 * self.capacity)))
         what = f"{capacity} rows of {self.width} columns"
         self.reader.budget.take((capacity - self.capacity) * self.row_bytes, what, line=line)
-        self.values.resize((capacity, self.width), refcheck=False)
-        self.lines.resize(capacity, refcheck=False)
+        if self.capacity == 0:  # not resize: it would fill the new rows with zeros first
+            self.values = np.empty((capacity, self.width))
+            self.lines = np.empty(capacity, dtype=np.int64)
+        else:
+            self.values.resize((capacity, self.width), refcheck=False)
+            self.lines.resize(capacity, refcheck=False)
         self.capacity = capacity
 
     def done(self) -> tuple[np.ndarray, np.ndarray]:

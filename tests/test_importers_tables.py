@@ -284,3 +284,23 @@ def test_the_fuzzer_s_npz_findings_stay_fixed(tmp_path: Path) -> None:
     data[central + 6 : central + 8] = (221).to_bytes(2, "little")  # "version needed": 22.1
     path.write_bytes(bytes(data))
     assert "a.npz: not a readable .npz (NotImplementedError)" in arrays_error(path, ["t"])
+
+
+def test_the_long_fuzz_run_s_findings_stay_fixed(tmp_path: Path) -> None:
+    """An entry with no name (zipfile's is_dir: IndexError); a header Python 2 wrote (numpy
+    warns, and reads it); an HDF5 name that is not UTF-8 (h5py gives bytes)."""
+    path = tmp_path / "a.npz"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr(zipfile.ZipInfo(""), b"")
+        z.writestr("t.npy", b"")
+    assert "a.npz: no array 'x' (it has: t)" in arrays_error(path, ["x"])
+    path.unlink()
+    header = b"{'descr': '<f8', 'fortran_order': False, 'shape': (2L,), }"
+    header += b" " * (117 - len(header)) + b"\n"  # 10 + 118 bytes: a multiple of 64
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("t.npy", b"\x93NUMPY\x01\x00v\x00" + header + np.arange(2.0).tobytes())
+    assert load_arrays(path, ["t"])["t"].tolist() == [0.0, 1.0]
+    h5 = tmp_path / "a.h5"
+    with h5py.File(h5, "w") as f:
+        f[b"t\xafme"] = np.arange(3)
+    assert "a.h5: no array 'time' (it has: t\xafme)" in arrays_error(h5, ["time"])
