@@ -11,6 +11,12 @@ model (NAME.window.onnx) in batches: a uniform sample for a fraction of the time
 step-graph call, the same predictions as frame by frame (``--batch 1``, the
 daemon's own window), in 73 % of the CPU time with the shipped model: the
 model's arithmetic, not the call, is most of a step (docs/performance.md).
+
+A session without labels (a live recording) has nothing to score: the report
+says so in one line and gives what the model made of it (predictions, the
+share each flag withheld, the actions it would have published, degraded
+pairs, the rate), exit 0; in ``--json`` its figures are null. Labelled and
+unlabelled files together: the labelled ones are scored, the others named.
 """
 
 from __future__ import annotations
@@ -87,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         )
         for report, runtime in zip(reports, runtimes, strict=True):
             report["model"]["ood"] = runtime.ood_info()
-        if args.plots is not None:
+        if args.plots is not None and reports[0]["scored"]:  # no figure without labels
             for report in reports:
                 where = args.plots if len(reports) == 1 else args.plots / _stem(report)
                 report["plots"] = write_plots(report, where)
@@ -96,8 +102,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     print(rate_line(reports[0]["rate"]), file=sys.stderr)  # stdout stays the report
     if args.json:
+        if not reports[0]["scored"]:  # the text report says it in its own lines
+            print(f"scotti eval: {nothing_to_score(reports[0])}", file=sys.stderr)
         value = reports[0] if len(reports) == 1 else reports
-        print(json.dumps(_finite(value), indent=2))
+        print(json.dumps(_finite(value), indent=2, allow_nan=False))
     else:
         print("\n\n".join("\n".join(format_report(r)) for r in reports))
     return 0
@@ -133,21 +141,46 @@ def _stem(report: dict[str, Any]) -> str:
     return name.removesuffix(".onnx")
 
 
+def nothing_to_score(report: dict[str, Any]) -> str:
+    """The one line that says why no figure could be scored."""
+    if len(report["unlabelled_sessions"]) == len(report["sessions"]):
+        why = "no session has labels (label records)"
+    else:
+        why = "no prediction fell on a labelled frame (sessions shorter than the window?)"
+    return f"nothing to score: {why}; reporting what the model made of them"
+
+
 def format_report(report: dict[str, Any]) -> list[str]:
     m = report["metrics"]
     model = report["model"]
     lines = [
         f"model {model['path']} (T={model['window']}, E={model['embed_dim']}), "
-        f"{len(report['sessions'])} sessions, {m['frames']} frames evaluated",
-        f"  MPJPE {m['mpjpe_mm']:.2f} mm   MPJAE {m['mpjae_deg']:.2f} deg   "
-        f"accuracy {100 * m['action_accuracy']:.2f} %   "
-        f"progress MSE {m['progress_mse']:.4f}   APP {m['app']:.4f}",
+        f"{len(report['sessions'])} sessions, {m['frames']} frames evaluated"
     ]
+    if not report["scored"]:
+        return [*lines, f"  {nothing_to_score(report)}", *_made_lines(report), *_tail(report)]
+    lines.append(
+        f"  MPJPE {_figure(m['mpjpe_mm'], '.2f')} mm   MPJAE {_figure(m['mpjae_deg'], '.2f')} "
+        f"deg   accuracy {_figure(100 * m['action_accuracy'], '.2f')} %   "
+        f"progress MSE {_figure(m['progress_mse'], '.4f')}   APP {_figure(m['app'], '.4f')}"
+    )
     base = report["random_baseline"]
     lines.append(
-        f"  random baseline: accuracy {100 * base['action_accuracy']:.2f} %   "
-        f"progress MSE {base['progress_mse']:.4f}   APP {base['app']:.4f}"
+        f"  random baseline: accuracy {_figure(100 * base['action_accuracy'], '.2f')} %   "
+        f"progress MSE {_figure(base['progress_mse'], '.4f')}   "
+        f"APP {_figure(base['app'], '.4f')}"
     )
+    if report["unlabelled_sessions"]:
+        lines.append(f"  not scored, no labels: {', '.join(report['unlabelled_sessions'])}")
+    return lines + _made_lines(report) + _scored_lines(report) + _tail(report)
+
+
+def _made_lines(report: dict[str, Any]) -> list[str]:
+    """What the model made of the sessions, labels or not: timing, flags, actions."""
+    lines = [
+        f"  {report['predictions']} predictions from {report['pairs']} paired frames, "
+        f"{report['degraded_pairs']} of them degraded (a foot held, filled or patched)"
+    ]
     if "step_ms_per_row" in report:
         row = report["step_ms_per_row"]
         lines.append(
@@ -169,6 +202,18 @@ def format_report(report: dict[str, Any]) -> list[str]:
             "(throughput, not streaming latency)"
         )
     lines.append(format_flag_shares(report.get("ood"), report["model"].get("ood")))
+    published = {k: n for k, n in report["actions_predicted"].items() if n}
+    counts = ", ".join(f"{k} {n}" for k, n in sorted(published.items(), key=lambda kv: -kv[1]))
+    lines.append(
+        f"  actions published ({sum(published.values())} predictions; "
+        f"{report['actions_withheld']} withheld by a flag): {counts or 'none'}"
+    )
+    return lines
+
+
+def _scored_lines(report: dict[str, Any]) -> list[str]:
+    """Per action, the confusion matrix and the plots: only when labels were scored."""
+    lines = []
     lines.append(
         f"  {'action':18s} {'frames':>7s} {'MPJPE':>8s} {'acc %':>7s} {'MSE':>8s} {'APP':>7s}"
     )
@@ -186,8 +231,14 @@ def format_report(report: dict[str, Any]) -> list[str]:
         lines.append(f"  not in these sessions: {', '.join(absent)}")
     lines.append(LEGEND)
     lines.append("  confusion (rows true, columns predicted): " + " ".join(ACTIONS))
-    for name, counts in zip(ACTIONS, report["confusion"]["matrix"], strict=True):
-        lines.append(f"  {name:18s} " + " ".join(f"{c:6d}" for c in counts))
+    for name, row in zip(ACTIONS, report["confusion"]["matrix"], strict=True):
+        lines.append(f"  {name:18s} " + " ".join(f"{c:6d}" for c in row))
+    return lines
+
+
+def _tail(report: dict[str, Any]) -> list[str]:
+    """Each session's counts, then the figures written."""
+    lines = []
     for s in report["sessions"]:
         lines.append(
             f"  {s['path']}: {s['labels']} labels, {s['predictions']} predictions, "
@@ -201,8 +252,7 @@ def format_report(report: dict[str, Any]) -> list[str]:
                     " (zero-filled: an insole off, or a one-foot recording; the model"
                     " never learnt one foot, its predictions there are not to be trusted)"
                 )
-    for path in report.get("plots", []):
-        lines.append(f"  wrote {path}")
+    lines += [f"  wrote {path}" for path in report.get("plots", [])]
     return lines
 
 
@@ -248,6 +298,11 @@ def write_plots(report: dict[str, Any], directory: Path) -> list[str]:
     fig.savefig(confusion)
     plt.close(fig)
     return [str(curve), str(confusion)]
+
+
+def _figure(value: float | None, spec: str) -> str:
+    """A figure, or '-' when there is nothing to score (NaN: no frame of that kind)."""
+    return _cell(value, 0, spec)
 
 
 def _cell(value: float | None, width: int, spec: str) -> str:

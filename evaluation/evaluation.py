@@ -172,7 +172,27 @@ def _report(
         report["window_ms_per_prediction"] = window_timing(batches)
     report |= score(frames)
     flags: Counter[str] = Counter()
+    actions: Counter[str] = Counter()
     for r in replays:
         flags.update(r.flags)
+        actions.update(r.actions)
     report["ood"] = shares_of(flags)  # every prediction
+    report |= what_was_made(replays, actions, flags)
     return report
+
+
+def what_was_made(
+    replays: list[SessionReplay], actions: Counter[str], flags: Counter[str]
+) -> dict[str, Any]:
+    """What a replay tells without labels: whether anything was scored, the sessions
+    that had no labels, and what the model made of every session (a recording
+    without labels is still worth a look: are the flags sane, what does it see)."""
+    return {
+        "scored": any(r.evaluated for r in replays),
+        "unlabelled_sessions": [r.path for r in replays if not r.labels],
+        "predictions": sum(r.predictions for r in replays),
+        "actions_predicted": dict(actions),  # published: no flag withheld them
+        "actions_withheld": flags["any"],
+        "pairs": sum(r.pairs for r in replays),
+        "degraded_pairs": sum(r.degraded_pairs for r in replays),
+    }

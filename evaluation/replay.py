@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.daemon.window import Window
 from scotti.evaluation.errors import EvaluationError
@@ -39,7 +40,8 @@ from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
 from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
 from scotti.firmware_protocol.wrap import seq_delta
-from scotti.models.ood import flag_counts
+from scotti.models.contract import ACTIONS
+from scotti.models.ood import flag_counts, withheld
 from scotti.models.runtime import ScottiRuntime, load_pair
 
 
@@ -68,6 +70,7 @@ class SessionReplay:
     # What pooling several sessions keeps once ``drop_predictions`` let the above go:
     scores: FrameScores = field(default_factory=FrameScores.empty, repr=False)
     flags: Counter[str] = field(default_factory=Counter, repr=False)  # models/ood.py flag_counts
+    actions: Counter[str] = field(default_factory=Counter, repr=False)  # ``actions_published``
 
     def drop_predictions(self) -> None:
         """Let the poses and predictions go, keep ``scores`` and ``flags``: a pooled
@@ -83,6 +86,7 @@ class SessionReplay:
             "decode_errors": self.decode_errors,
             "degraded_pairs": self.degraded_pairs,
             "silent_pairs": dict(self.silent_pairs),
+            "actions_predicted": dict(self.actions),
         }
         return out
 
@@ -180,7 +184,16 @@ def replay_session_models(
         out.evaluated = len(out.frames)
         out.scores = FrameScores.of(out.frames)
         out.flags = flag_counts(m.flags for m in out.made)
+        out.actions = actions_published(out.made)
     return [t.out for t in tracks]
+
+
+def actions_published(made: Sequence[Prediction]) -> Counter[str]:
+    """How often each action would have been published: the most likely one of every
+    prediction that no flag withheld (the daemon's rule, ``models.ood.withheld``)."""
+    counts: Counter[str] = Counter(dict.fromkeys(ACTIONS, 0))
+    counts.update(ACTIONS[int(np.argmax(m.probs))] for m in made if withheld(m.flags) is None)
+    return counts
 
 
 @dataclass

@@ -366,3 +366,90 @@ def test_eval_predicts_exactly_what_the_daemon_publishes(
         np.testing.assert_array_equal(ours.pose, theirs.pose)
         np.testing.assert_array_equal(ours.probs, theirs.action_probs)
         assert ours.progress == theirs.progress or (math.isnan(theirs.progress))
+
+
+# --- sessions without labels: nothing to score, what the model made of them ---------
+
+
+@pytest.fixture
+def unlabelled(tmp_path: Path) -> Path:
+    return write_synthetic_session(tmp_path / "live.scotti", frames=FRAMES, labels=False).path
+
+
+def test_eval_without_labels_says_so_once_and_reports_what_it_can(
+    unlabelled: Path, tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["eval", str(unlabelled), "--model", str(tiny_model_path)]) == 0
+    out = capsys.readouterr().out
+    assert out.count("nothing to score: no session has labels") == 1
+    assert "nan" not in out.lower()
+    assert "MPJPE" not in out  # no table of figures there are none of
+    assert "confusion" not in out
+    predictions = FRAMES - 40 + 1
+    assert f"{predictions} predictions from {FRAMES} paired frames, 0 of them degraded" in out
+    assert f"flagged (of {predictions} predictions): unloaded " in out
+    assert "actions published (" in out
+
+
+def test_eval_json_without_labels_has_null_metrics_and_the_counts(
+    unlabelled: Path, runtime: ScottiRuntime, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["eval", str(unlabelled), "--model", str(runtime.path), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "NaN" not in captured.out
+    report = json.loads(captured.out)
+    assert "scotti eval: nothing to score: no session has labels" in captured.err
+    assert report["scored"] is False
+    assert report["unlabelled_sessions"] == [str(unlabelled)]
+    for key in ("mpjpe_mm", "mpjae_deg", "action_accuracy", "progress_mse", "app"):
+        assert report["metrics"][key] is None, key
+    assert report["random_baseline"]["app"] is None
+    # What the model made of it: every prediction counted once, published or withheld,
+    # each published one under its most likely action (the daemon's rule).
+    made = replay_session(unlabelled, runtime).made
+    assert report["predictions"] == report["ood"]["predictions"] == len(made) > 0
+    assert sum(report["actions_predicted"].values()) + report["actions_withheld"] == len(made)
+    expected = {name: 0 for name in ACTIONS}
+    for m in made:
+        if not {"unloaded", "out_of_range", "unfamiliar"} & set(m.flags):
+            expected[ACTIONS[int(np.argmax(m.probs))]] += 1
+    assert report["actions_predicted"] == expected
+    assert (report["pairs"], report["degraded_pairs"]) == (FRAMES, 0)
+    assert report["rate"]["paired_frames"] == FRAMES
+
+
+def test_eval_of_labelled_and_unlabelled_files_scores_the_labelled_and_names_the_others(
+    session: Path,
+    unlabelled: Path,
+    runtime: ScottiRuntime,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    alone = evaluate_sessions([session], runtime)
+    model = str(runtime.path)
+    plots = tmp_path / "plots"
+    args = ["eval", str(session), str(unlabelled), "--model", model, "--json"]
+    assert main([*args, "--plots", str(plots)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["scored"] is True
+    assert report["unlabelled_sessions"] == [str(unlabelled)]
+    assert report["metrics"]["frames"] == alone["metrics"]["frames"] == FRAMES - 40
+    assert report["metrics"]["action_accuracy"] == alone["metrics"]["action_accuracy"]
+    assert report["predictions"] == 2 * (FRAMES - 40 + 1)
+    assert (plots / "confusion.png").is_file()
+
+    assert main(["eval", str(session), str(unlabelled), "--model", model]) == 0
+    out = capsys.readouterr().out
+    assert f"not scored, no labels: {unlabelled}\n" in out
+    assert "nothing to score:" not in out  # (the legend explains "-" with those words)
+    assert "MPJPE" in out
+
+
+def test_no_figures_are_drawn_without_labels(
+    unlabelled: Path, tiny_model_path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plots = tmp_path / "plots"
+    args = ["eval", str(unlabelled), "--model", str(tiny_model_path), "--plots", str(plots)]
+    assert main(args) == 0
+    assert "nothing to score" in capsys.readouterr().out
+    assert not plots.exists()
