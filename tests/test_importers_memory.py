@@ -130,3 +130,32 @@ def test_a_10_mb_csv_with_a_mistake_on_its_last_line(tmp_path: Path) -> None:
     code, _, err, peak = scotti_import(tmp_path, path)
     assert "p.csv line 80001, column 25: 'x' is not a number" in one_line(code, err)
     assert peak < 400
+
+
+def test_the_budget_is_the_least_of_its_bounds(monkeypatch: pytest.MonkeyPatch) -> None:
+    from scotti.importers import limits
+    from scotti.importers.errors import ImporterError
+
+    monkeypatch.delenv(limits.ENV_VAR, raising=False)
+    half = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 2
+    assert limits.budget(1_000)[0] == min(limits.FLOOR_BYTES, half)
+    assert limits.budget(10_000_000)[0] == min(100 * 10_000_000, half)
+    monkeypatch.setenv(limits.ENV_VAR, "2G")
+    assert limits.budget(1_000) == (2 << 30, f"{limits.ENV_VAR} allows")
+    monkeypatch.setenv(limits.ENV_VAR, "lots")
+    with pytest.raises(ImporterError, match="SCOTTI_IMPORT_MAX_BYTES='lots': want a size"):
+        limits.budget(1_000)
+
+
+def test_a_budget_says_what_is_left_when_it_refuses() -> None:
+    from scotti.importers.errors import InputError
+    from scotti.importers.limits import Budget
+
+    budget = Budget("f.npz", total=3_000_000)
+    budget.take(2_000_000, "time")
+    with pytest.raises(InputError) as caught:
+        budget.take(2_000_000, "left", column="left")
+    assert str(caught.value) == (
+        "f.npz left: left needs 2 MB, more than this read may take (1 MB left of 3 MB); "
+        "SCOTTI_IMPORT_MAX_BYTES raises it"
+    )
