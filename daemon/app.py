@@ -29,7 +29,7 @@ from scotti.daemon.counters import Counters
 from scotti.daemon.device import Device
 from scotti.daemon.inference import InferenceEngine
 from scotti.daemon.notify import Notifier
-from scotti.daemon.outputs import Outputs
+from scotti.daemon.outputs import Outputs, recording_metadata
 from scotti.daemon.publisher import Publisher
 from scotti.daemon.recording import Recorder
 from scotti.daemon.settings import Settings
@@ -91,7 +91,8 @@ class Daemon:
             # MCAP, Foxglove, LSL, web, one of each for all the devices (channels, outlets
             # and pages per device): a port in use is a one-line error
             ids = [device.id for device in self.devices]
-            self._outputs = await Outputs.open(self.settings.outputs, ids)
+            made_by = recording_metadata(self.settings, self.runtime)  # the MCAP file's
+            self._outputs = await Outputs.open(self.settings.outputs, ids, made_by)
         except BaseException:
             self._close_recorders()
             raise
@@ -220,7 +221,8 @@ class Daemon:
         if device.replay is not None:
             return ReplaySource(device.replay, speed=device.speed)
         assert device.simulate is not None
-        return SimulatedSource(device.simulate, speed=device.speed)  # a scene on a board
+        # A scene on a board, in a loop unless --once.
+        return SimulatedSource(device.simulate, speed=device.speed, loop=not device.once)
 
     def _make_recorder(self, device: DeviceSettings) -> Recorder | None:
         path = device.record or self.settings.record

@@ -51,10 +51,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--record",
         type=Path,
         metavar="FILE|DIR",
-        help="record the raw bytes to a session file (in a directory: a new named file)",
+        help="record the raw bytes to a session file, never over one that exists (exit 78): "
+        "{time} in the name (the UTC start) or a directory gives a new file at every start",
     )
     out = p.add_argument_group("other outputs (need the [outputs] extra; see docs/outputs.md)")
-    out.add_argument("--record-mcap", type=Path, metavar="OUT.mcap", help="Foxglove channels")
+    out.add_argument(
+        "--record-mcap", type=Path, metavar="OUT.mcap",
+        help="the Foxglove channels into an MCAP file, named as --record's ({time}, a directory)",
+    )  # fmt: skip
     out.add_argument(
         "--foxglove", type=int, nargs="?", const=8765, metavar="PORT",
         help="serve the channels to Foxglove over WebSocket (default port 8765)",

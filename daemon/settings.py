@@ -170,8 +170,12 @@ class Settings(BaseSettings):
             raise ValueError(msg)
         if len(self.devices) > 1:
             unnamed = [d.id for d in self.devices if d.record is None]
-            if self.record is not None and unnamed and not self.record.is_dir():
-                msg = f"record: with several devices give a directory, {self.record} is not one"
+            shared = self.record is not None and "{device}" not in self.record.name
+            if shared and unnamed and self.record is not None and not self.record.is_dir():
+                msg = (
+                    f"record: with several devices give a directory or a name with {{device}}, "
+                    f"{self.record} is neither"
+                )
                 raise ValueError(msg)
         return self
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 import json
 import logging
 import re
@@ -35,6 +36,7 @@ from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.models.runtime import ScottiRuntime
 
 from tests.support.broker import DaemonProcess, collect, payloads, start_daemon
+from tests.support.foxglove_schema import misfits, problems
 from tests.support.outputs import lsl_on_this_host, read_mcap
 from tests.support.sessions import write_synthetic_session
 
@@ -55,8 +57,7 @@ def test_record_mcap_beside_mqtt(
     mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
 ) -> None:
     session = write_synthetic_session(tmp_path / "s.scotti", frames=60)
-    out = tmp_path / "live.mcap"
-    out.write_bytes(b"an older recording")  # never overwritten: a new name beside it
+    out = tmp_path / "live-{time}.mcap"  # a new file at every start, as a service wants
     device = "mcapdev"
     with collect(mosquitto, f"scotti/{device}/#") as got:
         args = ["--replay", str(session.path), "--speed", "8", "--model", str(tiny_model_path)]
@@ -66,8 +67,8 @@ def test_record_mcap_beside_mqtt(
         got.wait_for(
             lambda m: any(s["state"] == "offline" for s in payloads(m, "status")), 5, "offline"
         )
-    assert out.read_bytes() == b"an older recording"
-    (written,) = [p for p in tmp_path.glob("live.*.mcap")]
+    (written,) = [p for p in tmp_path.glob("live-*.mcap")]
+    assert re.fullmatch(r"live-\d{8}T\d{6}\.mcap", written.name), written.name
     mqtt = {a["seq"]: a["probabilities"] for a in payloads(got.snapshot(), "action")}
     mcap = {a["seq"]: a["probabilities"] for a in _mcap_json(written, "/action")}
     assert mqtt
@@ -78,6 +79,49 @@ def test_record_mcap_beside_mqtt(
     states = [s["state"] for s in _mcap_json(written, "/status")]
     assert states[-1] == "offline"
     assert "online" in states
+    # The file says what made it, as an export does: the model and the daemon's settings.
+    messages, _, metadata = read_mcap(written)
+    (made_by,) = [m.metadata for m in metadata if m.name == "scotti"]
+    assert made_by["model"] == tiny_model_path.name
+    assert made_by["model_sha256"] == hashlib.sha256(tiny_model_path.read_bytes()).hexdigest()
+    assert made_by["source"] == "live"
+    assert made_by["devices"] == device
+    config = json.loads(made_by["config"])
+    assert config["mqtt"]["device_id"] == device
+    assert config["outputs"]["record_mcap"] == str(out)
+    assert config["mqtt"]["password_set"] is False  # the settings as ``info`` has them
+    # Every JSON channel's schema is one Foxglove's parser reads, and its messages fit it.
+    with written.open("rb") as f:
+        summary = mcap_reader.make_reader(f).get_summary()
+    assert summary is not None
+    json_topics = set()
+    for channel in summary.channels.values():
+        if channel.message_encoding == "json":
+            schema = json.loads(summary.schemas[channel.schema_id].data)
+            assert problems(schema) == [], channel.topic
+            assert all(misfits(m, schema) == [] for _, m in messages[channel.topic])
+            json_topics.add(channel.topic)
+    assert json_topics == {"/pose", "/action", "/progress", "/status"}
+
+
+@pytest.mark.usefixtures("root_logging")
+def test_a_fixed_mcap_name_that_exists_stops_the_start_with_the_hint(
+    tmp_path: Path, tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=4)
+    out = tmp_path / "live.mcap"
+    out.write_bytes(b"yesterday's recording")
+    code = main(["--replay", str(session.path), "--model", str(tiny_model_path),
+                 "--broker", "mqtt://127.0.0.1:1", "--record-mcap", str(out)])  # fmt: skip
+    assert code == 78
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (
+        f"scotti-daemon: error: --record-mcap: {out} exists and is never overwritten; for a "
+        f"new file at every start put {{time}} in the name ({tmp_path / 'live-{time}.mcap'}) "
+        "or give a directory, else move the file away"
+    )
+    assert out.read_bytes() == b"yesterday's recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["live.mcap", "s.scotti"]
 
 
 def _wait_log(daemon: DaemonProcess, pattern: str, timeout: float) -> re.Match[str]:

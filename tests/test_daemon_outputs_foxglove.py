@@ -225,3 +225,27 @@ def test_the_server_stops_and_frees_its_port_when_the_file_cannot_close(tmp_path
                 if time.monotonic() > deadline:
                     raise
         time.sleep(0.05)
+
+
+def test_a_client_offering_only_the_older_subprotocol_is_refused_as_documented() -> None:
+    """foxglove-sdk's server speaks ``foxglove.sdk.v1`` only and has no option to take a
+    client that offers ``foxglove.websocket.v1`` alone (older Lichtblick, ws-protocol
+    clients): HTTP 400, what docs/outputs.md tells such users to do about. Should a
+    release of the SDK accept them, this fails and the docs change with it."""
+    from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
+    from websockets.exceptions import InvalidStatus
+
+    async def offer(subprotocols: list[str]) -> str | int:
+        output = FoxgloveOutput(mcap=None, port=0)
+        try:
+            uri = f"ws://127.0.0.1:{output.port}"
+            async with websockets.connect(uri, subprotocols=subprotocols) as ws:
+                return str(ws.subprotocol)
+        except InvalidStatus as exc:
+            return int(exc.response.status_code)
+        finally:
+            await output.close()
+
+    assert asyncio.run(offer(["foxglove.websocket.v1"])) == 400
+    assert asyncio.run(offer(["foxglove.sdk.v1"])) == "foxglove.sdk.v1"
+    assert asyncio.run(offer(SUBPROTOCOLS)) == "foxglove.sdk.v1"  # what Foxglove offers

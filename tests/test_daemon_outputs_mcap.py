@@ -121,3 +121,78 @@ def test_a_labelled_session_carries_its_ground_truth(exported: tuple[Path, Path,
     (entity,) = messages["/labels/skeleton"][0][1].entities
     assert entity.id == "ground_truth"
     assert len(entity.spheres) == NUM_KEYPOINTS
+
+
+def _file_order(path: Path) -> list[tuple[str, int]]:
+    """(topic, log time) of every message as it lies in the file, front to back."""
+    with path.open("rb") as f:
+        reader = mcap_reader.make_reader(f)
+        return [(c.topic, m.log_time) for _, c, m in reader.iter_messages(log_time_order=False)]
+
+
+def test_messages_lie_in_the_file_in_log_time_order_labels_among_them(
+    exported: tuple[Path, Path, Any],
+) -> None:
+    _, out, _ = exported
+    order = _file_order(out)
+    times = [t for _, t in order]
+    assert times == sorted(times)  # a reader streaming the file sees them as they happened
+    topics = [topic for topic, _ in order]
+    actions = [i for i, topic in enumerate(topics) if topic == "/action"]
+    between = topics[actions[0] : actions[-1]]
+    # Interleaved, not all written before or after the predictions: every label of the
+    # span the predictions cover lies among them.
+    spanned = [t for topic, t in order if topic == "/labels" and times[actions[0]] < t]
+    spanned = [t for t in spanned if t < times[actions[-1]]]
+    assert between.count("/labels") == len(spanned) > 10
+    assert topics.count("/labels") == FRAMES
+
+
+def test_every_json_channel_carries_a_schema_foxglove_s_parser_reads(
+    exported: tuple[Path, Path, Any],
+) -> None:
+    import json
+
+    from tests.support.foxglove_schema import misfits, problems
+
+    _, out, (messages, _, _) = exported
+    with out.open("rb") as f:
+        summary = mcap_reader.make_reader(f).get_summary()
+    assert summary is not None
+    json_channels = {c.topic: c for c in summary.channels.values() if c.message_encoding == "json"}
+    assert set(json_channels) == {"/pose", "/action", "/progress", "/status", "/labels"}
+    for topic, channel in json_channels.items():
+        schema_record = summary.schemas[channel.schema_id]
+        assert schema_record.encoding == "jsonschema", topic
+        schema = json.loads(schema_record.data)
+        assert problems(schema) == [], topic
+        for _, message in messages[topic]:
+            assert misfits(message, schema) == [], topic
+
+
+def test_the_export_names_its_model_in_the_scotti_record(
+    exported: tuple[Path, Path, Any], tiny_model_path: Path
+) -> None:
+    import hashlib
+
+    _, _, (_, _, metadata) = exported
+    (record,) = [m for m in metadata if m.name == "scotti"]
+    assert record.metadata["model"] == tiny_model_path.name
+    assert (
+        record.metadata["model_sha256"] == hashlib.sha256(tiny_model_path.read_bytes()).hexdigest()
+    )
+
+
+def test_an_existing_output_is_refused_unless_force(
+    tmp_path: Path, tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=44).path
+    out = tmp_path / "s.mcap"
+    out.write_bytes(b"yesterday's export")
+    args = ["session", "export", str(session), "--mcap", str(out), "--model", str(tiny_model_path)]
+    assert scotti(args) == 2
+    err = capsys.readouterr().err
+    assert err == f"scotti session export: {out} exists; --force replaces it\n"
+    assert out.read_bytes() == b"yesterday's export"
+    assert scotti([*args, "--force"]) == 0
+    assert out.read_bytes().endswith(b"\x89MCAP0\r\n")

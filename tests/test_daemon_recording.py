@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from scotti.daemon.counters import Counters
 from scotti.daemon.pipeline import Pipeline
-from scotti.daemon.recording import Recorder, RecordingError, candidate_paths
+from scotti.daemon.recording import Recorder, RecordingError, candidate_paths, recording_path
 from scotti.daemon.sources import ReplaySource
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.session import read_session
@@ -42,47 +42,60 @@ def test_recorded_chunks_read_back_as_packet_records(tmp_path: Path) -> None:
     assert recorder.records == 20
 
 
-def test_an_existing_file_is_never_overwritten(
+def test_a_fixed_name_that_exists_is_refused_with_the_hint(tmp_path: Path) -> None:
+    path = tmp_path / "walk.scotti"
+    path.write_bytes(b"precious")
+    with pytest.raises(RecordingError) as info:
+        Recorder(path)
+    assert str(info.value) == (
+        f"{path} exists and is never overwritten; for a new file at every start put {{time}} "
+        f"in the name ({tmp_path / 'walk-{time}.scotti'}) or give a directory, else move the "
+        "file away"
+    )
+    assert path.read_bytes() == b"precious"
+    assert [p.name for p in tmp_path.iterdir()] == ["walk.scotti"]
+
+
+def test_time_and_device_in_the_name_make_a_new_file_at_every_start(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.INFO, "scotti.daemon.recording")
-    path = tmp_path / "walk.scotti"
-    path.write_bytes(b"precious")
+    template = tmp_path / "{device}-walk-{time}.scotti"
     before = datetime.now(UTC).replace(microsecond=0)
-    with Recorder(path) as recorder:
-        recorder.tap(1, b"x")
+    recorders = [Recorder(template, device="lab1") for _ in range(3)]  # a restart loop
     after = datetime.now(UTC)
-    assert path.read_bytes() == b"precious"
-    match = re.fullmatch(r"walk\.(\d{8}T\d{6})\.scotti", recorder.path.name)
-    assert match is not None, recorder.path
-    assert recorder.path.parent == tmp_path
-    stamp = datetime.strptime(match[1], "%Y%m%dT%H%M%S").replace(tzinfo=UTC)
-    assert before <= stamp <= after  # the UTC start time
-    assert read_session(recorder.path).packets[0].data == b"x"
-    assert [r.levelno for r in caplog.records if str(recorder.path) in r.getMessage()] == [
-        logging.INFO
-    ]
-
-
-def test_a_taken_stamped_name_gets_a_counter(tmp_path: Path) -> None:
-    path = tmp_path / "walk.scotti"
-    at = datetime(2026, 11, 21, 13, 56, 30, tzinfo=UTC)
-    names = [p.name for p in itertools.islice(candidate_paths(path, at), 4)]
-    assert names == [
-        "walk.scotti",
-        "walk.20261121T135630.scotti",
-        "walk.20261121T135630.1.scotti",
-        "walk.20261121T135630.2.scotti",
-    ]
-    path.write_bytes(b"first")
-    recorders = [Recorder(path) for _ in range(3)]  # within one second: same stamp, mostly
     for r in recorders:
         r.close()
     paths = [r.path for r in recorders]
-    assert len(set(paths)) == 3
-    assert path not in paths
-    assert path.read_bytes() == b"first"
-    assert all(read_session(p).header.source == "recorded" for p in paths)
+    assert len(set(paths)) == 3  # within one second too: a made name takes .1, .2
+    for path in paths:
+        match = re.fullmatch(r"lab1-walk-(\d{8}T\d{6})(\.\d)?\.scotti", path.name)
+        assert match is not None, path.name
+        stamp = datetime.strptime(match[1], "%Y%m%dT%H%M%S").replace(tzinfo=UTC)
+        assert before <= stamp <= after  # the UTC start time
+        assert read_session(path).header.device == "lab1"
+    logged = [r.getMessage() for r in caplog.records]
+    assert [f"recording to {p}" for p in paths] == logged
+
+
+def test_a_made_name_that_is_taken_gets_a_counter(tmp_path: Path) -> None:
+    at = datetime(2026, 11, 21, 13, 56, 30, tzinfo=UTC)
+    path, made = recording_path(tmp_path / "walk-{time}.scotti", "lab1", at, ".scotti")
+    assert (path.name, made) == ("walk-20261121T135630.scotti", True)
+    names = [p.name for p in itertools.islice(candidate_paths(path), 3)]
+    assert names == [
+        "walk-20261121T135630.scotti",
+        "walk-20261121T135630.1.scotti",
+        "walk-20261121T135630.2.scotti",
+    ]
+    fixed, made = recording_path(tmp_path / "walk.scotti", "lab1", at, ".scotti")
+    assert (fixed.name, made) == ("walk.scotti", False)
+
+
+def test_an_unknown_placeholder_is_one_line(tmp_path: Path) -> None:
+    with pytest.raises(RecordingError, match=r"unknown placeholder \{tme\} \(known: "):
+        Recorder(tmp_path / "walk-{tme}.scotti")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_recording_that_cannot_start_is_one_line(tmp_path: Path) -> None:
@@ -149,29 +162,44 @@ def test_the_pipeline_records_the_bytes_as_they_came(tmp_path: Path, tiny_model_
 
 @pytest.mark.mosquitto
 @pytest.mark.slow
-def test_the_daemon_records_beside_an_existing_file_and_names_it_in_info(
+def test_the_daemon_records_into_a_new_file_per_start_and_names_it_in_info(
     mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
 ) -> None:
     session = write_synthetic_session(tmp_path / "in.scotti", frames=44)
-    existing = tmp_path / "rec.scotti"
-    existing.write_bytes(b"an earlier recording")
+    template = tmp_path / "rec-{time}.scotti"
     with collect(mosquitto, "scotti/rec/#") as got:
         args = ["--replay", str(session.path), "--speed", "max", "--model", str(tiny_model_path)]
-        args += ["--broker", mosquitto.url, "--device-id", "rec", "--record", str(existing)]
+        args += ["--broker", mosquitto.url, "--device-id", "rec", "--record", str(template)]
         daemon = start_daemon(args, tmp_path / "rec.log")
         assert daemon.wait(60) == 0, daemon.log
         got.wait_for(lambda m: bool(payloads(m, "info")), 5, "info")
-    assert existing.read_bytes() == b"an earlier recording"
     info = payloads(got.snapshot(), "info")[0]
     actual = Path(info["settings"]["record"])
-    assert actual != existing
+    assert re.fullmatch(r"rec-\d{8}T\d{6}\.scotti", actual.name), actual.name
     assert actual.parent == tmp_path
-    assert info["settings"]["record_requested"] == str(existing)
+    assert info["settings"]["record_requested"] == str(template)
     names = ("status", "info", "pose", "action", "progress", "health", "pressure")
     assert info["topics"] == {n: f"scotti/rec/{n}" for n in names}
     recorded = read_session(actual)
     assert b"".join(p.data for p in recorded.packets) == session.data
     assert f"INFO scotti.daemon.recording: recording to {actual}" in daemon.log
+
+
+def test_the_daemon_will_not_start_over_a_fixed_recording_name_that_exists(
+    tiny_model_path: Path, tmp_path: Path
+) -> None:
+    # What a restart loop meets with a fixed name: exit 78 and the hint, the file kept.
+    session = write_synthetic_session(tmp_path / "in.scotti", frames=4)
+    existing = tmp_path / "rec.scotti"
+    existing.write_bytes(b"yesterday")
+    args = ["--replay", str(session.path), "--model", str(tiny_model_path)]
+    args += ["--broker", "mqtt://127.0.0.1:1", "--record", str(existing)]
+    daemon = start_daemon(args, tmp_path / "d.log")
+    assert daemon.wait(60) == 78, daemon.log
+    last = daemon.log.strip().splitlines()[-1]
+    assert last.startswith(f"scotti-daemon: error: {existing} exists and is never overwritten;")
+    assert "put {time} in the name" in last
+    assert existing.read_bytes() == b"yesterday"
 
 
 def test_record_into_a_directory_makes_a_named_file_inside_it(tmp_path: Path) -> None:

@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import asyncio
 import importlib
+import json
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Final, Protocol
 
 from scotti.daemon.errors import DaemonError
@@ -33,6 +34,8 @@ if TYPE_CHECKING:
     from scotti.daemon.outputs.settings import OutputSettings
     from scotti.daemon.pipeline import Prediction
     from scotti.daemon.schemas import Status
+    from scotti.daemon.settings import Settings
+    from scotti.models.runtime import ScottiRuntime
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +64,25 @@ def device_prefix(device: str, devices: Sequence[str]) -> str:
     """What a device's names start with: nothing for a lone device (the names a one-pair
     daemon always had), ``<id>/`` when the daemon serves several."""
     return f"{device}/" if len(devices) > 1 else ""
+
+
+def recording_metadata(settings: Settings, runtime: ScottiRuntime) -> dict[str, str]:
+    """The ``scotti`` metadata record of a live MCAP file: the model that made it (file
+    and sha256, as an export names it) and the daemon's settings (``info``'s, no secret)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        scotti_version = version("scotti")
+    except PackageNotFoundError:  # a source tree that was never installed
+        scotti_version = "unknown"
+    return {
+        "source": "live",
+        "devices": ",".join(d.id for d in settings.device_list()),
+        "model": runtime.path.name,
+        "model_sha256": runtime.sha256,
+        "config": json.dumps(settings.summary(), sort_keys=True, default=str),
+        "scotti_version": scotti_version,
+    }
 
 
 def require(module: str, what: str) -> None:
@@ -95,9 +117,15 @@ class Outputs:
         self._closed = False
 
     @classmethod
-    async def open(cls, settings: OutputSettings, devices: Sequence[str]) -> Outputs:
+    async def open(
+        cls,
+        settings: OutputSettings,
+        devices: Sequence[str],
+        metadata: Mapping[str, str] | None = None,
+    ) -> Outputs:
         """Start what ``settings`` asks for, for every device in ``devices``;
-        ``OutputError`` when one cannot start."""
+        ``OutputError`` when one cannot start. ``metadata``: what a recording says made
+        it (``recording_metadata``), the MCAP file's ``scotti`` record."""
         opened: list[Output] = []
         try:
             if settings.record_mcap is not None or settings.foxglove is not None:
@@ -110,6 +138,7 @@ class Outputs:
                         port=settings.foxglove,
                         host=settings.host,
                         devices=devices,
+                        metadata=metadata,
                     )
                 )
             if settings.lsl:

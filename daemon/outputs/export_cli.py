@@ -7,7 +7,10 @@ every prediction goes to the same Foxglove channels ``scotti-daemon
 creation time plus each frame's host time in the file (a simulated session
 starts at its header's time, which may be the Unix epoch), so a 60 s session
 spans 60 s in Foxglove however fast it was exported. ``latency_ms`` in the
-JSON channels is the model step's time here (no broker in between).
+JSON channels is the model step's time here (no broker in between). Messages
+are written in log-time order, the labels among the predictions, so a reader
+that streams the file front to back (no index) sees them as they happened.
+An existing OUT.mcap is refused unless ``--force``.
 """
 
 from __future__ import annotations
@@ -28,6 +31,12 @@ from scotti.daemon.outputs import OutputError, require
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
 from scotti.daemon.sources import SourceEvent, SourceItem
 from scotti.firmware_protocol.errors import SessionError
+from scotti.firmware_protocol.overwrite import (
+    FORCE_HELP,
+    REFUSED,
+    OutputExistsError,
+    refuse_existing,
+)
 from scotti.firmware_protocol.session import Session, read_session
 
 _YIELD_EVERY: Final = 64  # records between yields to the event loop
@@ -36,8 +45,13 @@ _YIELD_EVERY: Final = 64  # records between yields to the event loop
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", type=Path, metavar="FILE", help="a session file")
     parser.add_argument(
-        "--mcap", type=Path, required=True, metavar="OUT.mcap", help="write the Foxglove channels"
+        "--mcap",
+        type=Path,
+        required=True,
+        metavar="OUT.mcap",
+        help=f"write the Foxglove channels ({REFUSED})",
     )
+    parser.add_argument("--force", action="store_true", help=FORCE_HELP)
     parser.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
 
@@ -83,25 +97,39 @@ async def export_mcap(
     t0 = min(starts, default=0)
     wall0 = round(session.header.created_unix * 1e9)
     device = session.header.device or "session"  # one device: the topics carry no id
-    output = FoxgloveOutput(mcap=out, port=None, overwrite=True, devices=(device,))
-    output.write_metadata(
-        "scotti",
-        {
-            "session": source_name,
-            "source": session.header.source,
-            "device": session.header.device,
-            "model": runtime.path.name,
-            "model_sha256": runtime.sha256,
-        },
+    made_by = {
+        "session": source_name,
+        "source": session.header.source,
+        "device": session.header.device,
+        "model": runtime.path.name,
+        "model_sha256": runtime.sha256,
+    }
+    # ``run`` refused an existing file unless --force: here it is replaced.
+    output = FoxgloveOutput(
+        mcap=out, port=None, overwrite=True, devices=(device,), metadata=made_by
     )
     count = 0
     last_wall = wall0
     last_status: tuple[object, ...] | None = None
 
+    # The ground truth, on the same clock as the frames, written among them in time order.
+    labels = sorted(session.labels, key=lambda lb: lb.t_ns)
+    next_label = 0
+
+    def labels_until(ns: int | None) -> None:
+        nonlocal next_label
+        while next_label < len(labels):
+            at = wall0 + (labels[next_label].t_ns - t0)
+            if ns is not None and at > ns:
+                return
+            output.label(labels[next_label], at)
+            next_label += 1
+
     def on_prediction(p: Prediction) -> None:
         nonlocal count, last_wall
         mono = p.last_byte_mono_ns
         last_wall = wall0 + (mono - t0)
+        labels_until(last_wall)
         output.prediction(
             device,
             dataclasses.replace(p, host_wall_ns=last_wall, host_mono_ns=mono),
@@ -117,13 +145,13 @@ async def export_mcap(
         last_status = key
         st: Literal["online", "degraded"] = "degraded" if state.reasons else "online"
         status = messages.status(st, list(state.reasons), state)
+        labels_until(last_wall)
         output.status(device, status.model_copy(update={"host_wall_ns": last_wall}))
 
-    for label in session.labels:  # the ground truth, on the same clock as the frames
-        output.label(label, wall0 + (label.t_ns - t0))
     try:
         pipeline = Pipeline(RecordedSource(session, source_name), runtime, Counters())
         await pipeline.run(on_prediction, on_state, asyncio.Event())
+        labels_until(None)  # those after the last prediction
     finally:
         await output.close()
     span = (packets[-1].t_ns - packets[0].t_ns) / 1e9 if packets else 0.0
@@ -136,10 +164,11 @@ def run(args: argparse.Namespace) -> int:
     if args.mcap.resolve() == args.file.resolve():
         return _fail("--mcap must not be the session file itself")
     try:
+        refuse_existing([args.mcap], force=args.force)
         require("foxglove", "scotti session export --mcap")
         session = read_session(args.file)
         result = asyncio.run(export_mcap(session, args.file.name, args.mcap, args.model))
-    except (SessionError, ModelError, OutputError, DaemonError) as exc:
+    except (SessionError, ModelError, OutputError, DaemonError, OutputExistsError) as exc:
         return _fail(str(exc))
     size = args.mcap.stat().st_size
     rate = result.session_s / result.seconds if result.seconds else float("inf")

@@ -19,6 +19,12 @@ origin). A lone device keeps the names below. Channels:
   session): the ground truth, a grey skeleton beside the prediction and its
   action, progress and repetition.
 
+Each JSON channel's schema is the payload's in the form Foxglove's parser
+reads (``json_schema.foxglove_schema``: flat, no ``$ref`` or ``anyOf``), and a
+field that is null is left out of the message, as that schema says. The file
+starts with a metadata record ``scotti``: the model, its sha256 and what made
+the file (the daemon's settings, or the exported session).
+
 Every message is logged at the host wall time of its prediction (the
 recording's own time in ``scotti session export``); the JSON messages carry
 the device time and sequence beside it, like MQTT does, and the skeleton
@@ -27,8 +33,8 @@ entity carries them as metadata.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from datetime import UTC, datetime
+import json
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final
 
@@ -51,11 +57,12 @@ from foxglove.messages import (
     Vector3,
 )
 from foxglove.websocket import WebSocketServer
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 from scotti.daemon import messages
 from scotti.daemon.outputs import OutputError, device_prefix
+from scotti.daemon.outputs.json_schema import foxglove_schema
 from scotti.daemon.pipeline import Prediction
-from scotti.daemon.recording import candidate_paths
+from scotti.daemon.recording import RecordingError, new_file
 from scotti.daemon.schemas import Status
 from scotti.firmware_protocol.session import LabelRecord
 from scotti.models.contract import ACTIONS, BONE_INDEX, FRAME_COLS, KEYPOINTS
@@ -66,6 +73,17 @@ _RIGHT: Final = Color(r=1.0, g=0.3, b=0.2, a=1.0)
 _MIDDLE: Final = Color(r=0.8, g=0.8, b=0.8, a=1.0)
 _TRUTH: Final = Color(r=0.6, g=0.6, b=0.6, a=0.8)  # labels: grey, beside the prediction
 _IDENTITY: Final = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+# The keys of the payloads' dict fields, each a property a Foxglove plot can pick.
+DICT_KEYS: Final[dict[str, Sequence[str]]] = {"probabilities": ACTIONS, "feet": ("left", "right")}
+
+
+class LabelMessage(BaseModel):
+    """``/labels``: a label record of the session, as the channel carries it."""
+
+    seq: int = Field(description="The frame's sequence (the left insole's, u16).")
+    action: str | None = Field(description="The labelled action; absent on a transition.")
+    progress: float | None = Field(description="0..1 through the repetition; absent if none.")
+    repetition: int = Field(description="Repetition index; -1: none.")
 
 
 def _side_colour(name: str) -> Color:
@@ -171,19 +189,34 @@ class _DeviceChannels:
     def log_json(self, name: str, payload: BaseModel, ns: int) -> None:
         channel = self.json.get(name)
         if channel is None:
-            schema: dict[str, Any] = type(payload).model_json_schema()
-            topic = f"/{self.prefix}{name}"
-            channel = foxglove.Channel(topic, schema=schema, context=self.context)
+            channel = json_channel(f"/{self.prefix}{name}", type(payload), self.context)
             self.json[name] = channel
-        channel.log(payload.model_dump(mode="json"), log_time=ns)
+        channel.log(json_message(payload), log_time=ns)
+
+
+def json_channel(topic: str, model: type[BaseModel], context: foxglove.Context) -> foxglove.Channel:
+    """A JSON channel whose schema Foxglove's parser reads (``json_schema``)."""
+    schema = foxglove.Schema(
+        name=model.__name__,
+        encoding="jsonschema",
+        data=json.dumps(foxglove_schema(model, DICT_KEYS)).encode(),
+    )
+    return foxglove.Channel(topic, schema=schema, message_encoding="json", context=context)
+
+
+def json_message(payload: BaseModel) -> dict[str, Any]:
+    """The payload as its channel's schema describes it: a null field is left out."""
+    return payload.model_dump(mode="json", exclude_none=True)
 
 
 class FoxgloveOutput:
     """``mcap``: a file to write; ``port``: serve live (0: any free port); ``devices``:
     the ids of the devices it carries (one: today's topic names; several: per device).
 
-    An existing MCAP file is never overwritten unless ``overwrite`` (what an export
-    asks for): the daemon takes a new name beside it, as ``--record`` does.
+    The daemon's ``mcap`` is named as ``--record`` is (``recording.new_file``:
+    ``{time}``, ``{device}``, a directory; a fixed name that exists is refused);
+    ``overwrite`` (``scotti session export --force``) replaces it instead.
+    ``metadata``: the ``scotti`` record written first (model, sha256, settings).
     """
 
     name = "foxglove"
@@ -196,10 +229,15 @@ class FoxgloveOutput:
         host: str = "127.0.0.1",
         overwrite: bool = False,
         devices: Sequence[str] = ("scotti",),
+        metadata: Mapping[str, str] | None = None,
     ) -> None:
         self.context = foxglove.Context()
         if mcap is not None and not overwrite:
-            mcap = next(p for p in candidate_paths(mcap, datetime.now(UTC)) if not p.exists())
+            named = devices[0] if len(devices) == 1 else "scotti"  # one file for all
+            try:
+                mcap = new_file(mcap, named, ".mcap")
+            except RecordingError as exc:
+                raise OutputError(f"--record-mcap: {exc}") from None
         self.mcap_path = mcap
         self.host = host
         self._writer: foxglove.mcap.MCAPWriter | None = None
@@ -218,6 +256,8 @@ class FoxgloveOutput:
             target = f"MCAP file {mcap}" if self._writer is None and mcap else f"port {port}"
             msg = f"cannot open {target}: {exc}"
             raise OutputError(msg) from None
+        if metadata is not None:
+            self.write_metadata("scotti", dict(metadata))
         self.devices = {
             d: _DeviceChannels(self.context, d, device_prefix(d, devices)) for d in devices
         }
@@ -250,16 +290,16 @@ class FoxgloveOutput:
         """A session's ground truth (export only): ``/labels/skeleton`` and ``/labels``."""
         if self._truth is None:
             self._truth = SceneUpdateChannel("/labels/skeleton", context=self.context)
-            self._labels = foxglove.Channel("/labels", context=self.context)  # schemaless JSON
+            self._labels = json_channel("/labels", LabelMessage, self.context)
         assert self._labels is not None
         meta = {"seq": str(label.seq)}
         self._truth.log(skeleton_of(label.keypoints, ns, meta, ground_truth=True), log_time=ns)
         action = ACTIONS[label.action] if 0 <= label.action < len(ACTIONS) else None
         progress = float(label.progress) if np.isfinite(label.progress) else None
-        self._labels.log(
-            {"seq": label.seq, "action": action, "progress": progress, "repetition": label.rep},
-            log_time=ns,
+        message = LabelMessage(
+            seq=label.seq, action=action, progress=progress, repetition=label.rep
         )
+        self._labels.log(json_message(message), log_time=ns)
 
     def write_metadata(self, name: str, values: dict[str, str]) -> None:
         if self._writer is not None:
