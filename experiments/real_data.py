@@ -118,7 +118,7 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
     for model, replay in zip(models, replays, strict=True):
         made = replay.made
         if not made:
-            rows.append({"file": rec.name, "model": model.name, "predictions": 0})
+            rows.append({"file": rec.name, "model": label(model), "predictions": 0})
             continue
         ext = np.array([m.ext for m in made], dtype=np.int64)
         t = (ext - ext.min() + 40) / 16.0  # the first prediction is for frame T=40
@@ -134,7 +134,7 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
         rows.append(
             {
                 "file": rec.name,
-                "model": model.name,
+                "model": label(model),
                 "predictions": len(made),
                 "walking_windows": int(on_walk.sum()),
                 "walking": _share(action[on_walk] == walking),
@@ -148,6 +148,13 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
             }
         )
     return rows
+
+
+def label(model: Path) -> str:
+    """A model's name in the tables: its path from the repository, without .onnx."""
+    path = model.resolve()
+    shown = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    return str(shown.with_suffix(""))
 
 
 def _share(mask: np.ndarray) -> float | None:
