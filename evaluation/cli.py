@@ -26,12 +26,13 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.evaluation.evaluation import EvaluationError, evaluate_models
 from scotti.evaluation.segments import BATCH
 from scotti.firmware_protocol.errors import SessionError
+from scotti.firmware_protocol.overwrite import FORCE_HELP, refuse_existing
 from scotti.firmware_protocol.session import find_session_files
 from scotti.models.contract import ACTIONS
 from scotti.models.errors import ModelError
@@ -52,8 +53,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--json", action="store_true", help="print the report as JSON (a list for several models)"
     )
     parser.add_argument(
-        "--plots", type=Path, default=None, help="write PNG figures here (DIR/MODEL/ for several)"
+        "--plots",
+        type=Path,
+        default=None,
+        help="write PNG figures here (DIR/MODEL/ for several); figures that exist are "
+        "refused, unless --force",
     )
+    parser.add_argument("--force", action="store_true", help=FORCE_HELP)
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
     parser.add_argument(
         "--every",
@@ -87,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
             raise EvaluationError(msg)
         files = find_session_files(args.sessions)
         models = args.model or [default_model_path()]
+        if args.plots is not None:  # before the replay: a refusal costs nothing
+            refuse_existing(plot_paths(args.plots, models), force=args.force)
         runtimes = [ScottiRuntime(m, threads=args.threads) for m in models]
         reports = evaluate_models(
             files, runtimes, every=args.every, batch=args.batch, on_session=_progress
@@ -129,6 +137,7 @@ def _progress(done: int, total: int, path: Path, seconds: float) -> None:
         print(f"scotti eval: {done}/{total} {path.name} ({seconds:.1f} s)", file=sys.stderr)
 
 
+PLOTS: Final = ("precision-margin.png", "confusion.png")
 LEGEND = (
     "  MPJPE: mean per-joint position error (mm); MPJAE: mean per-joint angle error (deg)\n"
     "  acc: action accuracy; MSE: progress mean squared error; APP: area under the progress\n"
@@ -137,8 +146,11 @@ LEGEND = (
 
 
 def _stem(report: dict[str, Any]) -> str:
-    name = Path(report["model"]["path"]).name
-    return name.removesuffix(".onnx")
+    return _name(Path(report["model"]["path"]))
+
+
+def _name(model: Path) -> str:
+    return model.name.removesuffix(".onnx")
 
 
 def nothing_to_score(report: dict[str, Any]) -> str:
@@ -256,6 +268,12 @@ def _tail(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def plot_paths(directory: Path, models: list[Path]) -> list[Path]:
+    """Every figure ``--plots`` writes for these models (DIR/MODEL/ for several)."""
+    folders = [directory] if len(models) == 1 else [directory / _name(m) for m in models]
+    return [folder / name for folder in folders for name in PLOTS]
+
+
 def write_plots(report: dict[str, Any], directory: Path) -> list[str]:
     """precision-margin.png and confusion.png (matplotlib, loaded only when asked)."""
     import matplotlib  # heavy and optional: only for --plots
@@ -274,7 +292,7 @@ def write_plots(report: dict[str, Any], directory: Path) -> list[str]:
     ax.set_title("Progress: precision-margin curve")
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    curve = directory / "precision-margin.png"
+    curve = directory / PLOTS[0]
     fig.savefig(curve)
     plt.close(fig)
 
@@ -294,7 +312,7 @@ def write_plots(report: dict[str, Any], directory: Path) -> list[str]:
     ax.set_title("Action confusion (% of true frames)")
     fig.colorbar(image, ax=ax, fraction=0.046)
     fig.tight_layout()
-    confusion = directory / "confusion.png"
+    confusion = directory / PLOTS[1]
     fig.savefig(confusion)
     plt.close(fig)
     return [str(curve), str(confusion)]

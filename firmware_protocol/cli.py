@@ -40,7 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.add_argument("--json", action="store_true", help="print one JSON object instead")
     # Listed for --help only: `scotti session export` runs the model, so the command line
     # (cli/main.py) hands it to scotti.daemon.outputs.export_cli before it reaches here.
-    sub.add_parser("export", help="FILE --mcap OUT.mcap: predictions as a Foxglove recording")
+    sub.add_parser(
+        "export", help="FILE --mcap OUT.mcap [--force]: predictions as a Foxglove recording"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,8 +2,10 @@
 
 An output that exists is refused, in one line naming it, unless ``--force``
 (then it is replaced); every tool's ``--help`` says so with ``REFUSED`` and
-``FORCE_HELP``. ``scotti sim``, ``scotti import``, ``scotti session export``,
-``scotti eval --plots`` and ``scotti export`` follow it. The daemon's
+``FORCE_HELP``. ``scotti sim`` (a scene, ``corpus``, ``render``), ``scotti
+import``, ``scotti session export`` and ``scotti eval --plots`` follow it.
+The commands that remake the repository's own documents (``scotti sim
+realism``) rewrite them in place: git keeps what they replace. The daemon's
 recordings follow their own (never overwritten, a new name per start on
 request: ``daemon/recording.py``), since a service restarts on its own.
 

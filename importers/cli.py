@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from scotti.firmware_protocol.overwrite import FORCE_HELP, REFUSED
 from scotti.importers.errors import ImporterError
 
 
@@ -33,8 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="import TOML, or a pressure recording (a vendor's export or a table)",
     )
-    parser.add_argument("-o", "--output", type=Path, required=True, help="session file to write")
-    parser.add_argument("--force", action="store_true", help="replace an existing output")
+    parser.add_argument(
+        "-o", "--output", type=Path, required=True, help=f"session file to write ({REFUSED})"
+    )
+    parser.add_argument("--force", action="store_true", help=FORCE_HELP)
     parser.add_argument("--pressure", help="pressure file (a vendor's export, .csv, .npz, .h5)")
     parser.add_argument(
         "--format",

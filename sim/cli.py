@@ -1,15 +1,19 @@
 """``scotti sim``: scenes into session files, corpora, pictures and the speed benchmark.
 
-    scotti sim SCENE -o FILE [--seed N]
+    scotti sim SCENE -o FILE [--seed N] [--force]
     scotti sim corpus -o DIR --subjects N [--seed N] [--minutes-per-action M]
-                      [--effects realistic|none]
-    scotti sim render FILE -o OUT.png [--start S] [--duration D] [--gif OUT.gif]
+                      [--effects realistic|none] [--force]
+    scotti sim render FILE -o OUT.png [--start S] [--duration D] [--gif OUT.gif] [--force]
     scotti sim bench [--minutes M] [--effects realistic|none]
     scotti sim realism [-o sim/REALISM.md] [--subjects N] [--seed N] [--no-pictures]
 
 The first word picks the form: ``corpus``, ``render``, ``bench`` and ``realism`` are
 sub-verbs; anything else is a scene file (a scene file literally named
 ``corpus`` can be given as ``./corpus``).
+
+An output that exists is refused unless ``--force`` (a corpus: a directory
+that holds session files); ``realism`` rewrites its document in place, as the
+commands that remake the repository's documents do.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ import argparse
 import sys
 from pathlib import Path
 from typing import Final
+
+from scotti.firmware_protocol.overwrite import FORCE_HELP, REFUSED, refuse_existing
 
 SUB_VERBS: Final = ("corpus", "render", "bench", "realism")
 
@@ -37,8 +43,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _scene_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="scotti sim", description="render a scene to a session file")
     p.add_argument("scene", type=Path, help="scene TOML file")
-    p.add_argument("-o", "--output", type=Path, required=True, help="session file to write")
+    p.add_argument(
+        "-o", "--output", type=Path, required=True, help=f"session file to write ({REFUSED})"
+    )
     p.add_argument("--seed", type=int, default=None, help="override the scene's seed")
+    p.add_argument("--force", action="store_true", help=FORCE_HELP)
     return p
 
 
@@ -48,7 +57,19 @@ def _corpus_parser() -> argparse.ArgumentParser:
         description="N drawn subjects, each a lab session: every action in sets, standing "
         "between, walks and turns between spots",
     )
-    p.add_argument("-o", "--output", type=Path, required=True, help="directory to fill")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="directory to fill (one that holds session files is refused, unless --force)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="write into a directory that holds session files (same names are replaced; "
+        "with --first-subject: extend a corpus in place, its manifest replaced)",
+    )
     p.add_argument("--subjects", type=int, required=True, help="how many subjects to draw")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
@@ -81,12 +102,13 @@ def _corpus_parser() -> argparse.ArgumentParser:
 def _render_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="scotti sim render", description="draw a session")
     p.add_argument("session", type=Path, help="session file with labels")
-    p.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
+    p.add_argument("-o", "--output", type=Path, required=True, help=f"PNG to write ({REFUSED})")
     p.add_argument("--start", type=float, default=0.0, help="seconds from the first frame")
     p.add_argument(
         "--duration", type=float, default=None, help="seconds to draw (default: to the end)"
     )
-    p.add_argument("--gif", type=Path, default=None, help="also write an animated GIF")
+    p.add_argument("--gif", type=Path, default=None, help=f"also write an animated GIF ({REFUSED})")
+    p.add_argument("--force", action="store_true", help=FORCE_HELP)
     return p
 
 
@@ -101,7 +123,13 @@ def _realism_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="scotti sim realism", description="the simulator against published ranges"
     )
-    p.add_argument("-o", "--output", type=Path, default=Path("sim/REALISM.md"))
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=Path("sim/REALISM.md"),
+        help="the document to (re)write in place, pictures in img/ beside it",
+    )
     p.add_argument("--subjects", type=int, default=8, help="drawn subjects to measure")
     p.add_argument("--seed", type=int, default=7, help="seed of the drawn subjects")
     p.add_argument(
@@ -144,6 +172,7 @@ def _scene(a: argparse.Namespace) -> int:
     from scotti.sim.corpus import render_scene
     from scotti.sim.scene import load_scene
 
+    refuse_existing([a.output], force=a.force)
     scene = load_scene(a.scene)
     report = render_scene(scene, a.output, seed=a.seed)
     print(
@@ -160,6 +189,11 @@ def _corpus(a: argparse.Namespace) -> int:
 
     if a.subjects < 1 or a.first_subject < 0 or not 0 < a.minutes_per_action <= 60:
         msg = "--subjects must be >= 1, --first-subject >= 0 and --minutes-per-action in (0, 60]"
+        raise SimError(msg)
+    held = session_files_in(a.output)
+    if held and not a.force:
+        files = f"{held} session file{'s' if held > 1 else ''}"
+        msg = f"{a.output} holds {files}; --force writes into it anyway"
         raise SimError(msg)
     manifest = write_corpus(
         a.output,
@@ -184,6 +218,7 @@ def _render(a: argparse.Namespace) -> int:
 
         msg = "--start must be >= 0 and --duration > 0"
         raise SimError(msg)
+    refuse_existing([a.output] + ([a.gif] if a.gif is not None else []), force=a.force)
     span = load_span(a.session, a.start, a.duration)
     print(render_png(span, a.output))
     if a.gif is not None:
@@ -231,3 +266,16 @@ def _realism(a: argparse.Namespace) -> int:
     for quantity in outside:
         print(f"  outside its range: {quantity}")
     return 0 if not outside else 1
+
+
+def session_files_in(folder: Path) -> int:
+    """How many session files ``folder`` holds (0 when it is not a directory)."""
+    from scotti.firmware_protocol.errors import SessionError
+    from scotti.firmware_protocol.session import find_session_files
+
+    if not folder.is_dir():
+        return 0
+    try:
+        return len(find_session_files([folder]))
+    except SessionError:  # none found is an error there: a directory of other files
+        return 0

@@ -453,3 +453,19 @@ def test_no_figures_are_drawn_without_labels(
     assert main(args) == 0
     assert "nothing to score" in capsys.readouterr().out
     assert not plots.exists()
+
+
+def test_figures_that_exist_are_refused_unless_force(
+    session: Path, tiny_model_path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plots = tmp_path / "plots"
+    plots.mkdir()
+    (plots / "confusion.png").write_bytes(b"last week's")
+    args = ["eval", str(session), "--model", str(tiny_model_path), "--plots", str(plots)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err == f"scotti eval: {plots / 'confusion.png'} exists; --force replaces it\n"
+    assert (plots / "confusion.png").read_bytes() == b"last week's"
+    assert not (plots / "precision-margin.png").exists()  # refused before anything ran
+    assert main([*args, "--force"]) == 0
+    assert (plots / "confusion.png").read_bytes()[:4] == b"\x89PNG"

@@ -43,7 +43,7 @@ def test_scene_to_session_is_bit_identical_on_rerun(
     assert a.read_bytes() == b.read_bytes()
     assert main(["sim", str(scene), "-o", str(c), "--seed", "5"]) == 0
     assert c.read_bytes() != a.read_bytes()
-    assert main(["sim", str(scene), "-o", str(c)]) == 0  # re-running replaces the file
+    assert main(["sim", str(scene), "-o", str(c), "--force"]) == 0  # --force replaces it
     assert c.read_bytes() == a.read_bytes()
     session = read_session(a)
     assert session.header.source == "simulated"
@@ -100,7 +100,7 @@ def test_corpus_writes_sessions_and_manifest(tmp_path: Path) -> None:
     assert {label.action for label in labels} == {-1, *range(len(ACTIONS))}
     assert len(labels) == sessions[0]["frames"]
     first = (out / "subject-001.ses").read_bytes()
-    assert main([*argv, "--seed", "3", "--effects", "none"]) == 0
+    assert main([*argv, "--seed", "3", "--effects", "none", "--force"]) == 0
     assert (out / "subject-001.ses").read_bytes() != first
     assert json.loads((out / "manifest.json").read_text())["sessions"][1]["effects"] == []
 
@@ -139,3 +139,51 @@ def test_bench_prints_the_ratio_to_real_time(capsys: pytest.CaptureFixture[str])
     out = capsys.readouterr().out
     assert "ratio to real time:" in out
     assert "one hour:" in out
+
+
+def test_every_output_that_exists_is_refused_unless_force(
+    scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    session = tmp_path / "s.ses"
+    session.write_bytes(b"an earlier session")
+    assert main(["sim", str(scene), "-o", str(session)]) == 2
+    assert capsys.readouterr().err == f"scotti sim: {session} exists; --force replaces it\n"
+    assert session.read_bytes() == b"an earlier session"
+    assert main(["sim", str(scene), "-o", str(session), "--force"]) == 0
+    assert read_session(session).header.source == "simulated"
+
+    png, gif = tmp_path / "s.png", tmp_path / "s.gif"
+    gif.write_bytes(b"kept")
+    render = ["sim", "render", str(session), "-o", str(png), "--duration", "0.5"]
+    assert main([*render, "--gif", str(gif)]) == 2
+    assert capsys.readouterr().err == f"scotti sim: {gif} exists; --force replaces it\n"
+    assert not png.exists()  # refused before anything was drawn
+    assert main([*render, "--gif", str(gif), "--force"]) == 0
+    assert gif.read_bytes()[:3] == b"GIF"
+
+
+def test_a_corpus_directory_that_holds_session_files_is_refused_unless_force(
+    scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "corpus"
+    out.mkdir()
+    (out / "notes.txt").write_text("not a session")  # other files are no reason to refuse
+    argv = ["sim", "corpus", "-o", str(out), "--subjects", "1", "--minutes-per-action", "0.02"]
+    assert main(argv) == 0
+    capsys.readouterr()
+    before = (out / "subject-000.ses").read_bytes()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == f"scotti sim: {out} holds 1 session file; --force writes into it anyway\n"
+    assert (out / "subject-000.ses").read_bytes() == before
+    assert main([*argv, "--first-subject", "1", "--force"]) == 0  # extended in place
+    assert sorted(p.name for p in out.glob("*.ses")) == ["subject-000.ses", "subject-001.ses"]
+
+
+def test_each_help_says_the_rule(capsys: pytest.CaptureFixture[str]) -> None:
+    for argv in (["sim", "x.toml"], ["sim", "render", "x.ses"], ["sim", "corpus"]):
+        with pytest.raises(SystemExit):
+            main([*argv, "--help"])
+        out = " ".join(capsys.readouterr().out.split())
+        assert "unless --force" in out, argv
+        assert "--force" in out
