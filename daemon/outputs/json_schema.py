@@ -104,7 +104,7 @@ class _Flattener:
     def field(self, name: str, node: Schema) -> Schema | None:
         """One property in the parser's form, or None when it has none."""
         kind = node.get("type")
-        words = {k: node[k] for k in _KEPT if k in node}
+        words: Schema = {k: node[k] for k in _KEPT if k in node}
         if "default" in node and node["default"] is not None:
             words["default"] = node["default"]
         if kind in SCALARS:
