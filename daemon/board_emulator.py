@@ -26,11 +26,12 @@ Behaviour worth knowing:
   each record before it is written: return the bytes (changed or not), or
   None to lose the record (counted in ``records_lost``). The fault soak uses
   it to silence one foot.
-- ``loop=True`` starts over at the end: the sequence numbers and board clocks
-  of the session repeat, so the host sees them jump back (as after a board
-  reset) once per loop. The host's frame assembler takes a jump back of fewer
-  than 64 frames for late packets, so sessions meant to loop should be longer
-  than 4 s.
+- ``loop=True`` starts over at the end, and the board's numbers go on: from the
+  second time round each packet's frame sequence number, board clock and
+  uptime move on by one loop (``board_loops``), so the host sees one long
+  session, and a recording of it reads as one (no restart at the loop).
+  ``continue_numbers=False`` sends the records as they are instead: the
+  numbers jump back once per loop, as after a board reset.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final, Literal
 
+from scotti.daemon.board_loops import LoopRewriter, loop_steps
 from scotti.daemon.errors import DaemonError
 from scotti.daemon.speed import Speed
 
@@ -96,6 +98,7 @@ class BoardEmulator:
         loop: bool = False,
         write_timeout_s: float = 0.5,
         settle_s: float = 0.1,
+        continue_numbers: bool = True,
     ) -> None:
         self.records = list(records)
         self.link = Path(link)
@@ -119,6 +122,17 @@ class BoardEmulator:
         self._base_ns: int | None = None
         self._pending = memoryview(b"")
         self._deadline = 0.0
+        # Looping: the numbers' steps, worked out now (a whole pass of decoding: at the
+        # loop's end it would stall the stream).
+        looped = loop and continue_numbers and self.records
+        steps = loop_steps(self.records, self._loop_ns()) if looped else None
+        self._rewriter = LoopRewriter(steps) if steps is not None else None
+
+    def _loop_ns(self) -> int:
+        """One loop's host time at speed 1: the records' span and one mean interval."""
+        t0, t_last = self.records[0][0], self.records[-1][0]
+        gap = (t_last - t0) // (len(self.records) - 1) if len(self.records) > 1 else 0
+        return t_last - t0 + (gap or _DEFAULT_GAP_NS)
 
     @classmethod
     def from_session(
@@ -282,11 +296,11 @@ class BoardEmulator:
                 return
             self.stats.loops_completed += 1
             self._index = 0
+            if self._rewriter is not None:
+                self._rewriter.loop = self.stats.loops_completed
             # The next loop starts one mean record interval after the last record.
-            t0, t_last = self.records[0][0], self.records[-1][0]
-            gap = (t_last - t0) // (len(self.records) - 1) if len(self.records) > 1 else 0
             if self._base_ns is not None:
-                self._base_ns += self._scaled(t_last - t0 + (gap or _DEFAULT_GAP_NS))
+                self._base_ns += self._scaled(self._loop_ns())
         t_ns, data = self.records[self._index]
         now = time.monotonic_ns()
         if self.speed != "max":
@@ -298,6 +312,10 @@ class BoardEmulator:
                 self._sleep(min((due - now) / 1e9, _POLL_S))
                 return
         self._index += 1
+        if self._rewriter is not None:
+            data = self._rewriter.rewrite(data)
+            if not data:
+                return  # a packet's start only: it goes out with the record that ends it
         line = self.line
         if line is not None:
             changed = line(data)

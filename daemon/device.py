@@ -64,6 +64,7 @@ class Device:
         self.state: PipelineState | None = None
         self.on_change: Callable[[Device], None] = lambda _d: None  # state or broker changed
         self._status_key: tuple[object, ...] | None = None
+        self._logged_status: tuple[object, ...] | None = None  # the last one the log said
 
     @property
     def connected_once(self) -> bool:
@@ -79,8 +80,10 @@ class Device:
         )
         self.publisher = publisher
         publisher.on_state_change = self._on_broker_state
+        publisher.on_status_published = self._on_status_published
         publisher.set_status(messages.status("degraded", ["starting"], None))
         source = self.source
+        publisher.drop_stale = source.live
         if not source.live:  # a replay waits for the broker rather than lose predictions
             # Room for the engine's backlog of this device too, and a frame or two more.
             source = _PacedByPublisher(source, publisher, settings.inference.queue_size + 2)
@@ -152,7 +155,17 @@ class Device:
         self.on_change(self)
 
     def _on_broker_state(self, state: BrokerState, detail: str) -> None:
+        self._publish_status()  # the outputs beside MQTT (web, Foxglove) show the outage
         self.on_change(self)
+
+    def _on_status_published(self, status: Status) -> None:
+        """Said in the log once the broker has acknowledged it, never before."""
+        key = (status.state, tuple(status.reasons))
+        if key == self._logged_status:
+            return  # republished after a reconnect: said already
+        self._logged_status = key
+        shown = f": {', '.join(status.reasons)}" if status.reasons else ""
+        log.info("%sstatus %s%s", self._log_prefix, status.state, shown)
 
     def _publish_status(self) -> None:
         state = self.state
@@ -162,6 +175,8 @@ class Device:
         frames, needed = state.warming
         if frames < needed and state.source == "connected":
             reasons.append("warming up")  # how far: Status.warming (not a new status per frame)
+        if self.publisher.state == "disconnected":  # reaches the other outputs, never MQTT
+            reasons.append(f"broker unreachable ({self.publisher.stats.last_error})")
         key = (state.source, tuple(sorted(state.feet.items())), tuple(reasons))
         if key == self._status_key:
             return  # unchanged: no retained republish at 16 Hz
@@ -170,8 +185,6 @@ class Device:
         status: Status = messages.status(st, reasons, state)
         self.publisher.set_status(status)
         self.outputs.status(status)
-        shown = f": {', '.join(reasons)}" if reasons else ""
-        log.info("%sstatus %s%s", self._log_prefix, st, shown)
 
     @property
     def _log_prefix(self) -> str:

@@ -1,8 +1,11 @@
 """``scotti-daemon``: command line, settings, model check, then the service.
 
-Exit status: 0 after a graceful stop (or the end of a replay); 78 (EX_CONFIG)
-for a bad setting, a model that does not fit the contract or a recording that
-cannot be created, with one line on stderr and no traceback; 1 when the service fails while running.
+Exit status: 0 after a graceful stop (or the end of a replay, or of a scene
+played ``--once``); 78 (EX_CONFIG) for every mistake on the command line or
+in the settings (an unknown option, a bad value, a replay file that is not a
+session or holds no packets), a model that does not fit the contract or a
+recording that cannot be created, with one line on stderr and no traceback;
+1 when the service fails while running.
 """
 
 from __future__ import annotations
@@ -12,7 +15,7 @@ import asyncio
 import logging
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from scotti.daemon.errors import DaemonError
 from scotti.daemon.settings import EX_CONFIG, ConfigError, Settings, load_settings
@@ -20,8 +23,17 @@ from scotti.daemon.settings import EX_CONFIG, ConfigError, Settings, load_settin
 PROG = "scotti-daemon"
 
 
+class _Parser(argparse.ArgumentParser):
+    """A mistake on the command line is one line and exit 78, as a bad setting in the
+    config file is (argparse's own way: the usage, then exit 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{PROG}: usage error: {message} (see {PROG} --help)", file=sys.stderr)
+        sys.exit(EX_CONFIG)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog=PROG,
         description="Insole stream -> pose, action and progress over MQTT. Every option can "
         "also be set in the --config TOML file or as SCOTTI_* environment variables "
@@ -31,8 +43,21 @@ def build_parser() -> argparse.ArgumentParser:
         "source: one insole pair (several: a [[devices]] table in the --config file)"
     )
     src.add_argument("--port", help="receiver serial device, e.g. /dev/ttyACM0")
-    src.add_argument("--replay", type=Path, metavar="FILE", help="replay a session file")
-    src.add_argument("--simulate", metavar="SCENE", help="simulated board playing a scene")
+    src.add_argument(
+        "--replay", type=Path, metavar="FILE",
+        help="replay a session file once, then exit (one cut short plays its whole records)",
+    )  # fmt: skip
+    src.add_argument(
+        "--simulate", metavar="SCENE",
+        help="a simulated board on a pty playing a scene (a shipped name such as demo, or a "
+        "TOML path) in a loop until stopped; the board's sequence numbers and clock go on "
+        "across each loop, so a --record of it reads as one session",
+    )  # fmt: skip
+    src.add_argument(
+        "--once", action="store_true", default=None,
+        help="with --simulate: play the scene once, then exit 0 once its last prediction "
+        "is published",
+    )  # fmt: skip
     src.add_argument("--speed", metavar="1|N|max", help="replay/simulate rate (default 1)")
     p.add_argument("--model", type=Path, metavar="PATH", help="ONNX step graph (default: shipped)")
     p.add_argument("--threads", metavar="N", help="onnxruntime threads (default 1)")
@@ -79,6 +104,7 @@ _CLI_FIELDS: dict[str, tuple[str | None, str]] = {
     "port": ("source", "port"),
     "replay": ("source", "replay"),
     "simulate": ("source", "simulate"),
+    "once": ("source", "once"),
     "speed": ("source", "speed"),
     "model": ("model", "path"),
     "threads": ("model", "threads"),

@@ -256,6 +256,10 @@ def health(
                 "dropped_queue_full": stats.dropped_full,
                 "dropped_stale": stats.dropped_stale,
                 "dropped_error": stats.dropped_error,
+                # The broker's outages: health reaches a subscriber only after one ends.
+                "broker_outages": stats.outages,
+                "broker_unreachable_s": round(publisher.unreachable_s, 3),
+                "broker_last_error": stats.last_error,
             },
             # Under ``pipeline`` (free-form in the schema), not a top-level field: health's
             # schema forbids unknown fields, so a consumer validating against version 1

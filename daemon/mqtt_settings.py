@@ -46,6 +46,8 @@ class MqttSettings(BaseModel):
     queue_size: Annotated[int, Field(ge=1, le=10_000)] = 32  # predictions waiting to publish
     health_interval_s: Annotated[float, Field(gt=0, le=3600)] = 5.0
     reconnect_max_s: Annotated[float, Field(gt=0, le=300)] = 5.0  # backoff ceiling
+    # While the broker stays away the log says so again this often (a WARNING each time).
+    outage_warning_s: Annotated[float, Field(gt=0, le=3600)] = 15.0
     pressure: bool = False  # also publish downsampled pressure frames (the demo's view)
     pressure_downsample: Annotated[int, Field(ge=1, le=8)] = 2
     tls_ca_file: Path | None = None  # CA bundle (PEM) the broker's certificate must chain to

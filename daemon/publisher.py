@@ -11,8 +11,10 @@ after a reconnect only the current status goes out. Health is "latest wins"
 and may overtake predictions.
 
 A broker that goes away, restarts or refuses (bad password, unknown CA) is
-one WARNING line with the reason, then quiet retries with backoff until it
-is back (one INFO line); never an ERROR, never a traceback.
+one WARNING line with the reason, then retries with backoff until it is back
+(one INFO line), said again every ``outage_warning_s`` (15 s) while it stays
+away; never an ERROR, never a traceback. A status is said in the log only
+once the broker has acknowledged it (``on_status_published``).
 
 Pattern: aiomqtt docs/reconnection.md (one ``Client``, ``async with`` in a loop).
 """
@@ -69,6 +71,8 @@ class PublisherStats:
     dropped_error: int = 0  # lost in a publish that failed
     connects: int = 0
     last_error: str = ""  # why the broker connection last failed, one line
+    outages: int = 0  # times the broker was found away (at start, or lost)
+    unreachable_s: float = 0.0  # seconds without the broker, over the outages that ended
     last_seq: int | None = None
     latency_ms: LatencyRing = field(default_factory=LatencyRing)  # last byte -> publish
 
@@ -93,6 +97,15 @@ class Publisher:
         self.state: BrokerState = "connecting"
         self.on_state_change: Callable[[BrokerState, str], None] = lambda _s, _r: None
         self.on_drained: Callable[[], None] = lambda: None  # at stop, queue empty
+        # A status the broker has acknowledged (PUBACK): only then is it said in the log.
+        self.on_status_published: Callable[[Status], None] = lambda _s: None
+        # Predictions older than the message expiry when the broker is back are dropped
+        # (live); a replay, which waits for the broker, sends them all (False).
+        self.drop_stale = True
+        self._down_since: float | None = None  # monotonic start of the current outage
+        self._warned_at = 0.0  # the last outage WARNING
+        self._source_waiting = False  # a replay is held in ``wait_room`` now
+        self._said_source_waits = False  # ... and the log said so in this outage
         self._fmt = settings.format
         self._info = info
         self._status: Status | None = None
@@ -153,11 +166,16 @@ class Publisher:
         if now - self._drop_logged_at < DROP_LOG_EVERY_S:
             return
         self._drop_logged_at = now
+        why = (
+            "the broker is unreachable"
+            if self.state == "disconnected"
+            else "the broker or this host is slower than the insoles"
+        )
         log.warning(
-            "publish queue full (%d): dropped the oldest prediction (%d so far); "
-            "the broker or this host is slower than the insoles",
+            "publish queue full (%d): dropped the oldest prediction (%d so far); %s",
             self.settings.queue_size,
             self.stats.dropped_full,
+            why,
         )
 
     async def wait_room(self, margin: int) -> None:
@@ -166,7 +184,23 @@ class Publisher:
         limit = max(0, self.settings.queue_size - margin)
         while len(self._queue) > limit:
             self._room.clear()
-            await self._room.wait()
+            self._source_waiting = True
+            self._say_source_waits()
+            try:
+                await self._room.wait()
+            finally:
+                self._source_waiting = False
+
+    def _say_source_waits(self) -> None:
+        """Once per outage, while a replay is held back: it is not stuck, it waits."""
+        if self.state != "disconnected" or self._said_source_waits:
+            return
+        self._said_source_waits = True
+        log.warning(
+            "the replay waits for the broker %s: nothing is dropped, it goes on when the "
+            "broker takes messages again",
+            self.settings.broker,
+        )
 
     def set_status(self, status: Status) -> None:
         """Publish ``status`` (retained) after the predictions already submitted."""
@@ -233,8 +267,10 @@ class Publisher:
     async def _flush_retained(self) -> None:
         taken = self._submitted - len(self._queue)  # batches published or dropped
         while self._statuses and self._statuses[0][0] <= taken:
-            await self._publish(self.settings.topic("status"), self._statuses[0][1], True)
+            status = self._statuses[0][1]
+            await self._publish(self.settings.topic("status"), status, True)  # QoS 1: PUBACK
             self._statuses.popleft()
+            self.on_status_published(status)
         if self._health_dirty and self._health is not None:
             self._health_dirty = False
             await self._publish(
@@ -243,7 +279,7 @@ class Publisher:
 
     async def _publish_batch(self, batch: FrameBatch) -> None:
         now = time.monotonic_ns()
-        if now - batch.made_mono_ns > self.settings.message_expiry_s * 1e9:
+        if self.drop_stale and now - batch.made_mono_ns > self.settings.message_expiry_s * 1e9:
             self.stats.dropped_stale += 1
             return
         origin = batch.last_byte_mono_ns or batch.made_mono_ns
@@ -353,18 +389,61 @@ class Publisher:
     def _set_state(self, state: BrokerState, detail: str) -> None:
         if state == "disconnected":
             self.stats.last_error = detail
-            # One line per outage; the retries (refused while it restarts) only at debug.
-            level = logging.WARNING if self.state != "disconnected" else logging.DEBUG
-            log.log(level, "broker %s: %s; retrying with backoff", self.settings.broker, detail)
+            self._warn_outage(detail)
+        elif self._down_since is not None:  # the outage is over
+            self.stats.unreachable_s += time.monotonic() - self._down_since
+            self._down_since = None
         if state == self.state:
             return
         self.state = state
         if state == "connected":
             log.info("broker %s: connected", self.settings.broker)
+            self._said_source_waits = False
         self.on_state_change(state, detail)
+        if state == "disconnected" and self._source_waiting:
+            self._say_source_waits()
+
+    def _warn_outage(self, detail: str) -> None:
+        """A WARNING when the broker is found away, then one every ``outage_warning_s``
+        while it stays away (a daemon that waits in silence for a broker nobody started
+        looks like one that works); the retries in between only at debug."""
+        now = time.monotonic()
+        broker, hint = self.settings.broker, _hint(detail, self.settings.port)
+        if self._down_since is None:
+            self._down_since = self._warned_at = now
+            self.stats.outages += 1
+            log.warning("broker %s: %s; retrying with backoff%s", broker, detail, hint)
+        elif now - self._warned_at >= self.settings.outage_warning_s:
+            self._warned_at = now
+            log.warning(
+                "broker %s: still unreachable after %.0f s (%s); retrying every %g s at most%s",
+                broker,
+                now - self._down_since,
+                detail,
+                self.settings.reconnect_max_s,
+                hint,
+            )
+        else:
+            log.debug("broker %s: %s; retrying with backoff", broker, detail)
+
+    @property
+    def unreachable_s(self) -> float:
+        """Seconds without the broker so far, the current outage included."""
+        now_down = time.monotonic() - self._down_since if self._down_since is not None else 0.0
+        return self.stats.unreachable_s + now_down
 
 
 _LOST: Final = (paho.MQTT_ERR_NO_CONN, paho.MQTT_ERR_CONN_LOST)
+
+
+def _hint(detail: str, port: int) -> str:
+    """What to do about a refused connection: nothing listens at that address."""
+    if "refused" not in detail.lower():
+        return ""
+    return (
+        "; is a broker running? (apt install mosquitto, or "
+        f"python -m scotti.daemon.tools.local_broker --port {port})"
+    )
 
 
 def explain(exc: aiomqtt.MqttError) -> str:

@@ -133,8 +133,8 @@ class Settings(BaseSettings):
     @model_validator(mode="before")
     @classmethod
     def _source_or_devices(cls, data: Any) -> Any:
-        """``[source]`` or ``[[devices]]``: a lone ``speed`` (``--speed max``) is not a source
-        and becomes the speed of every device that sets none."""
+        """``[source]`` or ``[[devices]]``: a lone ``speed`` (``--speed max``) or ``once``
+        is not a source and becomes that of every device that sets none."""
         if not isinstance(data, dict):
             return data
         if not data.get("devices"):  # so a missing source reads "no source", not "None"
@@ -146,10 +146,10 @@ class Settings(BaseSettings):
         if given:
             msg = f"give either [source] ({given[0]}) or [[devices]], not both"
             raise ValueError(msg)
-        speed = source.get("speed")
+        shared = {k: source[k] for k in ("speed", "once") if source.get(k) is not None}
         devices = data["devices"]
-        if speed is not None and isinstance(devices, list | tuple):
-            devices = [{"speed": speed, **d} if isinstance(d, dict) else d for d in devices]
+        if shared and isinstance(devices, list | tuple):
+            devices = [{**shared, **d} if isinstance(d, dict) else d for d in devices]
         return {**{k: v for k, v in data.items() if k != "source"}, "devices": devices}
 
     @model_validator(mode="after")
@@ -192,6 +192,7 @@ class Settings(BaseSettings):
                 replay=self.source.replay,
                 simulate=self.source.simulate,
                 speed=self.source.speed,
+                once=self.source.once,
             ),
         )
 

@@ -26,6 +26,7 @@ class SourceSettings(BaseModel):
     replay: Path | None = None  # session file fed back through the live path
     simulate: str | None = None  # scene name (sim/scenes/NAME.toml) or a scene TOML path
     speed: Speed = 1.0  # replay / simulate rate: 1 = real time, N times, or max
+    once: bool = False  # simulate: play the scene once and end (default: in a loop)
 
     @field_validator("speed", mode="before")
     @classmethod
@@ -41,17 +42,29 @@ class SourceSettings(BaseModel):
         if len(given) > 1:
             msg = f"give only one source, got {' and '.join(given)}"
             raise ValueError(msg)
-        if self._replay_missing():
-            msg = f"replay file not found: {self.replay}"
-            raise ValueError(msg)
+        problem = self._replay_problem() or self._once_problem()
+        if problem:
+            raise ValueError(problem)
         return self
 
     def _given(self) -> list[str]:
         """The source fields that are set, in the order of ``_KINDS``."""
         return [n for n in _KINDS if getattr(self, n) is not None]
 
-    def _replay_missing(self) -> bool:
-        return self.replay is not None and not is_file(self.replay)
+    def _once_problem(self) -> str | None:
+        if not self.once or self.simulate is not None:
+            return None
+        why = "a replay plays once already" if self.replay else "a port has no end"
+        return f"once: goes with --simulate ({why})"
+
+    def _replay_problem(self) -> str | None:
+        """Why ``replay`` cannot be replayed, found from its head alone (the whole file
+        is read when the replay starts: ``sources.load_replay``); None when it may be."""
+        if self.replay is None:
+            return None
+        if not is_file(self.replay):
+            return f"replay file not found: {self.replay}"
+        return replay_head_problem(self.replay)
 
     @property
     def kind(self) -> Literal["port", "replay", "simulate"]:
@@ -80,7 +93,25 @@ class DeviceSettings(SourceSettings):
             what = f"got {' and '.join(given)}" if given else "got none"
             msg = f"device {self.id!r}: give exactly one of port, replay, simulate ({what})"
             raise ValueError(msg)
-        if self._replay_missing():
-            msg = f"device {self.id!r}: replay file not found: {self.replay}"
+        problem = self._replay_problem() or self._once_problem()
+        if problem:
+            msg = f"device {self.id!r}: {problem}"
             raise ValueError(msg)
         return self
+
+
+def replay_head_problem(path: Path) -> str | None:
+    """Why ``path`` is not a session file to replay, from its first bytes: empty, not a
+    session, cut before its header (one line naming the file); None when its head is one."""
+    from scotti.firmware_protocol.errors import SessionError
+    from scotti.firmware_protocol.session import SessionReader
+
+    try:
+        if path.stat().st_size == 0:
+            return f"replay: {path} is empty (0 bytes), not a session file"
+        SessionReader(path).close()
+    except SessionError as exc:
+        return f"replay: {exc}"
+    except OSError as exc:
+        return f"replay: cannot read {path}: {exc.strerror}"
+    return None

@@ -16,17 +16,21 @@ import asyncio
 import contextlib
 import errno
 import logging
+import threading
 import time
 from collections.abc import AsyncGenerator, AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final, Literal, Protocol, TypeAlias
+from typing import TYPE_CHECKING, Final, Literal, Protocol, TypeAlias
 
 import serial
 import serial_asyncio_fast
 from scotti.daemon.errors import DaemonError
 from scotti.daemon.speed import Speed
 from scotti.daemon.waiting import Backoff
+
+if TYPE_CHECKING:
+    from scotti.firmware_protocol.session import Session
 
 log = logging.getLogger(__name__)
 
@@ -88,12 +92,16 @@ class SerialSource:
         baudrate: int = 921_600,  # ignored by USB CDC receivers, needed by UART bridges
         stall_s: float = 0.5,
         backoff: Backoff | None = None,
+        played: threading.Event | None = None,
     ) -> None:
         self.port = port
         self.name = f"serial {port}"
         self.baudrate = baudrate
         self.stall_s = stall_s
         self.backoff = backoff if backoff is not None else Backoff()
+        # Set by a board that has sent everything it will (the simulated board played
+        # once): the stream then ends at the first stall, which is the end, not a fault.
+        self.played = played
 
     def __aiter__(self) -> AsyncIterator[SourceItem]:
         return self.stream()
@@ -120,6 +128,10 @@ class SerialSource:
                 ended: str | None = None
                 while ended is None:
                     chunk, ended = await self._read(reader)
+                    if chunk is None and self.played is not None and self.played.is_set():
+                        log.info("receiver: %s: the board has played everything", self.port)
+                        yield SourceEvent("disconnected", "end of scene")
+                        return
                     if chunk is not None:
                         reported = None  # bytes flowed: the next failure is a new outage
                         if self.backoff.attempt:
@@ -171,12 +183,45 @@ async def _close(writer: asyncio.StreamWriter) -> None:
             await writer.wait_closed()
 
 
+def load_replay(path: Path) -> Session:
+    """Every whole record of a session file to replay; ``SourceError`` (one line) when
+    there is nothing to replay.
+
+    A file cut short inside its last record (a recorder killed, a disk full) is
+    replayed up to its last whole record, with one WARNING saying so: its records
+    are whole and what they hold is what was received. Records that cannot be
+    read are skipped, also with one WARNING.
+    """
+    from scotti.firmware_protocol.errors import SessionError
+    from scotti.firmware_protocol.session import read_session
+
+    try:
+        session = read_session(path)
+    except SessionError as exc:
+        raise SourceError(f"replay: {exc}") from None
+    if not session.packets:
+        cut = ", cut short" if session.truncated else ""
+        msg = f"replay: {path} holds no packet records{cut}: nothing to replay"
+        raise SourceError(msg)
+    if session.truncated:
+        log.warning(
+            "replay: %s ends inside a record (cut short): replaying its %d whole packet records",
+            path,
+            len(session.packets),
+        )
+    if session.bad_records:
+        log.warning("replay: %s: %d records cannot be read, skipped", path, session.bad_records)
+    return session
+
+
 class ReplaySource:
     """A session file's packet records fed back at ``speed`` (1 = as recorded, or max).
 
     Not live: the pipeline may make it wait rather than drop frames, so a replay
     is deterministic (the same file gives the same predictions). The chunks carry
     the host time at which they are handed on, so latencies stay meaningful.
+    The file is read when the source is made: one that holds nothing to replay
+    stops the daemon at start (``SourceError``), like any other bad setting.
     """
 
     live = False
@@ -185,20 +230,14 @@ class ReplaySource:
         self.path = Path(path)
         self.speed = speed
         self.name = f"replay {self.path.name}"
+        self.session = load_replay(self.path)
 
     def __aiter__(self) -> AsyncIterator[SourceItem]:
         return self.stream()
 
     async def stream(self) -> AsyncGenerator[SourceItem, None]:
-        from scotti.firmware_protocol.errors import SessionError
-        from scotti.firmware_protocol.session import read_session
-
-        try:
-            session = await asyncio.to_thread(read_session, self.path)
-        except SessionError as exc:
-            raise SourceError(str(exc)) from None
         yield SourceEvent("connected", f"replaying {self.path.name}")
-        packets = session.packets
+        packets = self.session.packets
         base_ns = time.monotonic_ns()
         t0 = packets[0].t_ns if packets else 0
         for i, record in enumerate(packets):

@@ -57,7 +57,9 @@ def render_scene_file(scene_path: Path, session_path: Path) -> None:
 
 
 class SimulatedSource:
-    """A scene, rendered once, played in a loop by a board emulator on a pty."""
+    """A scene, rendered once, played by a board emulator on a pty: in a loop (its
+    sequence numbers and clock going on across loops, as one long session), or once
+    (``loop=False``: the stream ends once the board has played it and it was read)."""
 
     live = True
 
@@ -91,14 +93,21 @@ class SimulatedSource:
             session = Path(tmp) / "scene.scotti"
             yield SourceEvent("disconnected", f"rendering scene {scene_path.stem}")
             await asyncio.to_thread(render_scene_file, scene_path, session)
-            emulator = BoardEmulator.from_session(
-                session, Path(tmp) / "board", speed=self.speed, loop=self.loop
+            emulator = await asyncio.to_thread(  # reads the session (and a loop's steps)
+                BoardEmulator.from_session,
+                session,
+                Path(tmp) / "board",
+                speed=self.speed,
+                loop=self.loop,
             )
             emulator.start()
             self.emulator = emulator
             try:
                 serial = SerialSource(
-                    str(emulator.link), stall_s=self.stall_s, backoff=self.backoff
+                    str(emulator.link),
+                    stall_s=self.stall_s,
+                    backoff=self.backoff,
+                    played=None if self.loop else emulator.finished,
                 )
                 async with contextlib.aclosing(serial.stream()) as items:
                     async for item in items:

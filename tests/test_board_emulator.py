@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import signal
 import subprocess
@@ -203,3 +204,34 @@ def test_cli_reports_a_missing_session_in_one_line(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert len(result.stderr.strip().splitlines()) == 1
     assert "nope.scotti" in result.stderr
+
+
+@pytest.mark.parametrize("continue_numbers", [True, False])
+def test_a_loop_goes_on_with_the_boards_numbers_or_starts_them_over(
+    board_factory: Factory, tmp_path: Path, continue_numbers: bool
+) -> None:
+    frames = 80  # 5 s: a jump back over all of it is a restart to the assembler (>= 64)
+    session = write_synthetic_session(
+        tmp_path / "loop.scotti", frames=frames, seq_start=65_500, garbage_every=7, labels=False
+    )
+    board = board_factory(session, speed="max", loop=True, continue_numbers=continue_numbers)
+    with serial.Serial(str(board.link), timeout=0.2) as port:
+        data = read_exactly(port, 2 * len(session.data) + len(session.data) // 2)
+    assert wait_for(lambda: board.stats.loops_completed >= 2)
+    items = StreamDecoder().feed(data)
+    blocks = [p for p in items if isinstance(p, FrameRows) and p.foot == Foot.LEFT]
+    seqs = [b.seq for b in blocks if b.row_start == 0]  # one per frame
+    clocks = [b.board_clock_us for b in blocks if b.row_start == 0]
+    assert len(seqs) > 2 * frames
+    steps = {(b - a) % 65536 for a, b in itertools.pairwise(seqs)}
+    ticks = {(b - a) % (1 << 32) for a, b in itertools.pairwise(clocks)}
+    if continue_numbers:
+        assert steps == {1}  # through the wrap at 65535 and across both loop boundaries
+        assert ticks == {62_500}  # the board clock too, one frame at 16 Hz
+        assert seqs[frames] == (65_500 + frames) % 65536
+    else:
+        assert steps == {1, (1 - frames) % 65536}  # back to the first frame at each loop
+    # The line noise between packets is sent as it is: it still fails to decode, in
+    # every loop (two whole ones read at least).
+    errors = [e for e in items if not isinstance(e, FrameRows)]
+    assert len(errors) >= 2 * (frames // 7)

@@ -9,6 +9,8 @@ from pydantic import BaseModel
 from scotti.daemon.settings import ConfigError, load_settings, sanitise_device_id
 from scotti.daemon.speed import parse_speed
 
+from tests.support.sessions import write_synthetic_session
+
 PORT = {"source": {"port": "/dev/ttyACM0"}}
 
 
@@ -57,8 +59,7 @@ def test_precedence_cli_over_env_over_file(tmp_path: Path, monkeypatch: pytest.M
 
 
 def test_source_on_cli_replaces_the_file_source(tmp_path: Path) -> None:
-    session = tmp_path / "s.scotti"
-    session.write_bytes(b"")
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=1).path
     cfg = write(tmp_path, '[source]\nport = "/dev/file"\n')
     s = load_settings({"source": {"replay": session, "speed": parse_speed("max")}}, cfg)
     assert s.source.kind == "replay"
@@ -240,8 +241,7 @@ DEVICES = '[[devices]]\nid = "lab1"\nport = "/dev/serial/by-id/usb-A"\n[[devices
 
 
 def test_a_devices_table_gives_one_device_each_with_its_own_topics(tmp_path: Path) -> None:
-    session = tmp_path / "s.scotti"
-    session.write_bytes(b"")
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=1).path
     cfg = write(tmp_path, DEVICES + f'replay = "{session}"\nspeed = "max"\n')
     s = load_settings({}, cfg)
     assert s.source is None

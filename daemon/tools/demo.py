@@ -14,22 +14,18 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
-import logging
 import os
 import signal
 import subprocess
 import sys
 import tempfile
-from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any, Literal
 
 from scotti.daemon.errors import DaemonError
 from scotti.daemon.mqtt_settings import MqttSettings
 from scotti.daemon.settings import EX_CONFIG, ConfigError, default_model_path
 from scotti.daemon.sources_sim import resolve_scene
-from scotti.daemon.tools.local_broker import Mosquitto, find_mosquitto, free_port
+from scotti.daemon.tools.local_broker import running_broker
 from scotti.daemon.tools.viewer import ViewState, run_viewer
 from scotti.daemon.waiting import wait_event
 
@@ -57,35 +53,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-@contextlib.asynccontextmanager
-async def local_broker(kind: str) -> AsyncIterator[tuple[str, Literal["5", "3.1.1"]]]:
-    """A broker on 127.0.0.1:<free port>; yields (URL, MQTT protocol it speaks)."""
-    if kind == "mosquitto" or (kind == "auto" and find_mosquitto()):
-        broker = Mosquitto()
-        await asyncio.to_thread(broker.start)
-        try:
-            yield broker.url, "5"
-        finally:
-            broker.close()
-        return
-    from amqtt.broker import Broker  # the [demo] extra; speaks MQTT 3.1.1 only
-
-    quiet = logging.getLogger("amqtt")  # its chatter would scribble over the view
-    quiet.addHandler(logging.NullHandler())
-    quiet.propagate = False
-    port = free_port()
-    config: dict[str, Any] = {
-        "listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{port}"}},
-        "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
-    }
-    embedded = Broker(config)
-    await embedded.start()
-    try:
-        yield f"mqtt://127.0.0.1:{port}", "3.1.1"
-    finally:
-        await embedded.shutdown()
-
-
 async def run_demo(args: argparse.Namespace, model: Path) -> int:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
@@ -96,7 +63,7 @@ async def run_demo(args: argparse.Namespace, model: Path) -> int:
     if args.duration > 0:
         timer = asyncio.create_task(_stop_after_frames(state, args.duration, stop))
     log_path = Path(tempfile.gettempdir()) / f"scotti-demo-daemon-{os.getpid()}.log"
-    async with local_broker(args.broker) as (url, protocol):
+    async with running_broker(args.broker) as (url, protocol):
         cmd = [sys.executable, "-m", "scotti.daemon.main", "--model", str(model), "--broker", url]
         cmd += ["--simulate", args.scene, "--speed", args.speed]
         cmd += ["--device-id", DEVICE, "--pressure"]

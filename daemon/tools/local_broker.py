@@ -1,22 +1,40 @@
-"""A throwaway mosquitto on 127.0.0.1:<free port>, for the demo, the bench and tests.
+"""A local MQTT broker: for trying the daemon, and the demo's, the bench's and the tests'.
 
-Started from a generated config in a temporary folder; can be stopped and
+From the command line, a broker in the foreground until Ctrl-C, for a first
+try of ``scotti-daemon`` on a machine without one (a robot's host usually has
+its own; on Debian ``apt install mosquitto`` starts one on port 1883)::
+
+    python -m scotti.daemon.tools.local_broker [--port 1883] [--host 127.0.0.1]
+
+It is mosquitto when installed, else the embedded amqtt of the ``[demo]``
+extra (which speaks MQTT 3.1.1 only: the daemon then needs
+``SCOTTI_MQTT_PROTOCOL=3.1.1``; the tool says so).
+
+In code, ``Mosquitto`` is a throwaway mosquitto on 127.0.0.1:<free port>,
+started from a generated config in a temporary folder; it can be stopped and
 started again on the same port (the broker-outage tests need that). With
 ``tls`` (CA, certificate and key files) it also listens with TLS on
 ``tls_port``; the plain listener stays, for test subscribers.
+``running_broker`` is either broker as an async context manager (the demo's).
 """
 
 from __future__ import annotations
 
+import argparse
+import asyncio
+import contextlib
+import logging
 import shutil
+import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import AsyncIterator, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Self
+from typing import Any, Literal, Self
 
 from scotti.daemon.errors import DaemonError
 
@@ -68,13 +86,14 @@ class Mosquitto:
         password: tuple[str, str] | None = None,
         tls: tuple[Path, Path, Path] | None = None,
         extra_conf: Sequence[str] = (),
+        host: str = "127.0.0.1",
     ) -> None:
         exe = find_mosquitto()
         if exe is None:
             msg = "mosquitto not found on PATH or in /usr/sbin"
             raise BrokerError(msg)
         self.exe = exe
-        self.host = "127.0.0.1"
+        self.host = host
         self.credentials = password  # (user, password) clients must give, or None
         self.port = port or free_port()
         self.tls = tls  # (CA file, server certificate, server key)
@@ -186,3 +205,112 @@ class Mosquitto:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+BrokerKind = Literal["auto", "mosquitto", "amqtt"]
+
+
+@contextlib.asynccontextmanager
+async def running_broker(
+    kind: BrokerKind = "auto", port: int | None = None, host: str = "127.0.0.1"
+) -> AsyncIterator[tuple[str, Literal["5", "3.1.1"]]]:
+    """A broker on ``host``:``port`` (a free one when None) while the block runs;
+    yields (its URL, the MQTT protocol it speaks). ``auto``: mosquitto when installed,
+    else the embedded amqtt."""
+    if kind == "mosquitto" or (kind == "auto" and find_mosquitto()):
+        broker = Mosquitto(port=port, host=host)
+        try:
+            await asyncio.to_thread(broker.start)
+            yield broker.url, "5"
+        finally:
+            broker.close()
+        return
+    try:
+        from amqtt.broker import Broker  # the [demo] extra; speaks MQTT 3.1.1 only
+    except ImportError:
+        msg = "no broker: install mosquitto (apt install mosquitto) or pip install 'scotti[demo]'"
+        raise BrokerError(msg) from None
+
+    quiet = logging.getLogger("amqtt")  # its chatter would scribble over the demo's view
+    quiet.addHandler(logging.NullHandler())
+    quiet.propagate = False
+    port = port or free_port()
+    config: dict[str, Any] = {
+        "listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}"}},
+        "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
+    }
+    embedded = Broker(config)
+    try:
+        await embedded.start()
+    except Exception as exc:  # amqtt wraps a busy port in its own error types
+        msg = f"amqtt cannot listen on {host}:{port}: {exc}"
+        raise BrokerError(msg) from None
+    try:
+        yield f"mqtt://{host}:{port}", "3.1.1"
+    finally:
+        await embedded.shutdown()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m scotti.daemon.tools.local_broker",
+        description="An MQTT broker in the foreground until Ctrl-C, for trying scotti-daemon "
+        "where none runs: mosquitto when installed, else the embedded amqtt ([demo] extra).",
+    )
+    p.add_argument("--port", type=int, default=1883, help="port to listen on (default 1883)")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: every "
+        "interface, without authentication)",
+    )
+    p.add_argument(
+        "--broker",
+        choices=("auto", "mosquitto", "amqtt"),
+        default="auto",
+        help="auto (default): mosquitto if installed, else the embedded amqtt",
+    )
+    return p
+
+
+async def _serve(kind: BrokerKind, port: int, host: str) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    async with running_broker(kind, port, host) as (url, protocol):
+        which = "mosquitto" if protocol == "5" else "amqtt, MQTT 3.1.1 only"
+        print(f"local_broker: listening on {url} ({which}); Ctrl-C stops it", flush=True)
+        hint = " SCOTTI_MQTT_PROTOCOL=3.1.1" if protocol == "3.1.1" else ""
+        print(f"  try:{hint} scotti-daemon --simulate demo --broker {url}", flush=True)
+        await stop.wait()
+
+
+def _in_use(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError:
+            return True
+    return False
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if _in_use(args.host, args.port):
+        print(
+            f"local_broker: {args.host}:{args.port} is in use: a broker already running there? "
+            "scotti-daemon can use that one as it is",
+            file=sys.stderr,
+        )
+        return 1
+    try:
+        asyncio.run(_serve(args.broker, args.port, args.host))
+    except BrokerError as exc:  # no broker installed, the port in use
+        print(f"local_broker: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
