@@ -15,8 +15,16 @@ import pytest
 from scotti.daemon.messages import downsample
 from scotti.daemon.schemas import Pressure
 from scotti.daemon.tools.local_broker import Mosquitto
-from scotti.daemon.tools.viewer import ViewState, decode_payload, pressure_grid, render
+from scotti.daemon.tools.viewer import (
+    ViewState,
+    decode_payload,
+    plain_line,
+    pressure_grid,
+    render,
+    visible,
+)
 from scotti.firmware_protocol.packets import Foot
+from scotti.models.contract import ACTIONS
 
 from tests.support.broker import collect, start_daemon
 from tests.support.sessions import synthetic_counts, write_synthetic_session
@@ -56,11 +64,12 @@ def test_render_shows_feet_action_progress_and_latency() -> None:
     assert "█" * 15 + "░" * 15 in screen  # progress 0.5 of a 30-wide bar
     assert "rep 3" in screen
     assert "3.2 ms" in screen or "3.3 ms" in screen
-    # Left foot all hot, right all cold, and each end once more in the colour key.
-    assert screen.count("\x1b[48;5;196m") == 16 * 11 + 1
-    assert screen.count("\x1b[48;5;16m") == 16 * 11 + 1
+    # Left foot all hot, right all cold: one colour (upper and lower half) per map line,
+    # sent once at its start; and each end of the ramp once in the colour key.
+    assert screen.count("\x1b[38;5;196;48;5;196m" + "▀" * 22) == 16
+    assert screen.count("\x1b[38;5;16;48;5;16m" + "▀" * 22) == 16
     assert "0 \x1b[48;5;16m" in screen
-    assert "4095 counts" in screen
+    assert "\x1b[48;5;196m \x1b[0m 4095 counts" in screen
 
 
 def test_render_shows_standing_without_a_progress_bar() -> None:
@@ -81,6 +90,44 @@ def test_render_shows_standing_without_a_progress_bar() -> None:
     assert "█" not in progress_line
     assert "░" not in progress_line
     assert "rep" not in progress_line.replace("repetition", "")
+
+
+def busy_state(rows: int, cols: int) -> ViewState:
+    """Everything at once: long reasons, all nine actions, a full pressure frame."""
+    state = ViewState()
+    reasons = ["right insole silent", "unfamiliar: input unlike the training data", "x" * 90]
+    state.update("status", {"state": "degraded", "reasons": reasons}, "scotti/a-long-id/status")
+    state.update("pose", {"seq": 123456, "latency_ms": 1234.5}, "scotti/a-long-id/pose")
+    probabilities = {a: 1 / len(ACTIONS) for a in ACTIONS}
+    action = {"action": "backward_walking", "confidence": 0.99, "probabilities": probabilities}
+    state.update("action", action, "scotti/a-long-id/action")
+    progress = {"action": "in_place_walking", "progress": 0.99, "repetition": 1234}
+    state.update("progress", progress, "scotti/a-long-id/progress")
+    state.update("health", {"end_to_end": {"p99_ms": 9999.9}, "dropped": 10**9}, "s/d/health")
+    grid = grid_bytes(np.arange(rows * cols).reshape(rows, cols) % 4096)
+    pressure = {"rows": rows, "cols": cols, "left": grid, "right": grid}
+    state.update("pressure", pressure, "scotti/a-long-id/pressure")
+    return state
+
+
+@pytest.mark.parametrize(("rows", "cols"), [(32, 22), (16, 11), (8, 6), (4, 3)])
+def test_the_view_fits_80_columns_by_24_lines(rows: int, cols: int) -> None:
+    for state in (busy_state(rows, cols), ViewState()):
+        lines = render(state).split("\n")
+        assert len(lines) <= 24
+        assert max(len(visible(line)) for line in lines) <= 80
+        maps = [line for line in lines if "▀" in line]
+        assert len(maps) in (0, 16)
+
+
+def test_the_plain_line_has_no_escape_codes() -> None:
+    line = plain_line(busy_state(16, 11))
+    assert "\x1b" not in line
+    assert "\n" not in line
+    assert "status degraded (right insole silent" in line
+    assert "seq 123456" in line
+    assert "action backward_walking 0.99" in line
+    assert "progress 0.99 rep 1234" in line
 
 
 def test_render_before_anything_arrived() -> None:
@@ -165,26 +212,71 @@ def test_pressure_topic_carries_the_downsampled_frames(
     assert pressure_grid(msgpack.unpackb(msgs[0].payload), "right") is not None
 
 
+def demo_command(model: Path, duration: float) -> list[str]:
+    demo = [sys.executable, "-m", "scotti.daemon.tools.demo", "--duration", str(duration)]
+    return [*demo, "--speed", "2", "--model", str(model)]
+
+
+def clean_env() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
+
+
 @pytest.mark.mosquitto
 @pytest.mark.slow
-def test_demo_runs_for_a_duration_and_ends_cleanly(tiny_model_path: Path) -> None:
-    demo = [sys.executable, "-m", "scotti.daemon.tools.demo", "--duration", "8", "--speed", "2"]
+def test_demo_on_a_terminal_draws_80_by_24_and_ends_cleanly(tiny_model_path: Path) -> None:
+    import pty
+
+    leader, follower = pty.openpty()
+    with subprocess.Popen(
+        demo_command(tiny_model_path, 6),
+        stdin=subprocess.DEVNULL,
+        stdout=follower,
+        stderr=subprocess.PIPE,
+        env=clean_env(),
+    ) as proc:
+        os.close(follower)
+        chunks = []
+        while True:
+            try:
+                data = os.read(leader, 65536)
+            except OSError:  # EIO: the demo closed the terminal
+                break
+            if not data:
+                break
+            chunks.append(data)
+        os.close(leader)
+        assert proc.wait(90) == 0, proc.stderr.read() if proc.stderr else ""
+    out = b"".join(chunks).decode(errors="replace").replace("\r\n", "\n")
+    assert "\x1b[38;5;" in out  # heat maps were drawn
+    assert out.count("\x1b[?1049h") == out.count("\x1b[?1049l") == 1  # screen back
+    screen, summary = out.split("\x1b[?1049h", 1)[1].rsplit("\x1b[?1049l", 1)
+    frames = [f for f in screen.split("\x1b[H")[1:] if "progress" in f]
+    assert len(frames) > 10
+    for frame in frames:
+        lines = visible(frame).split("\n")
+        assert len(lines) <= 24
+        assert max(len(line) for line in lines) <= 80
+    assert summary.strip().startswith("demo: ")
+    assert int(summary.split()[1]) > 20  # frames shown
+    assert "daemon exit 0" in summary
+
+
+@pytest.mark.mosquitto
+@pytest.mark.slow
+def test_demo_without_a_terminal_prints_plain_lines(tiny_model_path: Path) -> None:
     out = subprocess.run(
-        [*demo, "--model", str(tiny_model_path)],
+        demo_command(tiny_model_path, 3),
         capture_output=True,
         text=True,
         timeout=90,
-        env={k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")},
+        env=clean_env(),
     )
     assert out.returncode == 0, out.stderr + out.stdout[-2000:]
-    assert "\x1b[48;5;" in out.stdout  # heat maps were drawn
-    assert "progress" in out.stdout
-    assert out.stdout.count("\x1b[?1049h") == out.stdout.count("\x1b[?1049l") == 1  # screen back
-    summary = out.stdout.rsplit("\x1b[?1049l", 1)[1].strip()
-    assert summary.startswith("demo: ")
-    shown = int(summary.split()[1])
-    assert shown > 20
-    assert "daemon exit 0" in summary
+    assert "\x1b" not in out.stdout  # no escape codes in a pipe
+    lines = out.stdout.strip().splitlines()
+    assert any(" action " in line and " latency " in line for line in lines), lines
+    assert lines[-1].startswith("demo: ")
+    assert "daemon exit 0" in lines[-1]
 
 
 def test_demo_with_an_unknown_scene_is_one_line(
