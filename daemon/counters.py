@@ -72,8 +72,9 @@ class Counters:
     disconnects: int = 0
     queue_depth: int = 0  # paired frames waiting for the inference worker, now
     queue_depth_max: int = 0
+    # The model step's time. The end-to-end latency (last byte in -> published) is the
+    # publisher's to measure: health.end_to_end (docs/mqtt.md).
     inference_ms: LatencyRing = field(default_factory=LatencyRing)
-    end_to_end_ms: LatencyRing = field(default_factory=LatencyRing)  # last byte -> prediction
 
     def observe_queue(self, depth: int) -> None:
         self.queue_depth = depth
@@ -105,8 +106,5 @@ class Counters:
             "disconnects": self.disconnects,
             "queue_depth": self.queue_depth,
             "queue_depth_max": self.queue_depth_max,
-            "latency_ms": {
-                "inference": self.inference_ms.summary(),
-                "end_to_end": self.end_to_end_ms.summary(),
-            },
+            "latency_ms": {"inference": self.inference_ms.summary()},
         }

@@ -295,8 +295,6 @@ class Pipeline:
             withheld=held_back,
         )
         self.counters.predictions += 1
-        if last_byte:
-            self.counters.end_to_end_ms.add((now_mono - last_byte) / 1e6)
         self._call(self._on_prediction, prediction)
 
     # --- state --------------------------------------------------------------------
