@@ -309,3 +309,48 @@ def test_demo_duration_counts_from_the_first_frame_shown() -> None:
     before, after = asyncio.run(scenario())
     assert before >= 0.5
     assert after >= 0.3
+
+
+def test_scripts_demo_runs_the_setup_only_when_something_changed(tmp_path: Path) -> None:
+    """scripts/demo itself, in a copy of the repository whose scripts/setup only says it
+    ran and makes a .venv whose python is this one."""
+    import shutil
+
+    repo = Path(__file__).parents[1]
+    copy = tmp_path / "repo"
+    (copy / "scripts").mkdir(parents=True)
+    shutil.copy2(repo / "scripts" / "demo", copy / "scripts" / "demo")
+    shutil.copy2(repo / "pyproject.toml", copy / "pyproject.toml")
+    runs = tmp_path / "setup-runs"
+    setup = copy / "scripts" / "setup"
+    setup.write_text(
+        "#!/usr/bin/env bash\nset -e\n"
+        f'echo "$SCOTTI_EXTRAS" >> {runs}\n'
+        "mkdir -p .venv/bin .venv/lib/python3.11/site-packages\n"
+        f"printf '#!/bin/sh\\nexec {sys.executable} \"$@\"\\n' > .venv/bin/python\n"
+        "chmod +x .venv/bin/python\n"
+    )
+    setup.chmod(0o755)
+
+    def demo_help(**env: str) -> list[str]:
+        out = subprocess.run(
+            [str(copy / "scripts" / "demo"), "--help"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={**clean_env(), **env},
+            check=True,
+        )
+        assert "usage: scripts/demo" in out.stdout
+        return runs.read_text().split()
+
+    assert demo_help() == ["demo"]  # the first start sets up
+    assert demo_help() == ["demo"]  # nothing changed: no setup
+    (copy / "pyproject.toml").write_text((copy / "pyproject.toml").read_text() + "\n# x\n")
+    assert demo_help() == ["demo", "demo"]  # pyproject.toml changed
+    assert demo_help(SCOTTI_EXTRAS="demo,outputs") == ["demo", "demo", "demo,outputs"]
+    assert demo_help(SCOTTI_EXTRAS="demo,outputs") == ["demo", "demo", "demo,outputs"]
+    time.sleep(0.05)
+    (copy / ".venv" / "lib" / "python3.11" / "site-packages" / "new.pth").write_text("")
+    assert demo_help() == ["demo", "demo", "demo,outputs", "demo"]  # the venv changed
+    assert demo_help() == ["demo", "demo", "demo,outputs", "demo"]
