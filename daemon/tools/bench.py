@@ -7,7 +7,8 @@ a ``[[devices]]`` config. A subscriber in this process takes every pose and
 measures what a consumer sees: receipt time minus the frame's last byte
 (``predicted_for_mono_ns`` - 1/16 s, the same host clock). The daemon's own
 ``latency_ms`` (last byte -> publish) comes from the payload. The daemon's
-CPU (100 % = one core) and peak RSS are sampled with psutil. Each N runs with
+CPU (100 % = one core) and peak RSS are sampled with psutil (the ``[bench]``
+extra: ``pip install 'scotti[bench]'``). Each N runs with
 the batched engine (``inference.batch = true``) and, with ``--modes``, one
 model call per pair (``false``), and with ``--processes`` over several worker
 processes (daemon/workers.py). A measurement, never a test.
@@ -34,7 +35,6 @@ from pathlib import Path
 
 import aiomqtt
 import numpy as np
-import psutil
 from scotti.daemon.board_emulator import BoardEmulator
 from scotti.daemon.counters import latency_summary
 from scotti.daemon.settings import ConfigError, default_model_path
@@ -42,6 +42,13 @@ from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.framing import encode_packet
 from scotti.firmware_protocol.packets import Foot, FrameRows
 from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, MAX_COUNT, SAMPLE_BITS
+
+try:
+    import psutil
+except ImportError:  # the [bench] extra; main() says so
+    _NO_PSUTIL = True
+else:
+    _NO_PSUTIL = False
 
 PERIOD_NS = round(1e9 / FRAME_RATE_HZ)
 ROWS_PER_PACKET = 8  # as the radio sends them: 4 packets per foot frame
@@ -395,6 +402,9 @@ def main(argv: list[str] | None = None) -> int:
         help="instead: time the model's step alone at these batch sizes (no daemon, no broker)",
     )  # fmt: skip
     args = p.parse_args(argv)
+    if _NO_PSUTIL and not args.step_batches:
+        print("bench: needs psutil: pip install 'scotti[bench]'", file=sys.stderr)
+        return 1
     if (
         min(args.pairs) < 1
         or min(args.processes) < 1
