@@ -21,6 +21,14 @@ ROOT = Path(__file__).parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 FOLDERS = sorted(PYPROJECT["tool"]["setuptools"]["package-dir"].values())
 DEV_ONLY = "dev"
+# Where an optional package is not installed here, its distribution by name
+# (the others are named as they are imported: amqtt, cobs, h5py, pylsl, ...).
+DISTRIBUTION_OF = {"foxglove": "foxglove-sdk"}
+
+
+def distributions(module: str) -> set[str]:
+    found = metadata.packages_distributions().get(module)
+    return {_name(d) for d in found or [DISTRIBUTION_OF.get(module, module)]}
 
 
 def _name(requirement: str) -> str:
@@ -72,11 +80,10 @@ def shipped_imports() -> dict[str, set[str]]:
 
 
 def test_every_third_party_import_in_shipped_code_is_declared_for_users() -> None:
-    providers = metadata.packages_distributions()
     wanted = declared()
     missing = []
     for module, files in sorted(shipped_imports().items()):
-        dists = {_name(d) for d in providers.get(module, [module])}
+        dists = distributions(module)
         where = set().union(*(wanted.get(d, set()) for d in dists))
         if not where - {DEV_ONLY}:
             shown = "only in [dev]" if where else "nowhere"
@@ -89,5 +96,4 @@ def test_every_third_party_import_in_shipped_code_is_declared_for_users() -> Non
     [("psutil", "bench"), ("amqtt", "demo"), ("h5py", "import"), ("foxglove", "outputs")],
 )
 def test_a_tools_library_is_in_the_extra_named_for_it(module: str, extra: str) -> None:
-    dists = {_name(d) for d in metadata.packages_distributions().get(module, [module])}
-    assert any(extra in declared().get(d, set()) for d in dists)
+    assert any(extra in declared().get(d, set()) for d in distributions(module))
