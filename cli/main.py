@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 from collections.abc import Sequence
 from typing import Protocol, cast
@@ -45,6 +46,20 @@ class VerbModule(Protocol):
     def run(self, args: argparse.Namespace) -> int: ...
 
 
+_LITERAL = re.compile(r"``(.+?)``", re.S)
+
+
+class _Parser(argparse.ArgumentParser):
+    """--help from the rooms' docstrings, their reST literals (``x``) shown as 'x'. The
+    verbs' own subparsers are made of this class too (argparse's default)."""
+
+    def format_help(self) -> str:
+        return _LITERAL.sub(r"'\1'", super().format_help())
+
+    def format_usage(self) -> str:
+        return _LITERAL.sub(r"'\1'", super().format_usage())
+
+
 class UserError(Exception):
     """A mistake of the user's: printed as one line, exit status 2."""
 
@@ -64,7 +79,7 @@ def _load(verb: str) -> VerbModule | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="scotti", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="scotti", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
     for verb, (_, help_text) in VERBS.items():
         sub.add_parser(verb, help=help_text, add_help=False)
@@ -83,7 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if module is None:
             print(f"scotti: '{verb}' is not available in this build", file=sys.stderr)
             return 2
-        verb_parser = argparse.ArgumentParser(prog=f"scotti {verb}", description=description)
+        verb_parser = _Parser(prog=f"scotti {verb}", description=description)
         module.add_arguments(verb_parser)
         args = verb_parser.parse_args(argv[1:])
         if verb == "session":

@@ -36,7 +36,7 @@ _DECODER_ERRORS = ("bad_cobs", "bad_crc", "too_long", "bad_version", "unknown_ty
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     info = sub.add_parser("info", help="summarise a session file")
-    info.add_argument("file", metavar="FILE", help="a session file (.scot)")
+    info.add_argument("file", metavar="FILE", help="a session file (.scotti)")
     info.add_argument("--json", action="store_true", help="print one JSON object instead")
     # Listed for --help only: `scotti session export` runs the model, so the command line
     # (cli/main.py) hands it to scotti.daemon.outputs.export_cli before it reaches here.

@@ -34,6 +34,7 @@ from scotti.daemon.settings import (
     load_settings,
 )
 from scotti.daemon.sources import Source, SourceEvent, SourceItem
+from scotti.daemon.tools import plain_help
 from scotti.daemon.tools.generated import GeneratedBoard
 from scotti.daemon.tools.local_broker import BrokerError, Mosquitto
 from scotti.models.contract import FRAME_RATE_HZ
@@ -164,7 +165,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.day_soak", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m scotti.daemon.tools.day_soak", description=plain_help(__doc__)
+    )
     p.add_argument("--frames", type=int, default=DAY_FRAMES, help="frame pairs (default: a day)")
     p.add_argument("--every", type=int, default=100_000, help="frames between RSS reports")
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")

@@ -43,6 +43,7 @@ from typing import Any, Final
 
 from scotti.daemon.board_emulator import BoardEmulator
 from scotti.daemon.settings import ConfigError, default_model_path
+from scotti.daemon.tools import plain_help
 from scotti.daemon.tools.fault_watch import Watcher
 from scotti.daemon.tools.generated import GeneratedBoard
 from scotti.daemon.tools.local_broker import BrokerError, Mosquitto
@@ -280,7 +281,9 @@ async def soak(plan: Plan) -> list[FaultResult]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.faults", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m scotti.daemon.tools.faults", description=plain_help(__doc__)
+    )
     p.add_argument("--unplugs", type=int, default=10)
     p.add_argument("--broker-restarts", type=int, default=10)
     p.add_argument("--silent-foot", type=int, default=10, help="silent-foot faults")

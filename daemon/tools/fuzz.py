@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from scotti.daemon.tools import fuzz_imports
+from scotti.daemon.tools import fuzz_imports, plain_help
 from scotti.daemon.tools import fuzz_inputs as inputs
 
 DEFAULT_INPUTS: Final = 1_000_000  # in all, shared equally by the targets
@@ -163,7 +163,9 @@ def print_table(outcomes: list[Outcome]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.fuzz", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m scotti.daemon.tools.fuzz", description=plain_help(__doc__)
+    )
     p.add_argument("--inputs", type=int, default=DEFAULT_INPUTS, help="inputs in all")
     p.add_argument("--targets", default=",".join(TARGETS), help="comma-separated")
     p.add_argument("--seed", type=int, default=0)
