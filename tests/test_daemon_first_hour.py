@@ -87,6 +87,9 @@ def test_without_a_broker_the_daemon_says_so_again_and_the_replay_waits(
     assert publish["broker_outages"] == 1
     assert publish["broker_unreachable_s"] >= 2.0
     assert "Connection refused" in publish["broker_last_error"]
+    # One end-to-end latency: health.end_to_end (the pipeline's own counters have none).
+    assert health.end_to_end.p50_ms is not None
+    assert set(health.pipeline["latency_ms"]) == {"inference"}
 
 
 @pytest.mark.mosquitto
@@ -344,3 +347,23 @@ def test_simulate_once_plays_the_scene_once_and_exits_0_after_the_last_predictio
     assert (last["state"], last["reasons"]) == ("offline", ["stopped"])
     assert "the board has played everything" in daemon.log
     assert "WARNING" not in daemon.log, daemon.log
+
+
+@pytest.mark.slow
+def test_without_a_broker_the_other_outputs_show_it_and_the_log_claims_no_status(
+    short_scene: Scene, tmp_path: Path, tiny_model_path: Path
+) -> None:
+    pytest.importorskip("foxglove")
+    pytest.importorskip("mcap")
+    from tests.support.outputs import read_mcap
+
+    out = tmp_path / "live.mcap"
+    nobody = Mosquitto()  # a free port, nothing listening
+    args = ["--simulate", str(short_scene.path), "--once", "--speed", "4"]
+    args += ["--model", str(tiny_model_path), "--broker", nobody.url, "--record-mcap", str(out)]
+    daemon = start_daemon(args, tmp_path / "d.log")
+    assert daemon.wait(90) == 0, daemon.log
+    assert not re.search(r"status (online|degraded|offline)", daemon.log)  # none acknowledged
+    messages, _, _ = read_mcap(out)
+    reasons = [r for _, status in messages["/status"] for r in status.get("reasons", [])]
+    assert any(r.startswith("broker unreachable (") and "refused" in r for r in reasons), reasons
