@@ -140,7 +140,10 @@ def _from_arrays(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]
 
 
 def _times(path: Path, arrays: dict[str, np.ndarray], key: str, unit: float) -> np.ndarray:
-    times = np.asarray(arrays[key], dtype=np.float64).reshape(-1) * unit
+    stored = np.asarray(arrays[key])
+    if stored.dtype.kind not in "fiu":
+        raise InputError(path, f"{key} holds {stored.dtype}, not numbers")
+    times = stored.astype(np.float64).reshape(-1) * unit
 
     def at(i: int, problem: str) -> InputError:
         return InputError(path, problem, column=f"{key}[{i}]")

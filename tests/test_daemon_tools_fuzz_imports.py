@@ -10,14 +10,6 @@ from scotti.daemon.tools import fuzz, fuzz_imports
 from scotti.daemon.tools.fuzz_imports import ImportCase, IsolatedCheck, Seeds, check_import
 
 INPUTS = 120  # per target: a few hundred in all, seeded; the long run is the command
-
-
-# Findings of these runs in code owned elsewhere, reported there: the runs below must find
-# nothing else, and the last test fails (strict xfail) once these are fixed.
-ELSEWHERE = {
-    "h5": ("ValueError at pressure.py",),  # a time array of text: ValueError, not InputError
-    "vendor": ("Error at xsensor.py",),  # a stray carriage return: csv.Error
-}
 HAS_REALDATA = fuzz_imports.REALDATA.is_dir()
 
 
@@ -29,18 +21,12 @@ def findings(name: str, tmp_path: Path) -> list[str]:
 
 @pytest.mark.parametrize("name", ["csv", "npz", "h5"])
 def test_a_short_seeded_run_of_a_table_format_finds_nothing(name: str, tmp_path: Path) -> None:
-    assert [f for f in findings(name, tmp_path) if not f.startswith(ELSEWHERE.get(name, ()))] == []
+    assert findings(name, tmp_path) == []
 
 
 @pytest.mark.skipif(not HAS_REALDATA, reason="no ../shared/realdata here")
 def test_a_short_seeded_run_of_the_vendor_readers_finds_nothing(tmp_path: Path) -> None:
-    assert [f for f in findings("vendor", tmp_path) if not f.startswith(ELSEWHERE["vendor"])] == []
-
-
-@pytest.mark.xfail(strict=True, reason="fixes due elsewhere: pressure.py, vendors/xsensor.py")
-@pytest.mark.skipif(not HAS_REALDATA, reason="no ../shared/realdata here")
-def test_the_findings_reported_elsewhere_are_fixed(tmp_path: Path) -> None:
-    assert [f for name in ELSEWHERE for f in findings(name, tmp_path / name)] == []
+    assert findings("vendor", tmp_path) == []
 
 
 def test_every_kind_of_input_is_drawn(tmp_path: Path) -> None:

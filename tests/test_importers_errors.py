@@ -113,6 +113,24 @@ def test_npz_grid_mismatch_names_the_array(
     assert "p.npz time[1]: time stamp earlier" in one_line(capsys)
 
 
+def test_a_time_array_of_text_is_not_numbers(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The fuzzer's HDF5 finding: text time stamps raised numpy's ValueError."""
+    import h5py
+
+    path = tmp_path / "p.h5"
+    frames = np.zeros((3, ROWS, COLS))
+    with h5py.File(path, "w") as f:
+        f["time"] = ["a", "b", "c"]
+        f["left"], f["right"] = frames, frames
+    assert run_import(tmp_path, "--pressure", str(path)) == 2
+    assert "p.h5: time holds object, not numbers" in one_line(capsys)
+    np.savez(tmp_path / "p.npz", time=np.array(["1", "2", "3"]), left=frames, right=frames)
+    assert run_import(tmp_path, "--pressure", str(tmp_path / "p.npz")) == 2
+    assert "p.npz: time holds <U1, not numbers" in one_line(capsys)
+
+
 def test_unknown_keypoint_set_names_the_config_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

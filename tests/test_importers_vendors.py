@@ -8,6 +8,7 @@ test_importers_realdata.py.
 from __future__ import annotations
 
 import gzip
+import re
 from datetime import datetime
 from pathlib import Path
 
@@ -406,7 +407,7 @@ def test_malformed_files_fail_on_one_line_with_their_place(
         path.write_text(text + "\n", encoding="utf-8")
         err = import_fails(path, tmp_path / "out.scotti", capsys)
         assert err.startswith("scotti import: ")
-        assert __import__("re").search(expected, err), (name, err)
+        assert re.search(expected, err), (name, err)
 
 
 def test_oversized_and_inflating_inputs_are_refused_without_reading_them(
@@ -437,3 +438,74 @@ def test_vendor_files_refuse_table_keys_and_a_wrong_format(
     assert "g.txt" in err
     assert "not a pedar export" in err
     import_ok(source, tmp_path / "o.scotti", "--format", "gaitpdb")
+
+
+def test_the_fuzzer_s_vendor_findings_stay_fixed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A stray carriage return in an XSENSOR line (csv.Error); values past float32's range
+    (overflow warnings when cast); an infinite Moticon step code (OverflowError); a 3 kB
+    insole size echoed whole: each one line naming its place."""
+    t = np.arange(20) / 100
+    huge = "1.7976931348623157e308"
+    xs = write_xsensor(tmp_path / "x.csv", datetime(2022, 1, 1), 0.013, {"LF": np.ones((2, 3, 2))})
+    x_lines = xs.read_text(encoding="utf-8").splitlines()
+    sensels = x_lines.index("SENSELS" + "," * 19)
+    load = next(i for i, x in enumerate(x_lines) if x.startswith("Est. Load"))
+    mot = write_moticon(tmp_path / "m.txt", t, {"left": np.ones((20, 16))}, steps={3: 11})
+    m_lines = mot.read_text(encoding="utf-8").splitlines()
+    row = m_lines[11].split("\t")
+    cases: dict[str, tuple[list[str], str]] = {
+        "cr.csv": (
+            [*x_lines[: sensels + 2], "1,\r1", *x_lines[sensels + 3 :]],
+            rf"cr\.csv line {sensels + 3}: not a CSV line \(new-line character seen",
+        ),
+        "big.csv": (
+            [*x_lines[: sensels + 2], f"{huge},1", *x_lines[sensels + 3 :]],
+            rf"big\.csv line {sensels + 3}, column 1: value 1\.79769e\+308 is past any sensor",
+        ),
+        "load.csv": (
+            [*x_lines[:load], f"Est. Load (N),{huge}", *x_lines[load + 1 :]],
+            rf"load\.csv line {load + 1}, column 2: value 1\.79769e\+308 is past",
+        ),
+        "big.txt": (
+            [*m_lines[:11], "\t".join([*row[:5], huge, *row[6:]]), *m_lines[12:]],
+            r"big\.txt line 12, column 6: value 1\.79769e\+308 is past any sensor",
+        ),
+        "force.txt": (
+            [*m_lines[:11], "\t".join([*row[:20], huge, *row[21:]]), *m_lines[12:]],
+            r"force\.txt line 12, column 21: value 1\.79769e\+308 is past any sensor",
+        ),
+        "step.txt": (
+            [*m_lines[:13], m_lines[13].replace("11.00", "inf"), *m_lines[14:]],
+            r"step\.txt line 14, column \d+: step code inf is not a code",
+        ),
+        "size.txt": (
+            [m.replace("# Size: 7", "# Size: " + "7" * 3000) for m in m_lines],
+            r"size\.txt: layout moticon-opengo-16 has no size '7{50,}\.\.\.' \(known",
+        ),
+    }
+    g = write_gaitpdb(tmp_path / "g.txt", t, np.ones((20, 8)), np.ones((20, 8))).read_text()
+    g_lines = g.splitlines()
+    cases["GaCo01_01.txt"] = (
+        [*g_lines[:4], g_lines[4].replace("1.00", huge, 1), *g_lines[5:]],
+        r"GaCo01_01\.txt line 5, column 2: value 1\.79769e\+308 is past any sensor",
+    )
+    pedar = write_pedar(tmp_path / "p.asc", t, {"left": np.full((20, 99), 5.0)})
+    p_lines = pedar.read_text().splitlines()
+    cases["big.asc"] = (
+        [*p_lines[:12], p_lines[12].replace("  5.000", huge, 1), *p_lines[13:]],
+        r"big\.asc line 13, column 2: value 1\.79769e\+308 is past any sensor",
+    )
+    fscan = write_fscan(tmp_path / "f.asf", np.full((3, 4, 3), 6.0)).read_text().splitlines()
+    first_row = fscan.index("Frame 1") + 1
+    cases["big.asf"] = (
+        [*fscan[:first_row], f"6,{huge},6", *fscan[first_row + 1 :]],
+        rf"big\.asf line {first_row + 1}, column 2: value 1\.79769e\+308 is past any sensor",
+    )
+    for name, (text, expected) in cases.items():
+        path = tmp_path / name
+        path.write_text("\n".join(text) + "\n", encoding="utf-8", newline="")
+        err = import_fails(path, tmp_path / "out.scotti", capsys)
+        assert re.search(expected, err), (name, err)
+        assert len(err) < 300, err

@@ -55,6 +55,8 @@ G: Final = 9.81
 MAX_CELLS: Final = 1 << 16  # rows x cols of any insole sensor, with room to spare
 _MIN_CELL_BYTES: Final = 2  # "0,"
 _FRAME: Final = re.compile(r"^\s*Frame\s+(\d+)\s*$", re.IGNORECASE)
+MAX_FRAME_DIGITS: Final = 15  # frame numbers stay exact as float64 time stamps
+MAX_PERIOD_S: Final = 60.0  # a frame a minute is already no insole recording
 _HEADER: Final = re.compile(r"^\s*([A-Z][A-Z0-9_]*)\s*(.*?)\s*$")
 MIN_LEAN_COLS: Final = 0.25  # a toe end leaning less than this says nothing of the foot
 
@@ -94,6 +96,8 @@ def read_fscan(path: Path, foot: str | None = None) -> VendorRecording:
             if frame:
                 if grid:
                     raise lines.fail(f"frame {frame_numbers[-1]} has {len(grid)} rows, not {rows}")
+                if len(frame.group(1)) > MAX_FRAME_DIGITS:
+                    raise lines.fail(f"frame number of {len(frame.group(1))} digits")
                 frame_numbers.append(int(frame.group(1)))
                 continue
             if text == "@@":
@@ -168,14 +172,18 @@ def _times(path: Path, fields: dict[str, str], numbers: list[int], lines: TextLi
     if "SECONDS_PER_FRAME" not in fields:
         raise InputError(path, "no SECONDS_PER_FRAME: the frame rate is unknown")
     period = field_number(fields["SECONDS_PER_FRAME"], lines, "SECONDS_PER_FRAME")
-    if period <= 0:
+    if not 0 < period <= MAX_PERIOD_S:
         raise InputError(path, f"SECONDS_PER_FRAME {period:g}")
     frames = np.asarray(numbers, dtype=np.float64)
     steps = np.diff(frames)
     if (steps <= 0).any():
         i = int(np.argmax(steps <= 0)) + 1
         raise InputError(path, f"Frame {numbers[i]} after Frame {numbers[i - 1]}")
-    first = float(fields.get("START_FRAME", numbers[0]) or numbers[0])
+    first = float(numbers[0])
+    if fields.get("START_FRAME"):
+        first = field_number(fields["START_FRAME"], lines, "START_FRAME")
+        if abs(first) >= 10.0**MAX_FRAME_DIGITS:
+            raise InputError(path, f"START_FRAME {first:g}")
     return (frames - first) * period
 
 

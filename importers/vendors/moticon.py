@@ -31,13 +31,20 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-from scotti.importers.errors import InputError
+from scotti.importers.errors import InputError, clip
 from scotti.importers.vendors.lines import Rows, TextLines
-from scotti.importers.vendors.numbers import Clock, check_pressures, numbers
+from scotti.importers.vendors.numbers import (
+    MAX_READING,
+    Clock,
+    check_pressures,
+    check_readings,
+    numbers,
+)
 from scotti.importers.vendors.recording import FOOT_NAMES, FootData, VendorRecording, kpa_per_unit
 
 CELLS: Final = 16
 LAYOUT: Final = "moticon-opengo-16"
+MAX_STEP_CODE: Final = 999  # OpenGo's codes are two digits
 STEP_EVENTS: Final = {
     11: "left heel strike",
     15: "left toe off",
@@ -159,19 +166,24 @@ def _row(
             missing = where[filled.index(False)]
             raise lines.fail(f"{foot} pressure cell empty beside others", column=missing + 1)
         values = numbers(raw, lines)
-        for j, i in enumerate(where):
-            if values[j] < 0 or not np.isfinite(values[j]):
-                check_pressures(values[j : j + 1], lines, first_column=i + 1)
+        bad = ~((values >= 0) & (values <= MAX_READING))  # NaN too
+        if bad.any():  # the columns are not adjacent: name the bad one's own
+            j = int(np.argmax(bad))
+            check_pressures(values[j : j + 1], lines, first_column=where[j] + 1)
         start = 1 + k * (CELLS + 1)
         out[start : start + CELLS] = values
         if foot in columns.force and cells[columns.force[foot]].strip():
             index = columns.force[foot]
-            out[start + CELLS] = numbers([cells[index]], lines, first_column=index + 1)[0]
+            force = numbers([cells[index]], lines, first_column=index + 1)
+            check_readings(force, lines, first_column=index + 1)
+            out[start + CELLS] = force[0]
     t = float(out[0])
     for i in columns.steps:
         if cells[i].strip():
-            code = int(numbers([cells[i]], lines, first_column=i + 1)[0])
-            events.append((t, STEP_EVENTS.get(code, f"step code {code}")))
+            code = numbers([cells[i]], lines, first_column=i + 1)[0]
+            if not np.isfinite(code) or code != round(code) or abs(code) > MAX_STEP_CODE:
+                raise lines.fail(f"step code {code:g} is not a code", column=i + 1)
+            events.append((t, STEP_EVENTS.get(int(code), f"step code {int(code)}")))
     for i, group in columns.events:
         if cells[i].strip():
             value = cells[i + 1].strip()
@@ -217,7 +229,7 @@ def _recording(
             columns.units,
             scale,
             layout=LAYOUT,
-            layout_size=header.get("Size") or None,
+            layout_size=clip(header["Size"]) if header.get("Size") else None,
             total_force_n=None if np.isnan(force).any() else force,
         )
         holes[foot] = _holes(kept_times, has)

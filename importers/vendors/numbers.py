@@ -4,9 +4,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Final
 
 import numpy as np
 from scotti.importers.vendors.lines import TextLines
+
+# No sensor reads this much in any unit (Pa, mmHg, N, ...); values stay far inside float32
+# (3.4e38), so casting, unit factors and sums over frames cannot overflow.
+MAX_READING: Final = 1e15
 
 
 def numbers(
@@ -35,16 +40,35 @@ def numbers(
 def check_pressures(
     values: np.ndarray, lines: TextLines, *, first_column: int = 1, allow_nan: bool = False
 ) -> None:
-    """Pressures and forces are finite and not negative (NaN allowed where a cell was empty)."""
-    bad = ~np.isfinite(values) | (values < 0)
+    """Pressures and forces are finite, not negative and in range (NaN allowed where a cell
+    was empty)."""
+    _check(values, lines, first_column, allow_nan, negative=False)
+
+
+def check_readings(values: np.ndarray, lines: TextLines, *, first_column: int = 1) -> None:
+    """Readings of either sign (a vendor's force estimate) are finite and in range."""
+    _check(values, lines, first_column, False, negative=True)
+
+
+def _check(
+    values: np.ndarray, lines: TextLines, first_column: int, allow_nan: bool, negative: bool
+) -> None:
+    bad = ~np.isfinite(values) | (np.abs(values) > MAX_READING)
+    if not negative:
+        bad |= values < 0
     if allow_nan:
         bad &= ~np.isnan(values)
     if bad.any():
         i = int(np.argmax(bad))
         value = float(values[i])
-        problem = "an infinite value" if math.isinf(value) else f"negative value {value:g}"
         if math.isnan(value):
             problem = "NaN"
+        elif math.isinf(value):
+            problem = "an infinite value"
+        elif value < 0 and not negative:
+            problem = f"negative value {value:g}"
+        else:
+            problem = f"value {value:g} is past any sensor's range ({MAX_READING:g})"
         raise lines.fail(problem, column=first_column + i)
 
 

@@ -110,9 +110,9 @@ def _check_declared(path: Path, fields: dict[str, str], width: int, lines: TextL
     period = field_number(fields["time per frame [secs]"], lines, "time per frame")
     if period <= 0:
         raise lines.fail(f"time per frame {period:g} s")
-    declared = round(total / period)
-    if declared * width * _MIN_VALUE_BYTES > file_size(path) and not is_gzip(path):
-        problem = f"declares {declared} frames ({total:g} s), more than the file can hold"
+    declared = total / period  # a float: a huge total over a tiny period is inf, not an error
+    if round(declared, 0) * width * _MIN_VALUE_BYTES > file_size(path) and not is_gzip(path):
+        problem = f"declares {declared:.0f} frames ({total:g} s), more than the file can hold"
         raise InputError(path, problem)
 
 

@@ -37,14 +37,21 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-from scotti.importers.errors import InputError
+from scotti.importers.errors import InputError, clip
 from scotti.importers.grid import Orientation
 from scotti.importers.vendors.lines import Rows, TextLines
-from scotti.importers.vendors.numbers import Clock, check_pressures, field_number, numbers
+from scotti.importers.vendors.numbers import (
+    Clock,
+    check_pressures,
+    check_readings,
+    field_number,
+    numbers,
+)
 from scotti.importers.vendors.recording import FootData, VendorRecording, kpa_per_unit
 
 MAX_CELLS: Final = 1 << 16
 _SIDES: Final = {"LF": "left", "RF": "right"}
+_LOAD: Final = "Est. Load (N)"
 _SIDE: Final = re.compile(r"-(LF|RF)\b", re.IGNORECASE)
 
 
@@ -69,7 +76,7 @@ def read_xsensor(path: Path) -> VendorRecording:
         date = ""
         clock = Clock()
         for _, line in lines:
-            cells = next(csv.reader([line])) if line else []
+            cells = _cells(line, lines)
             if not any(c.strip() for c in cells):
                 continue
             key = cells[0].strip()
@@ -104,6 +111,8 @@ def read_xsensor(path: Path) -> VendorRecording:
                 grid = []
             elif foot is not None:
                 fields[key] = _value(cells)
+                if key == _LOAD:  # checked on its own line, kept as a number at the grid's end
+                    _load(fields[key], lines)
         if grid is not None:
             raise lines.fail("the file ends inside a SENSELS block")
         _close_frame(sensors, frame_numbers, lines)
@@ -112,6 +121,15 @@ def read_xsensor(path: Path) -> VendorRecording:
         if len(stamps) != len(frame_numbers):
             raise InputError(path, f"{len(stamps)} Time lines for {len(frame_numbers)} frames")
     return _recording(path, top, sensors, stamps, frame_numbers)
+
+
+def _cells(line: str, lines: TextLines) -> list[str]:
+    if not line:
+        return []
+    try:
+        return next(csv.reader([line]))
+    except csv.Error as exc:  # a carriage return or quote where CSV allows none
+        raise lines.fail(f"not a CSV line ({clip(str(exc), 60)})") from None
 
 
 def _value(cells: list[str]) -> str:
@@ -173,8 +191,14 @@ def _finish(
     sensor: _Sensor, grid: list[np.ndarray], fields: dict[str, str], lines: TextLines
 ) -> None:
     sensor.values.add(np.concatenate(grid))
-    load = fields.get("Est. Load (N)")
-    sensor.load.add(np.array([np.nan if load is None else field_number(load, lines, "Est. Load")]))
+    text = fields.get(_LOAD)
+    sensor.load.add(np.array([np.nan if text is None else _load(text, lines)]))
+
+
+def _load(text: str, lines: TextLines) -> float:
+    load = np.array([field_number(text, lines, "Est. Load")])
+    check_readings(load, lines, first_column=2)
+    return float(load[0])
 
 
 def _close_frame(sensors: dict[str, _Sensor], frame_numbers: list[int], lines: TextLines) -> None:
