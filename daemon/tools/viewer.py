@@ -26,6 +26,7 @@ from typing import Any, Final, TextIO
 import aiomqtt
 import msgpack
 import numpy as np
+import numpy.typing as npt
 from scotti.daemon.config_checks import ConfigError
 from scotti.daemon.mqtt_settings import MqttSettings
 from scotti.daemon.waiting import wait_event
@@ -99,10 +100,13 @@ def pressure_grid(data: dict[str, Any], side: str) -> np.ndarray | None:
     return np.frombuffer(raw, dtype="<u2").reshape(rows, cols)
 
 
-def _levels(grid: np.ndarray) -> np.ndarray:
+def _levels(grid: np.ndarray) -> npt.NDArray[np.int64]:
     """Palette indices of counts: a square-root scale, so light loads stay visible."""
     level = np.sqrt(np.clip(grid.astype(np.float32) / MAX_COUNT, 0.0, 1.0))
-    return np.minimum((level * len(PALETTE)).astype(int), len(PALETTE) - 1)
+    index: npt.NDArray[np.int64] = np.minimum(
+        (level * len(PALETTE)).astype(np.int64), len(PALETTE) - 1
+    )
+    return index
 
 
 def heat_rows(grid: np.ndarray, lines: int = MAP_LINES, width: int = MAP_WIDTH) -> list[str]:
