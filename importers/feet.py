@@ -26,7 +26,8 @@ from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
 FEET: Final = ("left", "right")  # the order of axis 1 of every (N, 2, ...) array of an import
 _CHUNK: Final = 256  # output frames taken from source values to counts at once
 
-# A foot's (n, d) source values, averaged onto output frames -> (n, 32, 22) float32 counts.
+# A foot's (n, d) source values, averaged onto output frames -> (n, 32, 22) float32 counts,
+# a new array (the caller rounds it in place).
 FootMap = Callable[[np.ndarray], np.ndarray]
 
 
@@ -58,15 +59,18 @@ class FeetSource:
 def resample_feet(source: FeetSource, timeline: Timeline) -> np.ndarray:
     """(M, 2, 32, 22) uint16 counts at the timeline's frames; zeros for a foot not held."""
     out = np.zeros((len(timeline), 2, FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
-    for index, (a, b) in enumerate(timeline.source_ranges):
-        rows = np.flatnonzero(timeline.segment == index)
+    starts = np.searchsorted(timeline.segment, np.arange(len(timeline.source_ranges)))
+    ends = np.r_[starts[1:], len(timeline)]
+    for (a, b), first, stop in zip(timeline.source_ranges, starts, ends, strict=True):
         # A chunk at a time, from resampling to counts: the arrays stay in cache.
-        for s in range(0, rows.size, _CHUNK):
-            chunk = rows[s : s + _CHUNK]
+        for s in range(int(first), int(stop), _CHUNK):
+            chunk = slice(s, min(s + _CHUNK, int(stop)))
             values = box_average(
                 source.times[a : b + 1], source.values[a : b + 1], timeline.times[chunk]
             )
             for foot in source.feet:
                 counts = source.maps[foot](values[:, source.columns[foot]])
-                out[chunk, FEET.index(foot)] = np.clip(np.rint(counts), 0, MAX_COUNT)
+                np.rint(counts, out=counts)
+                np.clip(counts, 0, MAX_COUNT, out=counts)
+                out[chunk, FEET.index(foot)] = counts
     return out

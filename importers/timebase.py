@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scotti.models.contract import FRAME_RATE_HZ, WINDOW_RESTART_GAP_FRAMES
 
 PERIOD_S: Final = 1.0 / FRAME_RATE_HZ
@@ -30,6 +31,7 @@ RESTART_GAP_S: Final = WINDOW_RESTART_GAP_FRAMES / FRAME_RATE_HZ  # a longer gap
 # readers to see a restart, at most this (far below the u16 wrap's half).
 MAX_SEQ_JUMP: Final = 4096
 _CHUNK: Final = 256  # output frames resampled at once (16 s: the samples stay in cache)
+_MAX_GATHERED: Final = 1 << 21  # source values copied at once for the windows' weighted sums
 
 
 @dataclass(frozen=True)
@@ -89,33 +91,69 @@ def box_average(t: np.ndarray, values: np.ndarray, t_out: np.ndarray) -> np.ndar
         c = t_out[s : s + _CHUNK]
         lo = np.maximum(c - 0.5 * PERIOD_S, t[0])
         hi = np.minimum(c + 0.5 * PERIOD_S, t[-1])
-        first = max(int(np.searchsorted(t, lo[0], side="right")) - 1, 0)
-        last = min(int(np.searchsorted(t, hi[-1], side="right")), n - 1)
+        first = max(int(np.searchsorted(t, lo.min(), side="right")) - 1, 0)
+        last = min(int(np.searchsorted(t, hi.max(), side="right")), n - 1)
         first = min(first, last - 1)
-        tl = t[first : last + 1]
-        v = np.asarray(values[first : last + 1], dtype=np.float64)
-        dt = np.diff(tl)[:, None]
-        cumulative = np.zeros_like(v)
-        np.cumsum(0.5 * (v[1:] + v[:-1]) * dt, axis=0, out=cumulative[1:])
-        slope = np.diff(v, axis=0) / dt
-        width = hi - lo
-        point = width <= 0.0  # a window squeezed to nothing: the value at the point
-        i_hi, dx_hi = _locate(tl, hi)
-        i_lo, dx_lo = _locate(tl, lo)
-        integral = (cumulative[i_hi] + v[i_hi] * dx_hi + 0.5 * slope[i_hi] * dx_hi * dx_hi) - (
-            cumulative[i_lo] + v[i_lo] * dx_lo + 0.5 * slope[i_lo] * dx_lo * dx_lo
-        )
-        chunk = integral / np.where(point, 1.0, width)[:, None]
-        if point.any():
-            chunk[point] = v[i_lo[point]] + slope[i_lo[point]] * dx_lo[point]
-        out[s : s + _CHUNK] = chunk
+        out[s : s + _CHUNK] = _window_means(t[first : last + 1], values[first : last + 1], lo, hi)
+    return out
+
+
+def _window_means(t: np.ndarray, v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Means of the piecewise-linear (t, v) over [lo, hi] (a point where hi <= lo).
+
+    Each mean is a weighted sum of the few samples under its window (a band
+    of the source), so it is computed as one: the weights per window, then
+    the samples each window starts at gathered as a sliding window and summed
+    against them, a bounded number of windows at a time. The weights come
+    from the integral up to x in piece i (t[i] <= x < t[i + 1], dx = x - t[i]),
+
+        F(x) = P[i] + v[i] (h[i - 1] + dx - b) + v[i + 1] b,   b = dx^2 / (2 dt[i]),
+
+    with dt[i] = t[i + 1] - t[i], h = dt / 2 (h[-1] = 0) and P[i] the sum of
+    v[m] (h[m - 1] + h[m]) over m < i (every sample weighted by the half
+    pieces beside it): F(hi) - F(lo) weighs the samples from lo's piece up
+    to hi's by those halves, and the four samples at the ends by the rest.
+    """
+    dt = np.diff(t)
+    half = 0.5 * dt
+    weight = np.zeros(t.size)
+    weight[:-1] = half
+    weight[1:] += half
+    half_before = np.r_[0.0, half]
+    i_lo, dx_lo = _locate(t, lo)
+    i_hi, dx_hi = _locate(t, hi)
+    band = int((i_hi - i_lo).max()) + 2  # samples under the widest window, and one beyond
+    start = np.minimum(i_lo, t.size - band)  # the band stays inside the samples
+    j = start[:, None] + np.arange(band)
+    w = np.where((j >= i_lo[:, None]) & (j < i_hi[:, None]), weight[j], 0.0)
+    rows = np.arange(lo.size)
+    b_hi = dx_hi * dx_hi / (2.0 * dt[i_hi])
+    b_lo = dx_lo * dx_lo / (2.0 * dt[i_lo])
+    w[rows, i_hi - start] += half_before[i_hi] + dx_hi - b_hi
+    w[rows, i_hi + 1 - start] += b_hi
+    w[rows, i_lo - start] -= half_before[i_lo] + dx_lo - b_lo
+    w[rows, i_lo + 1 - start] -= b_lo
+    width = hi - lo
+    point = width <= 0.0  # a window squeezed to nothing: the value at the point
+    w /= np.where(point, 1.0, width)[:, None]
+    if point.any():
+        at = dx_lo[point] / dt[i_lo[point]]
+        w[point] = 0.0
+        w[rows[point], (i_lo - start)[point]] = 1.0 - at
+        w[rows[point], (i_lo + 1 - start)[point]] = at
+    windows = sliding_window_view(v, band, axis=0)  # (samples, D, band), a view
+    out = np.empty((lo.size, v.shape[1]))
+    step = max(1, _MAX_GATHERED // (band * v.shape[1]))
+    for a in range(0, lo.size, step):
+        b = a + step
+        np.einsum("mdk,mk->md", windows[start[a:b]], w[a:b], out=out[a:b])
     return out
 
 
 def _locate(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index of the linear piece holding each x, and x's offset into it (as a column)."""
+    """Index of the linear piece holding each x, and x's offset into it."""
     i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, t.size - 2)
-    return i, (x - t[i])[:, None]
+    return i, x - t[i]
 
 
 def interpolate_points(

@@ -2,15 +2,24 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from scotti.importers.config import config_from_dict
+from scotti.importers.feet import FEET, resample_feet
+from scotti.importers.sources import load_pressure
 from scotti.importers.timebase import (
+    PERIOD_S,
     RESTART_GAP_S,
     box_average,
     interpolate_points,
     plan_timeline,
 )
-from scotti.models.contract import WINDOW_RESTART_GAP_FRAMES
+from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT, WINDOW_RESTART_GAP_FRAMES
+
+from tests.support.foreign import pressure_frames, write_pressure_csv
+from tests.support.vendor_files import write_moticon
 
 
 def test_frames_every_sixteenth_on_the_source_clock() -> None:
@@ -72,3 +81,84 @@ def test_keypoints_interpolate_and_mask_what_is_unknown() -> None:
     assert not np.isnan(out[1, 0]).any()  # exactly at a sample
     assert np.isnan(out[3]).all()  # 0.2 .. 0.6 is a hole longer than max_gap_s
     assert np.isnan(out[4]).all()  # after the last sample
+
+
+def running_integral_box_average(
+    t: np.ndarray, values: np.ndarray, t_out: np.ndarray
+) -> np.ndarray:
+    """The box average as first written: the running integral of every sample, evaluated at
+    each window's ends (the reference the weighted-band form must agree with)."""
+    if t.size == 1:
+        return np.repeat(np.asarray(values[:1], dtype=np.float64), t_out.size, axis=0)
+    lo = np.maximum(t_out - 0.5 * PERIOD_S, t[0])
+    hi = np.minimum(t_out + 0.5 * PERIOD_S, t[-1])
+    v = np.asarray(values, dtype=np.float64)
+    dt = np.diff(t)[:, None]
+    cumulative = np.zeros_like(v)
+    np.cumsum(0.5 * (v[1:] + v[:-1]) * dt, axis=0, out=cumulative[1:])
+    slope = np.diff(v, axis=0) / dt
+
+    def at(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, t.size - 2)
+        dx = (x - t[i])[:, None]
+        return i, dx, cumulative[i] + v[i] * dx + 0.5 * slope[i] * dx * dx
+
+    i_lo, dx_lo, f_lo = at(lo)
+    _, _, f_hi = at(hi)
+    width = hi - lo
+    point = width <= 0.0
+    out = (f_hi - f_lo) / np.where(point, 1.0, width)[:, None]
+    out[point] = (v[i_lo] + slope[i_lo] * dx_lo)[point]
+    return np.asarray(out)
+
+
+@pytest.mark.parametrize("rate", [5.0, 16.0, 33.3, 100.0, 1000.0])
+def test_box_average_agrees_with_the_running_integral(rate: float) -> None:
+    """Irregular clocks (bursts of near-equal stamps too), float32 and float64 values,
+    windows clipped at both ends: the same means within float rounding."""
+    rng = np.random.default_rng(int(rate))
+    for trial in range(20):
+        n = int(rng.integers(2, 2000))
+        steps = rng.uniform(0.01, 1.99, n) / rate
+        steps[rng.random(n) < 0.05] = 1e-6  # bursts: many samples under one window
+        t = 1e4 + np.cumsum(steps)
+        dtype = (np.float32, np.float64)[trial % 2]
+        v = rng.uniform(0, 300, (n, int(rng.integers(1, 40)))).astype(dtype)
+        t_out = t[0] + np.arange(int((t[-1] - t[0]) * 16) + 1) / 16 + rng.uniform(0, 1 / 16)
+        t_out = t_out[t_out <= t[-1]]
+        expected = running_integral_box_average(t, v, t_out)
+        np.testing.assert_allclose(box_average(t, v, t_out), expected, rtol=1e-9, atol=1e-9)
+    # A window past the last sample is clipped to nothing: the line's value at its start.
+    t, v, past = np.array([0.0, 1.0]), np.array([[0.0], [2.0]]), np.array([1.0 + PERIOD_S])
+    assert box_average(t, v, past)[0, 0] == pytest.approx(2.0 + PERIOD_S)
+    np.testing.assert_allclose(box_average(t, v, past), running_integral_box_average(t, v, past))
+
+
+def test_an_import_s_counts_are_those_of_the_running_integral(tmp_path: Path) -> None:
+    """The whole path from source values to counts, on a table (a grid, with gaps that cut
+    segments) and a vendor file of cells: every count as the reference average gives it."""
+    t = np.r_[np.arange(0, 30, 0.0093), 32 + np.arange(0, 7, 0.0093)]  # 107.5 Hz, a 2 s gap
+    frames = pressure_frames(t, 7, 5) + np.random.default_rng(3).uniform(0, 5, (t.size, 2, 7, 5))
+    table = tmp_path / "p.csv"
+    write_pressure_csv(table, t * 1000, frames)
+    raw = {"rows": 7, "cols": 5, "time_unit": "ms", "file": str(table)}
+    on_cells = frames[:3000, 0, :4, :4].reshape(-1, 16) / 10.0  # N/cm2, 100 Hz
+    cells = write_moticon(tmp_path / "m.txt", np.arange(3000) * 0.01, {"left": on_cells})
+    for cfg in (
+        config_from_dict({"pressure": raw, "counts": {"method": "per_kpa", "units_per_kpa": 1.0}}),
+        config_from_dict({"pressure": {"file": str(cells)}}),
+    ):
+        source = load_pressure(cfg).feet
+        timeline = plan_timeline(source.times)
+        expected = np.zeros((len(timeline), 2, FRAME_ROWS, FRAME_COLS), dtype=np.uint16)
+        for index, (a, b) in enumerate(timeline.source_ranges):
+            rows = timeline.segment == index
+            means = running_integral_box_average(
+                source.times[a : b + 1], source.values[a : b + 1], timeline.times[rows]
+            )
+            for foot in source.feet:
+                counts = source.maps[foot](means[:, source.columns[foot]])
+                expected[rows, FEET.index(foot)] = np.clip(np.rint(counts), 0, MAX_COUNT)
+        assert len(timeline.source_ranges) == (2 if cfg.pressure.file == str(table) else 1)
+        assert expected.any()
+        np.testing.assert_array_equal(resample_feet(source, timeline), expected)
