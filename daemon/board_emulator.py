@@ -136,7 +136,13 @@ class BoardEmulator:
 
     @classmethod
     def from_session(
-        cls, path: Path | str, link: Path | str, *, speed: Speed = 1.0, loop: bool = False
+        cls,
+        path: Path | str,
+        link: Path | str,
+        *,
+        speed: Speed = 1.0,
+        loop: bool = False,
+        continue_numbers: bool = True,
     ) -> BoardEmulator:
         """An emulator for the packet records of a session file."""
         from scotti.firmware_protocol.errors import SessionError
@@ -150,7 +156,7 @@ class BoardEmulator:
         if not records:
             msg = f"{path}: no packet records to play"
             raise EmulatorError(msg)
-        return cls(records, link, speed=speed, loop=loop)
+        return cls(records, link, speed=speed, loop=loop, continue_numbers=continue_numbers)
 
     # --- public controls (thread-safe) -------------------------------------
 

@@ -65,6 +65,7 @@ class Device:
         self.on_change: Callable[[Device], None] = lambda _d: None  # state or broker changed
         self._status_key: tuple[object, ...] | None = None
         self._logged_status: tuple[object, ...] | None = None  # the last one the log said
+        self._logged_status: tuple[object, ...] | None = None  # the last one the log said
 
     @property
     def connected_once(self) -> bool:
@@ -81,8 +82,10 @@ class Device:
         self.publisher = publisher
         publisher.on_state_change = self._on_broker_state
         publisher.on_status_published = self._on_status_published
+        publisher.on_status_published = self._on_status_published
         publisher.set_status(messages.status("degraded", ["starting"], None))
         source = self.source
+        publisher.drop_stale = source.live
         publisher.drop_stale = source.live
         if not source.live:  # a replay waits for the broker rather than lose predictions
             # Room for the engine's backlog of this device too, and a frame or two more.
@@ -178,12 +181,18 @@ class Device:
         if self.publisher.state == "disconnected":  # reaches the other outputs, never MQTT
             reasons.append(f"broker unreachable ({self.publisher.stats.last_error})")
         key = (state.source, tuple(sorted(state.feet.items())), tuple(reasons))
-        if key == self._status_key:
+        broker_away = self.publisher.state == "disconnected"
+        if (key, broker_away) == self._status_key:
             return  # unchanged: no retained republish at 16 Hz
-        self._status_key = key
+        changed = self._status_key is None or key != self._status_key[0]
+        self._status_key = (key, broker_away)
         st: Literal["online", "degraded"] = "degraded" if reasons else "online"
         status: Status = messages.status(st, reasons, state)
-        self.publisher.set_status(status)
+        if changed:  # the broker's coming and going is no news on MQTT (it republishes)
+            self.publisher.set_status(status)
+        if broker_away:  # the other outputs (web view, Foxglove, MCAP) show the outage
+            shown = [*reasons, f"broker unreachable ({self.publisher.stats.last_error})"]
+            status = messages.status("degraded", shown, state)
         self.outputs.status(status)
 
     @property

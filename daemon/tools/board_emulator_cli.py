@@ -34,7 +34,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed", type=_speed, default=1.0, help="1 = recorded pace, N times faster, or max"
     )
-    parser.add_argument("--loop", action="store_true", help="start over at the end (seqs repeat)")
+    parser.add_argument(
+        "--loop",
+        action="store_true",
+        help="start over at the end; the frame sequence numbers and board clock go on "
+        "across loops (one long session), unless --repeat-numbers",
+    )
+    parser.add_argument(
+        "--repeat-numbers",
+        action="store_true",
+        help="with --loop: send each loop as recorded, the numbers jumping back as after "
+        "a board reset",
+    )
     parser.add_argument(
         "--drain-timeout",
         type=float,
@@ -46,7 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         emulator = BoardEmulator.from_session(
-            args.session, args.link, speed=args.speed, loop=args.loop
+            args.session,
+            args.link,
+            speed=args.speed,
+            loop=args.loop,
+            continue_numbers=not args.repeat_numbers,
         )
         emulator.start()
     except (EmulatorError, OSError) as exc:
