@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from scotti.firmware_protocol.errors import BadCobsError
 
-try:  # optional, compiled (the [fast] extra); ``decode_fallback`` stands in without it
+try:  # optional, compiled (the [fast] extra); the ``*_fallback`` functions stand in without it
     _compiled: Any = importlib.import_module("cobs.cobs")
 except ImportError:
     _compiled = None
@@ -74,7 +74,30 @@ def encode_batch(chunks: Sequence[bytes]) -> list[bytes]:
 
 
 def encode_rows(a: np.ndarray) -> list[bytes]:
-    """``[encode(row) for row in a]`` for a (n, length) uint8 array, vectorised.
+    """``[encode(row) for row in a]`` for a (n, length) uint8 array.
+
+    With the compiled ``cobs`` package installed, each row goes through it
+    (about a microsecond a kilobyte; the same bytes as ``encode``); without
+    it, ``encode_rows_fallback``.
+    """
+    if _compiled is None:
+        return encode_rows_fallback(a)
+    return encode_rows_compiled(a)
+
+
+def encode_rows_compiled(a: np.ndarray) -> list[bytes]:
+    """``encode_rows`` through the compiled ``cobs`` package (it must be installed)."""
+    assert _compiled is not None
+    c_encode = _compiled.encode
+    n, length = a.shape
+    if length == 0:
+        return [c_encode(b"") for _ in range(n)]
+    data = np.ascontiguousarray(a, dtype=np.uint8).tobytes()
+    return [c_encode(data[i : i + length]) for i in range(0, n * length, length)]
+
+
+def encode_rows_fallback(a: np.ndarray) -> list[bytes]:
+    """``[encode(row) for row in a]`` for a (n, length) uint8 array, vectorised with numpy.
 
     Each row is laid out as [0, row..., 0]: a zero in front for the code
     byte and one behind for the end. Every zero but the last then becomes

@@ -65,7 +65,9 @@ def _from_csv(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
     p = cfg.pressure
     rows, cols = table_grid(cfg)
     taxels = rows * cols
-    table = read_csv(path)  # every line as wide as the header (or the first line)
+    # Every line as wide as the header (or the first line); float32 as the frames are kept,
+    # the time stamps whole.
+    table = read_csv(path, narrow=True, wide=(p.time_column,))
     time_col = table.column_of(p.time_column)
     first = p.first_column if p.first_column is not None else time_col + 1
     if first <= time_col < first + 2 * taxels:
@@ -76,12 +78,14 @@ def _from_csv(path: Path, cfg: ImportConfig) -> tuple[np.ndarray, np.ndarray]:
         problem += f" (time + 2 feet x {rows} x {cols} taxels)"
         line = table.header_line if table.header_line is not None else int(table.lines[0])
         raise InputError(path, problem, line=line)
-    times = table.values[:, time_col] * TIME_UNITS[p.time_unit]
+    times = table.wide[time_col] * TIME_UNITS[p.time_unit]
     _check_times(times, lambda i, problem: table.fail(i, time_col, problem))
     block = table.values[:, first : first + 2 * taxels]
     bad = first_bad(block)
     if bad is not None:
         raise table.fail(bad[0], first + bad[1], describe_value(float(block[bad])))
+    if list(p.feet) == list(FEET) and p.taxel_order == "row_major":
+        return times, block.reshape(-1, 2, rows, cols)  # a view of the table: no copy
     feet = block.reshape(-1, 2, taxels)
     frames = np.empty((len(times), 2, rows, cols), dtype=np.float32)
     for k, foot in enumerate(p.feet):

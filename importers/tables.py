@@ -22,8 +22,8 @@ from __future__ import annotations
 import io
 import math
 import re
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Final
 
@@ -51,23 +51,14 @@ class CsvTable:
 
     path: Path
     header: list[str] | None  # column names, when the file has a header line
-    values: np.ndarray  # (n, k) float64
+    values: np.ndarray  # (n, k) float64 (float32 when read ``narrow``)
     lines: np.ndarray  # (n,) int64, 1-based line number of each row
     header_line: int | None = None  # 1-based line of the header, when there is one
+    wide: dict[int, np.ndarray] = field(default_factory=dict)  # column -> (n,) float64
 
     def column_of(self, name_or_index: str | int) -> int:
         """0-based index of a column given by name (header) or by 0-based index."""
-        if isinstance(name_or_index, int):
-            if not 0 <= name_or_index < self.values.shape[1]:
-                problem = f"no column {name_or_index} (the file has {self.values.shape[1]})"
-                raise InputError(self.path, problem)
-            return name_or_index
-        if self.header is None or name_or_index not in self.header:
-            problem = f"no column named {clip(name_or_index)!r}" + (
-                "" if self.header is not None else " (the file has no header line)"
-            )
-            raise InputError(self.path, problem)
-        return self.header.index(name_or_index)
+        return _column_index(self.path, self.header, self.values.shape[1], name_or_index)
 
     def describe_column(self, index: int) -> str:
         """1-based column number, with its header name when there is one."""
@@ -80,6 +71,21 @@ class CsvTable:
             line=int(self.lines[row]),
             column=self.describe_column(column),
         )
+
+
+def _column_index(
+    path: Path, header: list[str] | None, width: int, name_or_index: str | int
+) -> int:
+    if isinstance(name_or_index, int):
+        if not 0 <= name_or_index < width:
+            raise InputError(path, f"no column {name_or_index} (the file has {width})")
+        return name_or_index
+    if header is None or name_or_index not in header:
+        problem = f"no column named {clip(name_or_index)!r}" + (
+            "" if header is not None else " (the file has no header line)"
+        )
+        raise InputError(path, problem)
+    return header.index(name_or_index)
 
 
 def _describe_column(header: list[str] | None, index: int) -> str:
@@ -99,11 +105,23 @@ def is_number(cell: str) -> bool:
     return True
 
 
-def read_csv(path: Path, expected_columns: int | None = None) -> CsvTable:
-    """A CSV file's numbers; ``InputError`` naming the line and column of any mistake."""
+def read_csv(
+    path: Path,
+    expected_columns: int | None = None,
+    *,
+    narrow: bool = False,
+    wide: Sequence[str | int] = (),
+) -> CsvTable:
+    """A CSV file's numbers; ``InputError`` naming the line and column of any mistake.
+
+    ``narrow``: the values are kept as float32 (half the memory of a pressure
+    table, which is float32 from here on), and a value past float32's range is
+    a mistake; the ``wide`` columns (names or 0-based indices: time stamps) are
+    kept whole as well, in float64 (``CsvTable.wide``).
+    """
     try:
         with path.open("rb") as f:
-            return _CsvReader(path, f, expected_columns).read()
+            return _CsvReader(path, f, expected_columns, narrow, wide).read()
     except OSError as exc:
         raise InputError(path, f"cannot read ({exc.__class__.__name__})") from None
     except MemoryError:  # the budget is a share of memory; the rest of the machine may be busy
@@ -219,8 +237,18 @@ def _decode_header(path: Path, number: int, raw: bytes) -> str:
 
 
 class _CsvReader:
-    def __init__(self, path: Path, f: BinaryIO, expected_columns: int | None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        f: BinaryIO,
+        expected_columns: int | None,
+        narrow: bool = False,
+        wide: Sequence[str | int] = (),
+    ) -> None:
         self.path = path
+        self.narrow = narrow
+        self.wide_names = wide
+        self.wide: list[int] = []
         self.size = max(1, Path(path).stat().st_size)
         self.cursor = _Cursor(_blocks(path, f))
         self.expected = expected_columns
@@ -233,6 +261,10 @@ class _CsvReader:
 
     def read(self) -> CsvTable:
         self._shape()
+        if self.narrow:
+            self.wide = [
+                _column_index(self.path, self.header, self.width, c) for c in self.wide_names
+            ]
         rows = _Rows(self)
         line = self.cursor.line
         for block in self.cursor.rest():
@@ -240,8 +272,8 @@ class _CsvReader:
                 line = self._parse(line, block, rows)
         if rows.count == 0:
             raise InputError(self.path, "no data lines after the header")
-        values, lines = rows.done()
-        return CsvTable(self.path, self.header, values, lines, self.header_line)
+        values, lines, wide = rows.done()
+        return CsvTable(self.path, self.header, values, lines, self.header_line, wide)
 
     def _shape(self) -> None:
         """Header, delimiter, trailing delimiter and width, from the first lines."""
@@ -345,26 +377,47 @@ def _c_parse(data: bytes, delimiter: str) -> np.ndarray | None:
 
 
 class _Rows:
-    """The table's rows as they come, in one array grown within the read's budget."""
+    """The table's rows as they come, in one array grown within the read's budget (and each
+    wide column in one of its own)."""
 
     def __init__(self, reader: _CsvReader) -> None:
         self.reader = reader
         self.width = reader.width
-        self.row_bytes = 8 * (reader.width + 1)  # the values and the line number
+        self.dtype = np.dtype(np.float32 if reader.narrow else np.float64)
+        # The values, the line number and the wide columns.
+        self.row_bytes = self.dtype.itemsize * reader.width + 8 + 8 * len(reader.wide)
         self.count = 0
         self.capacity = 0
         self.bytes_seen = 0
-        self.values = np.empty((0, reader.width))
+        self.values = np.empty((0, reader.width), dtype=self.dtype)
         self.lines = np.empty(0, dtype=np.int64)
+        self.wide = {c: np.empty(0) for c in reader.wide}
 
     def add(self, values: np.ndarray, lines: np.ndarray, nbytes: int) -> None:
         end = self.count + values.shape[0]
         self.bytes_seen += nbytes
         if end > self.capacity:
             self._grow(end, int(lines[-1]))
+        if self.reader.narrow:
+            for c, column in self.wide.items():
+                column[self.count : end] = values[:, c]
+                np.clip(values[:, c], -FLOAT32_MAX, FLOAT32_MAX, out=values[:, c])  # kept whole
+            self._check_narrow(values, lines)
         self.values[self.count : end] = values
         self.lines[self.count : end] = lines
         self.count = end
+
+    def _check_narrow(self, values: np.ndarray, lines: np.ndarray) -> None:
+        """No value past float32's range (NaN and infinities pass: they are kept)."""
+        low, high = values.min(), values.max()  # NaN propagates: the full look below
+        if np.isfinite(low) and np.isfinite(high) and max(-low, high) <= FLOAT32_MAX:
+            return
+        big = np.isfinite(values) & (np.abs(values) > FLOAT32_MAX)
+        if big.any():
+            row, col = np.unravel_index(int(np.argmax(big)), big.shape)
+            column = _describe_column(self.reader.header, int(col))
+            problem = describe_value(float(values[row, col]))
+            raise InputError(self.reader.path, problem, line=int(lines[row]), column=column)
 
     def _grow(self, needed: int, line: int) -> None:
         # Room for the whole file at the bytes per row seen so far, or half as much again.
@@ -375,17 +428,22 @@ class _Rows:
         what = f"{capacity} rows of {self.width} columns"
         self.reader.budget.take((capacity - self.capacity) * self.row_bytes, what, line=line)
         if self.capacity == 0:  # not resize: it would fill the new rows with zeros first
-            self.values = np.empty((capacity, self.width))
+            self.values = np.empty((capacity, self.width), dtype=self.dtype)
             self.lines = np.empty(capacity, dtype=np.int64)
+            self.wide = {c: np.empty(capacity) for c in self.wide}
         else:
             self.values.resize((capacity, self.width), refcheck=False)
             self.lines.resize(capacity, refcheck=False)
+            for column in self.wide.values():
+                column.resize(capacity, refcheck=False)
         self.capacity = capacity
 
-    def done(self) -> tuple[np.ndarray, np.ndarray]:
+    def done(self) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
         self.values.resize((self.count, self.width), refcheck=False)
         self.lines.resize(self.count, refcheck=False)
-        return self.values, self.lines
+        for column in self.wide.values():
+            column.resize(self.count, refcheck=False)
+        return self.values, self.lines, self.wide
 
 
 def first_bad(values: np.ndarray) -> tuple[int, ...] | None:

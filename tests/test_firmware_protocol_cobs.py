@@ -106,18 +106,38 @@ def test_batch_encoding_equals_encode_on_random_chunks_of_one_length(length: int
     assert cobs.encode_batch(chunks) == [cobs.encode(c) for c in chunks]
 
 
+_ROW_ENCODERS = [cobs.encode_rows, cobs.encode_rows_fallback]
+if cobs._compiled is not None:  # the [fast] extra is installed
+    _ROW_ENCODERS.append(cobs.encode_rows_compiled)
+
+
+@pytest.mark.parametrize("encode_rows", _ROW_ENCODERS)
 @settings(max_examples=60, deadline=None)
 @given(
-    st.integers(1, 700),
+    st.integers(0, 700),
     st.integers(1, 12),
     st.floats(0.0, 1.0),
     st.integers(0, 2**32 - 1),
 )
-def test_row_encoding_equals_encode(length: int, rows: int, zero_share: float, seed: int) -> None:
+def test_row_encoding_equals_encode(
+    encode_rows: object, length: int, rows: int, zero_share: float, seed: int
+) -> None:
     rng = np.random.default_rng(seed)
     a = rng.integers(1, 256, (rows, length), dtype=np.uint8)
     a[rng.random((rows, length)) < zero_share] = 0
-    assert cobs.encode_rows(a) == [cobs.encode(row.tobytes()) for row in a]
+    assert callable(encode_rows)
+    assert encode_rows(a) == [cobs.encode(row.tobytes()) for row in a]
+
+
+@pytest.mark.parametrize("encode_rows", _ROW_ENCODERS)
+@pytest.mark.parametrize("length", [253, 254, 255, 508, 509, 1100])
+def test_row_encoding_of_full_blocks(encode_rows: object, length: int) -> None:
+    """Runs of 254 non-zero bytes and more, ending where a block does or not."""
+    a = np.full((3, length), 7, dtype=np.uint8)
+    a[1, length // 2] = 0
+    a[2, -1] = 0
+    assert callable(encode_rows)
+    assert encode_rows(a) == [cobs.encode(row.tobytes()) for row in a]
 
 
 # --- many frames at once: the compiled package and the fallback -------------------

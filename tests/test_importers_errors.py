@@ -66,7 +66,13 @@ def test_declared_grid_does_not_match_the_columns(
 
 
 @pytest.mark.parametrize(
-    ("value", "problem"), [("nan", "NaN"), ("-3", "negative value -3"), ("x", "'x' is not")]
+    ("value", "problem"),
+    [
+        ("nan", "NaN"),
+        ("-3", "negative value -3"),
+        ("x", "'x' is not"),
+        ("1e300", "value 1e+300 too large (float32 holds"),
+    ],
 )
 def test_bad_value_names_line_and_column(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], value: str, problem: str

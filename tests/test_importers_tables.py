@@ -150,6 +150,28 @@ def test_the_values_match_numpy_s_own_reading(tmp_path: Path) -> None:
     assert table.lines.tolist() == list(range(2, 4002))
 
 
+def test_a_narrow_read_keeps_float32_and_its_wide_columns_whole(tmp_path: Path) -> None:
+    """Pressure tables are read narrow: half the memory, the time stamps kept in float64."""
+    rows = 3 * tables.BLOCK_BYTES // 30  # some blocks' worth of lines
+    t = 1e9 + np.arange(rows) * 1e-3  # ns-scale stamps float32 cannot tell apart
+    body = b"".join(b"%.3f,%d.25,nan\n" % (s, i) for i, s in enumerate(t))
+    path = csv(tmp_path, b"t,a,b\n" + body + b"1e300,2,3\n")
+    table = read_csv(path, narrow=True, wide=("t", 2))
+    assert table.values.dtype == np.float32
+    assert set(table.wide) == {0, 2}
+    np.testing.assert_array_equal(table.wide[0][:-1], np.round(t, 3))
+    assert table.wide[0][-1] == 1e300  # whole in its own column; the float32 copy held in range
+    assert table.values[-1, 0] == np.float32(tables.FLOAT32_MAX)
+    assert table.values[:-1, 1].tolist() == [i + 0.25 for i in range(rows)]
+    assert np.isnan(table.wide[2][0])  # NaN is kept, for the caller to judge
+    assert np.isnan(table.values[0, 2])
+    path.write_bytes(b"t,a\n" + b"1,2\n" * 5 + b"2,1e39\n")
+    with pytest.raises(InputError, match=r"line 7, column 2 \(a\): value 1e\+39 too large"):
+        read_csv(path, narrow=True, wide=("t",))
+    with pytest.raises(InputError, match=r"no column named 'x'"):
+        read_csv(path, narrow=True, wide=("x",))
+
+
 # --- .npz and HDF5 --------------------------------------------------------------------------
 
 
