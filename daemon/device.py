@@ -21,9 +21,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel
 from scotti.daemon import messages
+from scotti.daemon.control import Control
 from scotti.daemon.counters import Counters
 from scotti.daemon.inference import InferenceEngine
-from scotti.daemon.outputs import DeviceOutputs
+from scotti.daemon.outputs import DeviceOutputs, recording_metadata
 from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
 from scotti.daemon.publisher import BrokerState, FrameBatch, Publisher
 from scotti.daemon.recording import Recorder
@@ -61,10 +62,10 @@ class Device:
         self.started_mono = time.monotonic()
         self.outputs = DeviceOutputs(None, self.id)  # MCAP, Foxglove, LSL, web: app.py sets
         self.publisher: Publisher | None = None
+        self.control: Control | None = None  # remote control, with mqtt.control on
         self.state: PipelineState | None = None
         self.on_change: Callable[[Device], None] = lambda _d: None  # state or broker changed
         self._status_key: tuple[object, ...] | None = None
-        self._logged_status: tuple[object, ...] | None = None  # the last one the log said
         self._logged_status: tuple[object, ...] | None = None  # the last one the log said
 
     @property
@@ -82,10 +83,8 @@ class Device:
         self.publisher = publisher
         publisher.on_state_change = self._on_broker_state
         publisher.on_status_published = self._on_status_published
-        publisher.on_status_published = self._on_status_published
         publisher.set_status(messages.status("degraded", ["starting"], None))
         source = self.source
-        publisher.drop_stale = source.live
         publisher.drop_stale = source.live
         if not source.live:  # a replay waits for the broker rather than lose predictions
             # Room for the engine's backlog of this device too, and a frame or two more.
@@ -100,6 +99,14 @@ class Device:
         )
         publish_stop = asyncio.Event()
         pub_task = asyncio.create_task(publisher.run(publish_stop), name=f"publisher-{self.id}")
+        control_stop = asyncio.Event()  # the device's end (a replay's too), not only the daemon's
+        control_task: asyncio.Task[None] | None = None
+        if self.mqtt.control:
+            made_by = recording_metadata(settings, self.runtime)  # its MCAP files' record
+            self.control = Control(self.mqtt, self.id, pipeline, made_by)
+            control_task = asyncio.create_task(
+                self.control.run(control_stop), name=f"control-{self.id}"
+            )
         pipe_task = asyncio.create_task(
             pipeline.run(self._on_prediction, self._on_state, stop), name=f"pipeline-{self.id}"
         )
@@ -114,6 +121,10 @@ class Device:
             if self.recorder is not None:
                 self.recorder.close()
         deadline = time.monotonic() + settings.stop_timeout_s
+        if control_task is not None and self.control is not None:
+            control_stop.set()
+            await asyncio.gather(control_task, return_exceptions=True)
+            await self.control.close()  # what record/start opened: the files' last bytes
         publisher.on_drained = self._publish_final_state
         publish_stop.set()
         try:
@@ -151,6 +162,8 @@ class Device:
             )
         )
         self.outputs.prediction(prediction)  # queued only: written on the outputs' thread
+        if self.control is not None:
+            self.control.prediction(prediction)  # an MCAP file record/start opened
 
     def _on_state(self, state: PipelineState) -> None:
         self.state = state
@@ -178,8 +191,6 @@ class Device:
         frames, needed = state.warming
         if frames < needed and state.source == "connected":
             reasons.append("warming up")  # how far: Status.warming (not a new status per frame)
-        if self.publisher.state == "disconnected":  # reaches the other outputs, never MQTT
-            reasons.append(f"broker unreachable ({self.publisher.stats.last_error})")
         key = (state.source, tuple(sorted(state.feet.items())), tuple(reasons))
         broker_away = self.publisher.state == "disconnected"
         if (key, broker_away) == self._status_key:
@@ -194,6 +205,8 @@ class Device:
             shown = [*reasons, f"broker unreachable ({self.publisher.stats.last_error})"]
             status = messages.status("degraded", shown, state)
         self.outputs.status(status)
+        if self.control is not None:
+            self.control.status(status)
 
     @property
     def _log_prefix(self) -> str:
@@ -218,13 +231,18 @@ class Device:
 
     def health(self) -> Any:
         assert self.publisher is not None
-        return messages.health(
+        health = messages.health(
             self.counters.snapshot(),
             self.publisher,
             uptime_s=time.monotonic() - self.started_mono,
             outputs_dropped=self.outputs.dropped,
             outputs_errors=self.outputs.errors,
         )
+        if self.control is None:
+            return health
+        # Under ``pipeline`` (open in the schema), as the outputs' counts are.
+        pipeline = {**health.pipeline, "control": self.control.stats.as_dict()}
+        return health.model_copy(update={"pipeline": pipeline})
 
 
 class _PacedByPublisher:

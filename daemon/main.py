@@ -73,6 +73,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", metavar="json|msgpack", help="payload encoding (default json)")
     p.add_argument("--pressure", action="store_true", default=None, help="publish pressure")
     p.add_argument(
+        "--control", action="store_true", default=None,
+        help="take requests on PREFIX/ID/cmd/...: record, mark events, reset the repetition "
+        "count (off by default; docs/mqtt.md, Remote control)",
+    )  # fmt: skip
+    p.add_argument(
         "--record",
         type=Path,
         metavar="FILE|DIR",
@@ -116,6 +121,7 @@ _CLI_FIELDS: dict[str, tuple[str | None, str]] = {
     "topic_prefix": ("mqtt", "topic_prefix"),
     "format": ("mqtt", "format"),
     "pressure": ("mqtt", "pressure"),
+    "control": ("mqtt", "control"),
     "record": (None, "record"),
     "record_mcap": ("outputs", "record_mcap"),
     "foxglove": ("outputs", "foxglove"),

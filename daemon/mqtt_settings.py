@@ -53,6 +53,13 @@ class MqttSettings(BaseModel):
     tls_ca_file: Path | None = None  # CA bundle (PEM) the broker's certificate must chain to
     tls_cert_file: Path | None = None  # client certificate (PEM), for brokers that want one
     tls_key_file: Path | None = None  # its private key (PEM); default: inside tls_cert_file
+    # Remote control (daemon/control.py, docs/mqtt.md "Remote control"): off unless asked
+    # for. Requests on <prefix>/<id>/cmd/<verb> over a connection of its own, one at a
+    # time, at most ``control_rate`` a second; beyond ``control_queue`` waiting, dropped.
+    control: bool = False
+    control_queue: Annotated[int, Field(ge=1, le=1000)] = 8
+    control_rate: Annotated[float, Field(gt=0, le=1000)] = 20.0
+    control_dir: Path = Path(".")  # where record/start writes (default: working directory)
 
     @field_validator("device_id")
     @classmethod
@@ -95,6 +102,13 @@ class MqttSettings(BaseModel):
             if not is_file(path):
                 msg = f"{name}: file not found: {shown(str(path), 200)}"
                 raise ValueError(msg)
+        return self
+
+    @model_validator(mode="after")
+    def _control_dir(self) -> MqttSettings:
+        if self.control and not self.control_dir.is_dir():
+            msg = f"control_dir: not a directory: {shown(str(self.control_dir), 200)}"
+            raise ValueError(msg)
         return self
 
     def tls_context(self) -> ssl.SSLContext | None:

@@ -30,7 +30,7 @@ from typing import Final
 
 from scotti.daemon.errors import DaemonError
 from scotti.firmware_protocol.errors import SessionError
-from scotti.firmware_protocol.session import SessionHeader, SessionWriter
+from scotti.firmware_protocol.session import EventRecord, SessionHeader, SessionWriter
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +119,7 @@ class Recorder:
         self.requested = Path(path)
         self.records = 0
         self.bytes = 0
+        self.events = 0  # event records (``mark``)
         self.failed: str | None = None  # why recording stopped early, if it did
         self.path, writer = _open_new(
             self.requested,
@@ -145,6 +146,25 @@ class Recorder:
             return
         self.records += 1
         self.bytes += len(data)
+
+    def mark(self, event: EventRecord) -> bool:
+        """Write an event among the packets (``event/mark``); False when not recording."""
+        if self._writer is None:
+            return False
+        try:
+            self._writer.write(event)
+        except (OSError, SessionError) as exc:
+            self.failed = f"recording to {self.path} stopped: {exc}"
+            log.error("%s", self.failed)
+            self._close_quietly()
+            return False
+        self.events += 1
+        return True
+
+    @property
+    def is_open(self) -> bool:
+        """Still recording (not closed, not stopped by an error)."""
+        return self._writer is not None
 
     def close(self) -> None:
         """Flush, fsync and close; safe to call twice."""

@@ -212,6 +212,95 @@ class Health(_Payload):
     pipeline: dict[str, Any] = Field(description="Every pipeline counter (Counters.snapshot).")
 
 
+# --- remote control (daemon/control.py; docs/mqtt.md, "Remote control") ---------------
+# One file name: no path, no dot first; {time} and {device} as in --record.
+FILE_STEM: Final = r"^[A-Za-z0-9_{][A-Za-z0-9_.{}-]{0,63}$"
+
+
+class _Request(BaseModel):
+    """A request on ``cmd/<verb>``: a JSON object (an empty payload reads as ``{}``); an
+    unknown field is refused, so a misspelt one is not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RecordStart(_Request):
+    """``cmd/record/start``: a session file (and an MCAP file) in ``mqtt.control_dir``."""
+
+    name: str | None = Field(
+        default=None,
+        pattern=FILE_STEM,
+        description="File name without suffix (A-Z a-z 0-9 _ . - and the placeholders "
+        "{time}, {device}; at most 64, no path); default <device>-<UTC start>. A name that "
+        "exists is refused, never overwritten.",
+    )
+    mcap: bool | None = Field(
+        default=None,
+        description="Also the Foxglove channels into <name>.mcap: true: required (refused "
+        "without the [outputs] extra), false: no, absent: when the extra is installed.",
+    )
+
+
+class RecordStop(_Request):
+    """``cmd/record/stop``: no fields; closes what is recording (started by record/start
+    or by --record)."""
+
+
+class EventMark(_Request):
+    """``cmd/event/mark``: an event written into the recordings and echoed on ``event``."""
+
+    label: str = Field(min_length=1, max_length=200, description="What happened, short.")
+    detail: str = Field(default="", max_length=2000, description="More text, optional.")
+
+
+class RepetitionsReset(_Request):
+    """``cmd/repetitions/reset``: no fields; the repetition count starts again from 0."""
+
+
+REQUESTS: Final[dict[str, type[_Request]]] = {
+    "record/start": RecordStart,
+    "record/stop": RecordStop,
+    "event/mark": EventMark,
+    "repetitions/reset": RepetitionsReset,
+}
+
+
+class Reply(_Payload):
+    """The answer to every request; fields that do not apply to a verb are left out."""
+
+    schema_version: Literal[1] = _version(1)
+    ok: bool
+    verb: str = Field(description="The verb asked for (cut to 64 characters).")
+    reason: str | None = Field(default=None, description="Why not ok; absent when ok.")
+    host_wall_ns: int = Field(description="When the request was done (Unix ns).")
+    seq: int | None = Field(
+        default=None, description="seq of the newest prediction when it was done."
+    )
+    session: str | None = Field(default=None, description="The session file (record/...).")
+    mcap: str | None = Field(default=None, description="The MCAP file, if one (record/...).")
+    seconds: float | None = Field(default=None, description="How long it recorded (stop).")
+    events: int | None = Field(default=None, description="Events in the recording (stop).")
+    written_to: list[str] | None = Field(
+        default=None, description="Files the event went into (event/mark)."
+    )
+    note: str | None = Field(default=None, description="Something worth knowing, e.g. no MCAP.")
+
+
+class Event(_Payload):
+    """On ``event`` (QoS 1, not retained) for every ``event/mark`` done."""
+
+    schema_version: Literal[1] = _version(1)
+    label: str
+    detail: str
+    seq: int | None = Field(description="seq of the newest prediction when it was marked.")
+    host_wall_ns: int
+    host_mono_ns: int
+    written_to: list[str] = Field(description="Files it went into (none when not recording).")
+
+
+# Published only with remote control on; their schemas are in the docs with the others.
+CONTROL_TOPICS: Final[dict[str, type[_Payload]]] = {"reply": Reply, "event": Event}
+
 TOPICS: Final[dict[str, type[_Payload]]] = {
     "status": Status,
     "info": Info,
@@ -243,7 +332,9 @@ END: Final = "<!-- END GENERATED SCHEMAS -->"
 
 def json_schemas() -> dict[str, str]:
     """Topic -> its JSON Schema as formatted text."""
-    return {t: json.dumps(m.model_json_schema(), indent=2) + "\n" for t, m in TOPICS.items()}
+    models: dict[str, type[BaseModel]] = {**TOPICS, **CONTROL_TOPICS}
+    models |= {f"cmd/{verb}": model for verb, model in REQUESTS.items()}
+    return {t: json.dumps(m.model_json_schema(), indent=2) + "\n" for t, m in models.items()}
 
 
 def render_doc_section() -> str:
@@ -268,7 +359,10 @@ def render_doc(current: str) -> str:
 
 def generated_files(docs: Path) -> dict[Path, str]:
     """Every generated file and its expected content."""
-    files = {docs / "schemas" / f"{t}.schema.json": s for t, s in json_schemas().items()}
+    files = {
+        docs / "schemas" / f"{t.replace('/', '.')}.schema.json": s
+        for t, s in json_schemas().items()
+    }
     mqtt_md = docs / "mqtt.md"
     current = mqtt_md.read_text(encoding="utf-8") if mqtt_md.exists() else "# MQTT API\n"
     files[mqtt_md] = render_doc(current)

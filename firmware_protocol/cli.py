@@ -2,7 +2,8 @@
 
 Source, device, geometry, duration; per foot the row blocks, frames,
 incomplete frames and sequence gaps; bad packets by reason; labels; the
-board's status reports; whether the file was cut short.
+board's status reports; the events marked while recording; whether the file was
+cut short.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any
 
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.packets import InsoleStatus
-from scotti.firmware_protocol.session_summary import SessionSummary, summarize
+from scotti.firmware_protocol.session_summary import EVENTS_KEPT, SessionSummary, summarize
 
 _FOOT_ROWS = (
     ("row blocks", "blocks"),
@@ -30,6 +31,7 @@ _FOOT_ROWS = (
     ("last seq", "last_seq"),
     ("other geometry", "other_geometry"),
 )
+EVENTS_SHOWN = 20  # marked events listed by name; the rest counted
 _DECODER_ERRORS = ("bad_cobs", "bad_crc", "too_long", "bad_version", "unknown_type", "malformed")
 
 
@@ -172,6 +174,16 @@ def render(s: SessionSummary, action_names: Sequence[str] = ()) -> str:
         )
     else:
         lines.append("labels    none")
+    events = s.events.as_dict(s.first_packet_ns)
+    if events["count"]:
+        lines.append(f"events    {events['count']}")
+        for e in events["first"][:EVENTS_SHOWN]:
+            detail = f" ({e['detail']})" if e["detail"] else ""
+            lines.append(f"  {e['at_s']:>9.3f} s  {e['label']}{detail}")
+        if events["count"] > EVENTS_SHOWN:
+            lines.append(
+                f"  ... {events['count'] - EVENTS_SHOWN} more (--json lists {EVENTS_KEPT})"
+            )
     last = s.status.last
     if last is None:
         lines.append("status    no board status reports")

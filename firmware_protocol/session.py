@@ -26,6 +26,7 @@ from scotti.firmware_protocol.session_records import FORMAT_VERSION as FORMAT_VE
 from scotti.firmware_protocol.session_records import KEYPOINTS_BYTES as KEYPOINTS_BYTES
 from scotti.firmware_protocol.session_records import NUM_KEYPOINTS as NUM_KEYPOINTS
 from scotti.firmware_protocol.session_records import SOURCES as SOURCES
+from scotti.firmware_protocol.session_records import EventRecord as EventRecord
 from scotti.firmware_protocol.session_records import LabelRecord as LabelRecord
 from scotti.firmware_protocol.session_records import PacketRecord as PacketRecord
 from scotti.firmware_protocol.session_records import Record as Record
@@ -114,7 +115,7 @@ class SessionWriter(_ClosedOnExit):
     def write_label(self, label: LabelRecord) -> None:
         self._write(label.to_record())
 
-    def write(self, record: PacketRecord | LabelRecord | SourceFrameRecord) -> None:
+    def write(self, record: PacketRecord | LabelRecord | SourceFrameRecord | EventRecord) -> None:
         self._write(record.to_record())
 
     def flush(self) -> None:
@@ -158,15 +159,19 @@ class SessionReader(_ClosedOnExit):
     """Streams the records of a session file; the header is read on open.
 
     Iterating yields ``PacketRecord`` and ``LabelRecord`` in file order (and
-    ``SourceFrameRecord`` when ``source_frames`` is set; skipped otherwise). When
+    ``SourceFrameRecord`` when ``source_frames`` is set, ``EventRecord`` when ``events``
+    is; skipped otherwise). When
     it ends, ``truncated`` says whether the file stopped inside a record,
     ``bad_records`` how many whole records could not be understood and
     ``unknown_records`` how many had a kind this reader does not know.
     """
 
-    def __init__(self, path: str | os.PathLike[str], *, source_frames: bool = False) -> None:
+    def __init__(
+        self, path: str | os.PathLike[str], *, source_frames: bool = False, events: bool = False
+    ) -> None:
         self.path = Path(path)
         self.source_frames = source_frames
+        self.events = events
         self.truncated = False
         self.bad_records = 0
         self.unknown_records = 0
@@ -227,11 +232,11 @@ class SessionReader(_ClosedOnExit):
 
     def __iter__(self) -> Iterator[PacketRecord | LabelRecord]:
         for record in self.records():
-            if not isinstance(record, SourceFrameRecord):
+            if not isinstance(record, SourceFrameRecord | EventRecord):
                 yield record
 
-    def records(self) -> Iterator[PacketRecord | LabelRecord | SourceFrameRecord]:
-        """Every whole record after the header, source frames when asked for."""
+    def records(self) -> Iterator[PacketRecord | LabelRecord | SourceFrameRecord | EventRecord]:
+        """Every whole record after the header, source frames and events when asked for."""
         while (record := self._next_map()) is not None:
             kind = record.get("kind")
             try:
@@ -242,6 +247,9 @@ class SessionReader(_ClosedOnExit):
                 elif kind == "source_frame":
                     if self.source_frames:
                         yield SourceFrameRecord.from_record(record)
+                elif kind == "mark":  # an EventRecord
+                    if self.events:
+                        yield EventRecord.from_record(record)
                 elif record is _BAD_RECORD:
                     pass  # already counted by _next_map
                 elif not isinstance(kind, str):
@@ -282,12 +290,15 @@ def read_session(path: str | os.PathLike[str]) -> Session:
     )
 
 
-def iter_records(path: str | os.PathLike[str], *, source_frames: bool = False) -> Iterator[Record]:
+def iter_records(
+    path: str | os.PathLike[str], *, source_frames: bool = False, events: bool = False
+) -> Iterator[Record]:
     """Stream the header, then every whole packet and label record, in file order.
 
-    ``source_frames``: also an imported session's source frames, where they lie.
+    ``source_frames``: also an imported session's source frames, where they lie;
+    ``events``: also the events marked while recording.
     """
-    with SessionReader(path, source_frames=source_frames) as reader:
+    with SessionReader(path, source_frames=source_frames, events=events) as reader:
         yield reader.header
         yield from reader.records()
 

@@ -1,4 +1,5 @@
-"""The records of a session file: header, packets as received, labels, source frames.
+"""The records of a session file: header, packets as received, labels, source frames,
+marked events.
 
 Each is a frozen dataclass with ``to_record`` / ``from_record`` to and from
 the msgpack map stored in the file; :mod:`scotti.firmware_protocol.session`
@@ -202,4 +203,40 @@ class SourceFrameRecord:
         return cls(t_ns=int(record["t_ns"]), frames=frames)
 
 
-Record: TypeAlias = SessionHeader | PacketRecord | LabelRecord | SourceFrameRecord
+@dataclass(frozen=True)
+class EventRecord:
+    """A moment marked while recording (``event/mark`` over MQTT): a label, a detail.
+
+    Written beside the packets it happened among; readers that predate it skip it
+    as a record of unknown kind, and readers skip it unless asked
+    (``SessionReader(events=True)``), so replay and evaluation never see it.
+    """
+
+    t_ns: int  # host monotonic time, the packet records' clock
+    label: str
+    detail: str = ""
+    wall_ns: int = 0  # host wall clock (Unix ns) when it was marked
+
+    def to_record(self) -> dict[str, Any]:
+        return {
+            "kind": "mark",
+            "t_ns": self.t_ns,
+            "wall_ns": self.wall_ns,
+            "label": self.label,
+            "detail": self.detail,
+        }
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any]) -> EventRecord:
+        t_ns, wall_ns = record["t_ns"], record.get("wall_ns", 0)
+        label, detail = record["label"], record.get("detail", "")
+        if not isinstance(t_ns, int) or not isinstance(wall_ns, int):
+            msg = "event record needs int t_ns and wall_ns"
+            raise TypeError(msg)
+        if not isinstance(label, str) or not isinstance(detail, str):
+            msg = "event record needs text label and detail"
+            raise TypeError(msg)
+        return cls(t_ns, label, detail, wall_ns)
+
+
+Record: TypeAlias = SessionHeader | PacketRecord | LabelRecord | SourceFrameRecord | EventRecord

@@ -13,7 +13,13 @@ from typing import Any
 from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import BoardStatus, Foot, FrameRows
-from scotti.firmware_protocol.session import LabelRecord, SessionHeader, SessionReader
+from scotti.firmware_protocol.session import (
+    EventRecord,
+    LabelRecord,
+    PacketRecord,
+    SessionHeader,
+    SessionReader,
+)
 from scotti.firmware_protocol.wrap import seq_delta
 
 
@@ -73,6 +79,38 @@ class LabelSummary:
         self.last_seq = label.seq
 
 
+EVENTS_KEPT = 100  # events listed in a summary; the rest only counted (bounded memory)
+
+
+@dataclass
+class EventSummary:
+    """The events marked while recording (``event/mark``): how many, and the first ones."""
+
+    count: int = 0
+    first: list[EventRecord] = field(default_factory=list)
+
+    def add(self, event: EventRecord) -> None:
+        self.count += 1
+        if len(self.first) < EVENTS_KEPT:
+            self.first.append(event)
+
+    def as_dict(self, start_ns: int | None) -> dict[str, Any]:
+        """``at_s``: seconds from the first packet record (from the first event without one)."""
+        origin = start_ns if start_ns is not None else (self.first[0].t_ns if self.first else 0)
+        return {
+            "count": self.count,
+            "first": [
+                {
+                    "at_s": round((e.t_ns - origin) / 1e9, 3),
+                    "label": e.label,
+                    "detail": e.detail,
+                    "wall_ns": e.wall_ns,
+                }
+                for e in self.first
+            ],
+        }
+
+
 @dataclass
 class StatusSummary:
     reports: int = 0
@@ -117,6 +155,8 @@ class SessionSummary:
     decoder: dict[str, int] = field(default_factory=dict)
     assembler: dict[str, int] = field(default_factory=dict)
     labels: LabelSummary = field(default_factory=LabelSummary)
+    events: EventSummary = field(default_factory=EventSummary)
+    first_packet_ns: int | None = None  # host time of the first packet record
     status: StatusSummary = field(default_factory=StatusSummary)
     truncated: bool = False
     bad_records: int = 0
@@ -140,6 +180,7 @@ class SessionSummary:
                 "first_seq": self.labels.first_seq,
                 "last_seq": self.labels.last_seq,
             },
+            "events": self.events.as_dict(self.first_packet_ns),
             "status": self.status.as_dict(),
             "truncated": self.truncated,
             "bad_records": self.bad_records,
@@ -151,17 +192,22 @@ def summarize(path: str | os.PathLike[str]) -> SessionSummary:
     """Read a whole session file and count what it holds; raises ``SessionError``."""
     decoder = StreamDecoder()
     assembler = FrameAssembler()
-    with SessionReader(path) as reader:
+    with SessionReader(path, events=True) as reader:
         header = reader.header
         summary = SessionSummary(str(path), header)
         geometry = (header.rows, header.cols, header.sample_bits)
         side = {Foot.LEFT: summary.feet["left"], Foot.RIGHT: summary.feet["right"]}
         first_ns: int | None = None
         last_ns = 0
-        for record in reader:
+        for record in reader.records():
             if isinstance(record, LabelRecord):
                 summary.labels.add(record)
                 continue
+            if isinstance(record, EventRecord):
+                summary.events.add(record)
+                continue
+            if not isinstance(record, PacketRecord):
+                continue  # source frames: not asked for, never yielded
             summary.packet_records += 1
             summary.stream_bytes += len(record.data)
             first_ns = record.t_ns if first_ns is None else first_ns
@@ -177,6 +223,7 @@ def summarize(path: str | os.PathLike[str]) -> SessionSummary:
             side[frame.foot].add(frame, geometry)
     summary.file_bytes = os.stat(path).st_size
     summary.whole_record_bytes = reader.bytes_read
+    summary.first_packet_ns = first_ns
     summary.duration_s = 0.0 if first_ns is None else (last_ns - first_ns) / 1e9
     summary.decoder = decoder.counters.as_dict() | {"pending_at_end": decoder.pending}
     summary.assembler = assembler.counters.as_dict()

@@ -1,0 +1,579 @@
+"""Remote control over MQTT: start and stop a recording, mark an event, reset the count.
+
+Off unless ``mqtt.control`` (``--control``, ``SCOTTI_MQTT_CONTROL``). A device
+with control on takes requests on ``<prefix>/<id>/cmd/<verb>``:
+
+- ``record/start``: a session file (and, with the ``[outputs]`` extra, an MCAP
+  file of the Foxglove channels) in ``mqtt.control_dir``;
+- ``record/stop``: closes what is recording (also a ``--record`` file);
+- ``event/mark``: an event record in both files, echoed on ``<prefix>/<id>/event``;
+- ``repetitions/reset``: the repetition count starts again from 0.
+
+Every request is answered, on the MQTT v5 response topic it names (with its
+correlation data) or on ``<prefix>/<id>/reply/<verb>``: ``{"ok": true, ...}`` or
+``{"ok": false, "reason": "..."}``. A malformed payload, an unknown verb or a
+stop with nothing recording is such an answer and a count in
+``health.pipeline.control``, never an exception out of here.
+
+Requests come over a connection of their own (client id ``<the device's>-control``),
+not the one the predictions leave by: a flood of requests or of replies never
+queues in front of a pose. They are bounded so a flood cannot take the event loop
+either: aiomqtt's incoming queue holds ``control_queue`` requests, more are dropped
+and counted (not logged one by one); they are handled one at a time, at most
+``control_rate`` a second. A flood (far more dropped than any controller sends)
+makes it unsubscribe for a while, so the broker stops handing it over at all. Who
+may send requests is the broker's ACL (docs/mqtt.md): the daemon never sees a
+publish the broker refused.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import importlib.util
+import json
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Final
+
+import aiomqtt
+import msgpack
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+from paho.mqtt.reasoncodes import ReasonCode
+from pydantic import BaseModel, ValidationError
+from scotti.daemon.mqtt_settings import MqttSettings
+from scotti.daemon.outputs import EXTRA_HINT, OutputError
+from scotti.daemon.publisher import explain
+from scotti.daemon.recording import Recorder, RecordingError
+from scotti.daemon.schemas import (
+    CONTENT_TYPES,
+    REQUESTS,
+    Event,
+    EventMark,
+    RecordStart,
+    Reply,
+)
+from scotti.daemon.waiting import Backoff, wait_event
+from scotti.firmware_protocol.session import EventRecord
+
+if TYPE_CHECKING:
+    from scotti.daemon.outputs.fanout import OutputThread
+    from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
+    from scotti.daemon.pipeline import Pipeline, Prediction
+    from scotti.daemon.schemas import Status
+
+log = logging.getLogger(__name__)
+
+QOS: Final = 1  # requests, replies and events: must arrive, late is fine
+MAX_REQUEST_BYTES: Final = 4096  # a request is a small JSON object
+MAX_RESPONSE_TOPIC: Final = 512
+MAX_VERB_SHOWN: Final = 64
+BACKOFF_START_S: Final = 0.25
+# A flood: more dropped requests within a second than FLOOD_DROPS_MIN or two seconds'
+# worth at control_rate (40 by default), beyond what any controller sends. The daemon
+# then unsubscribes from cmd/# for FLOOD_PAUSE_S, doubled while floods go on (up to
+# FLOOD_PAUSE_MAX_S): even the reading and dropping of each message costs the event loop
+# (docs/mqtt.md, "A flood of requests").
+FLOOD_DROPS_MIN: Final = 20
+FLOOD_PAUSE_S: Final = 5.0
+FLOOD_PAUSE_MAX_S: Final = 60.0
+MCAP_CLOSE_TIMEOUT_S: Final = 5.0
+EVENTS_TOPIC: Final = "/events"  # the MCAP channel of the marked events
+# Flat (no $ref, $defs or anyOf), as Foxglove's JSON Schema parser wants it.
+EVENT_CHANNEL_SCHEMA: Final[dict[str, Any]] = {
+    "type": "object",
+    "properties": {
+        "label": {"type": "string"},
+        "detail": {"type": "string"},
+        "seq": {"type": "integer", "description": "newest prediction's seq, -1: none yet"},
+        "host_wall_ns": {"type": "integer"},
+        "host_mono_ns": {"type": "integer"},
+    },
+}
+
+
+@dataclass
+class ControlStats:
+    """``health.pipeline.control``."""
+
+    received: int = 0  # requests taken from the queue
+    ok: int = 0  # answered ok
+    refused: int = 0  # answered with a reason (malformed and unknown ones included)
+    malformed: int = 0  # payload not a valid request of its verb
+    unknown_verb: int = 0
+    dropped_queue_full: int = 0  # arrived while ``control_queue`` requests were waiting
+    reply_errors: int = 0  # replies or events the broker connection lost
+    subscribed: bool = False  # the broker granted the subscription to cmd/#
+    connects: int = 0
+    flood_pauses: int = 0  # times it stopped listening for a while (a flood)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _bounded_queue(stats: ControlStats) -> type[asyncio.Queue[aiomqtt.Message]]:
+    """aiomqtt's incoming queue, dropping what does not fit and counting it (aiomqtt's own
+    bounded queue logs a WARNING per dropped message: a flood would flood the log too)."""
+
+    class DroppingQueue(asyncio.Queue[aiomqtt.Message]):
+        def put_nowait(self, item: aiomqtt.Message) -> None:
+            if self.full():
+                stats.dropped_queue_full += 1
+                return
+            super().put_nowait(item)
+
+    return DroppingQueue
+
+
+def mcap_missing() -> str | None:
+    """Why an MCAP file cannot be written here, or None when it can."""
+    if importlib.util.find_spec("foxglove") is None:
+        return f"no MCAP file: it needs the Python package 'foxglove': {EXTRA_HINT}"
+    return None
+
+
+class McapRecording:
+    """One device's Foxglove channels into an MCAP file, written on a thread of its own
+    (as the daemon's other outputs are), plus ``/events``."""
+
+    def __init__(self, path: Path, device: str, metadata: Mapping[str, str] | None) -> None:
+        from scotti.daemon.outputs.fanout import Item, OutputThread
+        from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
+
+        self._item = Item
+        self.device = device
+        self.output: FoxgloveOutput = FoxgloveOutput(
+            mcap=path, port=None, devices=(device,), metadata=metadata
+        )
+        assert self.output.mcap_path is not None
+        self.path: Path = self.output.mcap_path
+        import foxglove
+
+        self._events = foxglove.Channel(
+            EVENTS_TOPIC, schema=EVENT_CHANNEL_SCHEMA, context=self.output.context
+        )
+        self._thread: OutputThread = OutputThread(self._handle, devices=1)
+
+    def prediction(self, p: Prediction) -> None:
+        self._thread.submit(self._item(self.device, prediction=p))
+
+    def status(self, status: Status) -> None:
+        self._thread.submit(self._item(self.device, status=status))
+
+    def event(self, record: EventRecord, seq: int | None) -> bool:
+        """Log one event (a small JSON message; the SDK's channels take it from any thread)."""
+        try:
+            self._events.log(
+                {
+                    "label": record.label,
+                    "detail": record.detail,
+                    "seq": -1 if seq is None else seq,
+                    "host_wall_ns": record.wall_ns,
+                    "host_mono_ns": record.t_ns,
+                },
+                log_time=record.wall_ns,
+            )
+        except Exception:
+            log.warning("remote control: event not written to %s", self.path, exc_info=True)
+            return False
+        return True
+
+    def _handle(self, item: Any) -> None:  # on the thread
+        p = item.prediction
+        if p is not None:
+            latency_ms = (time.monotonic_ns() - (p.last_byte_mono_ns or p.host_mono_ns)) / 1e6
+            self.output.prediction(self.device, p, latency_ms)
+        elif item.status is not None:
+            self.output.status(self.device, item.status)
+
+    def close(self) -> None:
+        """Write what is queued, then the file's index. Blocks: from a worker thread."""
+        if not self._thread.close(MCAP_CLOSE_TIMEOUT_S):
+            log.warning(
+                "remote control: %s: %d items not written", self.path, self._thread.abandoned
+            )
+        # ``FoxgloveOutput.close`` is a coroutine that never awaits: run here, off the loop.
+        asyncio.run(self.output.close())
+
+
+@dataclass
+class _Recording:
+    """What ``record/start`` opened."""
+
+    session: Recorder
+    mcap: McapRecording | None
+    started_mono: float
+
+
+class Control:
+    """One device's remote control; ``await control.run(stop)`` until ``stop``, then
+    ``await control.close()`` once the pipeline no longer records. ``mcap_metadata``: the
+    ``scotti`` record of the MCAP files it writes (``outputs.recording_metadata``)."""
+
+    def __init__(
+        self,
+        settings: MqttSettings,
+        device_id: str,
+        pipeline: Pipeline,
+        mcap_metadata: Mapping[str, str] | None = None,
+    ) -> None:
+        self.settings = settings
+        self.device_id = device_id
+        self.pipeline = pipeline
+        self.mcap_metadata = mcap_metadata
+        self.stats = ControlStats()
+        self._cmd = settings.topic("cmd/")
+        self._own = f"{settings.topic_prefix}/"
+        self._replies = settings.topic("reply/")
+        self._v5 = settings.protocol == "5"
+        self._recording: _Recording | None = None
+        self._last_seq: int | None = None
+        self._status: Status | None = None
+        self._next_at = 0.0  # monotonic time the next request may be handled
+        self._flood_limit = max(FLOOD_DROPS_MIN, round(2 * settings.control_rate))
+        self._window = (time.monotonic(), 0)  # (start, dropped by then) of the flood window
+        self._pause_s = FLOOD_PAUSE_S  # read at each pause: tests shorten it
+        self._calm_since = time.monotonic()
+        self._state = "connecting"
+        base = settings.client_id or f"scotti-daemon-{device_id}"
+        self._client = aiomqtt.Client(
+            settings.host,
+            settings.port,
+            username=settings.username,
+            password=settings.password.get_secret_value() if settings.password else None,
+            identifier=f"{base}-control",
+            protocol=aiomqtt.ProtocolVersion.V5 if self._v5 else aiomqtt.ProtocolVersion.V311,
+            keepalive=settings.keepalive_s,
+            timeout=5,
+            tls_context=settings.tls_context(),
+            logger=logging.getLogger("scotti.daemon.mqtt"),
+            queue_type=_bounded_queue(self.stats),
+            max_queued_incoming_messages=settings.control_queue,
+        )
+
+    # --- from the device (event loop, never blocks) ------------------------------
+    def prediction(self, p: Prediction) -> None:
+        self._last_seq = p.seq
+        if self._recording is not None and self._recording.mcap is not None:
+            self._recording.mcap.prediction(p)
+
+    def status(self, status: Status) -> None:
+        self._status = status
+        if self._recording is not None and self._recording.mcap is not None:
+            self._recording.mcap.status(status)
+
+    # --- the connection ------------------------------------------------------------
+    async def run(self, stop: asyncio.Event) -> None:
+        backoff = Backoff(BACKOFF_START_S, cap_s=self.settings.reconnect_max_s, jitter=0.0)
+        while not stop.is_set():
+            try:
+                async with self._client:
+                    self.stats.connects += 1
+                    await self._subscribe()
+                    backoff.reset()
+                    await _until(stop, self._take_requests())
+                return
+            except aiomqtt.MqttError as exc:
+                self._lost(explain(exc))
+            await wait_event(stop, backoff.next_delay())
+
+    async def _subscribe(self) -> None:
+        topic = self._cmd + "#"
+        granted = await self._client.subscribe(topic, qos=QOS)
+        code = granted[0] if granted else 0x80  # v5: a ReasonCode; 3.1.1: the granted QoS
+        value = code.value if isinstance(code, ReasonCode) else int(code)
+        self.stats.subscribed = value < 0x80
+        if not self.stats.subscribed:
+            log.warning(
+                "remote control: the broker refused the subscription to %s (%s): "
+                "no requests will arrive (the broker's ACL, docs/mqtt.md)",
+                topic,
+                code,
+            )
+        elif self._state != "connected":
+            log.info("remote control: taking requests on %s", topic)
+        self._state = "connected"
+
+    def _lost(self, reason: str) -> None:
+        self.stats.subscribed = False
+        if self._state != "disconnected":
+            log.warning("remote control: broker %s: %s; retrying", self.settings.broker, reason)
+        self._state = "disconnected"
+
+    async def _take_requests(self) -> None:
+        async for message in self._client.messages:
+            if self._flooded():
+                self.stats.dropped_queue_full += 1  # a request of the flood, unanswered
+                await self._pause()
+                continue
+            await self._pace()
+            await self._answer(message)
+
+    def _flooded(self) -> bool:
+        now, dropped = time.monotonic(), self.stats.dropped_queue_full
+        start, dropped_then = self._window
+        if dropped - dropped_then >= self._flood_limit:
+            self._window = (now, dropped)
+            return True
+        if now - start >= 1.0:
+            self._window = (now, dropped)
+        return False
+
+    async def _pause(self) -> None:
+        """Stop listening for a while: the broker no longer hands the flood over at all."""
+        now = time.monotonic()
+        if now - self._calm_since > FLOOD_PAUSE_MAX_S:
+            self._pause_s = FLOOD_PAUSE_S  # the first flood for a while
+        topic = self._cmd + "#"
+        await self._client.unsubscribe(topic)
+        self.stats.subscribed = False
+        self.stats.flood_pauses += 1
+        log.warning(
+            "remote control: flooded (%d requests dropped within a second); not taking "
+            "requests for %.0f s",
+            self._flood_limit,
+            self._pause_s,
+        )
+        await asyncio.sleep(self._pause_s)
+        self._pause_s = min(FLOOD_PAUSE_MAX_S, 2 * self._pause_s)
+        await self._subscribe()
+        self._calm_since = time.monotonic()
+        self._window = (self._calm_since, self.stats.dropped_queue_full)
+        log.info("remote control: taking requests on %s again", topic)
+
+    async def _pace(self) -> None:
+        """At most ``control_rate`` requests a second, so a flood waits (and overflows
+        the queue, counted) instead of taking the event loop."""
+        now = time.monotonic()
+        if self._next_at > now:
+            await asyncio.sleep(self._next_at - now)
+        self._next_at = max(now, self._next_at) + 1.0 / self.settings.control_rate
+
+    # --- one request -----------------------------------------------------------------
+    async def _answer(self, message: aiomqtt.Message) -> None:
+        self.stats.received += 1
+        verb = message.topic.value.removeprefix(self._cmd)
+        props = message.properties
+        response_topic = getattr(props, "ResponseTopic", None)
+        correlation = getattr(props, "CorrelationData", None)
+        content_type = getattr(props, "ContentType", None)
+        topic = self._replies + (verb if verb in REQUESTS else "unknown")
+        refusal = None if response_topic is None else self._bad_response_topic(response_topic)
+        if response_topic is not None and refusal is None:
+            topic = response_topic
+        try:
+            if refusal is not None:
+                reply = self._fail(verb, refusal)
+            else:
+                reply = await self._do(verb, message.payload, content_type)
+        except aiomqtt.MqttError:
+            raise  # the connection is gone: the reply could not go out either
+        except Exception as exc:  # a bug here must not end remote control, nor the daemon
+            log.exception("remote control: %s failed", verb[:MAX_VERB_SHOWN])
+            reply = self._fail(verb, f"internal error: {type(exc).__name__}: {exc}")
+        await self._send(topic, reply, correlation)
+
+    def _bad_response_topic(self, topic: str) -> str | None:
+        """Why the daemon will not answer on ``topic``, or None. Under the topic prefix only
+        ``<prefix>/<id>/reply/...``: a reply must never pass for a status, a pose or another
+        request (into ``cmd/`` it would come back as one)."""
+        if not topic or len(topic) > MAX_RESPONSE_TOPIC:
+            return f"response topic must be 1..{MAX_RESPONSE_TOPIC} characters"
+        if any(c in topic for c in "+#\0") or topic.startswith("$"):
+            return "response topic must not hold + # or NUL, nor start with $"
+        if topic.startswith(self._own) and not topic.startswith(self._replies):
+            return f"response topic under {self._own} must be under {self._replies}"
+        return None
+
+    async def _do(self, verb: str, payload: Any, content_type: str | None) -> Reply:
+        model = REQUESTS.get(verb)
+        if model is None:
+            self.stats.unknown_verb += 1
+            known = ", ".join(REQUESTS)
+            return self._fail(verb, f"unknown verb {verb[:MAX_VERB_SHOWN]!r}; known: {known}")
+        try:
+            request = _parse(model, payload, content_type)
+        except ValueError as exc:
+            self.stats.malformed += 1
+            return self._fail(verb, f"malformed request: {exc}")
+        if isinstance(request, RecordStart):
+            return await self._record_start(request)
+        if isinstance(request, EventMark):
+            return await self._event_mark(request)
+        if verb == "record/stop":
+            return await self._record_stop()
+        assert verb == "repetitions/reset", verb
+        self.pipeline.repetitions.reset()
+        log.info("remote control: repetition count reset")
+        return self._ok(verb)
+
+    async def _record_start(self, request: RecordStart) -> Reply:
+        verb = "record/start"
+        current = self.pipeline.recorder
+        if current is not None and current.is_open:
+            return self._fail(verb, f"already recording to {current.path}; record/stop first")
+        missing = mcap_missing()
+        if request.mcap is True and missing is not None:
+            return self._fail(verb, missing)
+        folder = self.settings.control_dir
+        target = folder / f"{request.name}.scotti" if request.name else folder
+        try:
+            session = await asyncio.to_thread(Recorder, target, device=self.device_id)
+        except RecordingError as exc:
+            return self._fail(verb, str(exc))
+        mcap: McapRecording | None = None
+        if request.mcap is not False and missing is None:
+            try:
+                mcap = await asyncio.to_thread(
+                    McapRecording,
+                    session.path.with_suffix(".mcap"),
+                    self.device_id,
+                    self.mcap_metadata,
+                )
+            except OutputError as exc:  # all or nothing: the session file goes too
+                await asyncio.to_thread(session.close)
+                session.path.unlink(missing_ok=True)
+                return self._fail(verb, str(exc).removeprefix("--record-mcap: "))
+            if self._status is not None:
+                mcap.status(self._status)  # the file starts with the device's state
+        self._recording = _Recording(session, mcap, time.monotonic())
+        self.pipeline.recorder = session
+        note = missing if request.mcap is None else None
+        return self._ok(
+            verb, session=str(session.path), mcap=str(mcap.path) if mcap else None, note=note
+        )
+
+    async def _record_stop(self) -> Reply:
+        verb = "record/stop"
+        session = self.pipeline.recorder
+        ours = self._recording
+        if session is None:
+            return self._fail(verb, "nothing is recording")
+        self.pipeline.recorder = None
+        self._recording = None if ours is None or ours.session is session else ours
+        mcap = ours.mcap if ours is not None and ours.session is session else None
+        await asyncio.to_thread(session.close)
+        if mcap is not None:
+            await asyncio.to_thread(mcap.close)
+        if session.failed:  # the disk filled or the file went away while recording
+            return self._fail(verb, session.failed)
+        seconds = time.monotonic() - ours.started_mono if ours is not None else None
+        log.info("remote control: recording to %s stopped", session.path)
+        return self._ok(
+            verb,
+            session=str(session.path),
+            mcap=str(mcap.path) if mcap is not None else None,
+            seconds=round(seconds, 3) if seconds is not None else None,
+            events=session.events,
+        )
+
+    async def _event_mark(self, request: EventMark) -> Reply:
+        mono, wall = time.monotonic_ns(), time.time_ns()
+        written: list[str] = []
+        session = self.pipeline.recorder
+        record = EventRecord(mono, request.label, request.detail, wall)
+        if session is not None and session.mark(record):
+            written.append(str(session.path))
+        ours = self._recording
+        if ours is not None and ours.mcap is not None and ours.mcap.event(record, self._last_seq):
+            written.append(str(ours.mcap.path))
+        event = Event(
+            label=request.label,
+            detail=request.detail,
+            seq=self._last_seq,
+            host_wall_ns=wall,
+            host_mono_ns=mono,
+            written_to=written,
+        )
+        await self._send(self.settings.topic("event"), event, None)
+        note = None if written else "not recording: echoed on the event topic only"
+        return self._ok("event/mark", written_to=written, note=note)
+
+    # --- answers -----------------------------------------------------------------------
+    def _ok(self, verb: str, **fields: Any) -> Reply:
+        self.stats.ok += 1
+        return Reply(ok=True, verb=verb, host_wall_ns=time.time_ns(), seq=self._last_seq, **fields)
+
+    def _fail(self, verb: str, reason: str) -> Reply:
+        self.stats.refused += 1
+        return Reply(
+            ok=False,
+            verb=verb[:MAX_VERB_SHOWN],
+            reason=reason,
+            host_wall_ns=time.time_ns(),
+            seq=self._last_seq,
+        )
+
+    async def _send(self, topic: str, payload: BaseModel, correlation: bytes | None) -> None:
+        props: Properties | None = None
+        if self._v5:
+            props = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
+            props.ContentType = CONTENT_TYPES[self.settings.format]
+            if correlation is not None:
+                props.CorrelationData = correlation
+        data = payload.model_dump(mode="json", exclude_none=True)
+        body = (
+            json.dumps(data, separators=(",", ":")).encode()
+            if self.settings.format == "json"
+            else msgpack.packb(data, use_bin_type=True)
+        )
+        try:
+            await self._client.publish(topic, body, qos=QOS, retain=False, properties=props)
+        except aiomqtt.MqttError:
+            self.stats.reply_errors += 1
+            raise
+
+    # --- the end -----------------------------------------------------------------------
+    async def close(self) -> None:
+        """Close what ``record/start`` opened (the files' last bytes, the MCAP index)."""
+        ours, self._recording = self._recording, None
+        if ours is None:
+            return
+        if self.pipeline.recorder is ours.session:
+            self.pipeline.recorder = None
+        await asyncio.to_thread(ours.session.close)
+        if ours.mcap is not None:
+            await asyncio.to_thread(ours.mcap.close)
+
+
+def _parse(model: type[BaseModel], payload: Any, content_type: str | None) -> BaseModel:
+    """The request in ``payload`` (JSON, or msgpack by its content type); ValueError in one
+    line naming the field."""
+    raw = payload if isinstance(payload, bytes | bytearray) else str(payload or "").encode()
+    if len(raw) > MAX_REQUEST_BYTES:
+        msg = f"{len(raw)} bytes; at most {MAX_REQUEST_BYTES}"
+        raise ValueError(msg)
+    try:
+        if content_type == CONTENT_TYPES["msgpack"]:
+            data = msgpack.unpackb(raw, raw=False) if raw else {}
+        else:
+            data = json.loads(raw) if raw.strip() else {}
+    except (ValueError, msgpack.UnpackException) as exc:
+        msg = f"not {'msgpack' if content_type == CONTENT_TYPES['msgpack'] else 'JSON'}: {exc}"
+        raise ValueError(msg) from None
+    if not isinstance(data, dict):
+        msg = f"a JSON object is wanted, not {type(data).__name__}"
+        raise ValueError(msg)
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors(include_url=False)[0]
+        where = ".".join(str(p) for p in first["loc"]) or "request"
+        raise ValueError(f"{where}: {first['msg']}") from None
+
+
+async def _until(stop: asyncio.Event, work: Any) -> None:
+    """Run ``work`` until it ends (its error raised) or ``stop`` is set (it is cancelled)."""
+    task = asyncio.ensure_future(work)
+    stopper = asyncio.ensure_future(stop.wait())
+    try:
+        await asyncio.wait({task, stopper}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for t in (task, stopper):
+            t.cancel()
+        await asyncio.gather(task, stopper, return_exceptions=True)
+    if not task.cancelled() and (exc := task.exception()) is not None:
+        raise exc
