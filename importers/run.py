@@ -33,7 +33,8 @@ class ImportReport:
     keypoints_masked_share: float = 0.0  # of all keypoints in labelled frames
     actions: dict[str, int] = field(default_factory=dict)  # frames per action
     progress_frames: int = 0
-    seconds: dict[str, float] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
+    cpu_seconds: dict[str, float] = field(default_factory=dict)  # this process's CPU, per stage
     source: str = ""  # what the pressure file was, in a few words (vendor files)
     absent_feet: list[str] = field(default_factory=list)
 
@@ -143,6 +144,7 @@ def import_recording(
         labels=labels,
         keypoints_mapped=list(mapped),
         seconds=clock.laps,
+        cpu_seconds=clock.cpu_laps,
         source=_describe(pressure),
         absent_feet=list(source.absent),
     )
@@ -224,9 +226,12 @@ def _provenance(
 class _Stopwatch:
     def __init__(self) -> None:
         self.laps: dict[str, float] = {}
+        self.cpu_laps: dict[str, float] = {}
         self._last = time.perf_counter()
+        self._last_cpu = time.process_time()
 
     def lap(self, name: str) -> None:
-        now = time.perf_counter()
+        now, cpu = time.perf_counter(), time.process_time()
         self.laps[name] = now - self._last
-        self._last = now
+        self.cpu_laps[name] = cpu - self._last_cpu
+        self._last, self._last_cpu = now, cpu

@@ -85,7 +85,8 @@ def write_imported(
     seq = frames.seq % SEQ_MODULUS
     clock = np.rint(frames.times * 1e6).astype(np.int64) % CLOCK_MODULUS
     seq_list: list[int] = seq.tolist()
-    labelled = _labelled(frames)
+    labelled: list[bool] = _labelled(frames).tolist()
+    label_of = _Labels(frames)
     pending_sources = sorted(source_frames, key=lambda r: r.t_ns)
     next_source = 0
     labels = 0
@@ -109,7 +110,7 @@ def write_imported(
                     writer.write(pending_sources[next_source])
                     next_source += 1
                 if labelled[k]:
-                    writer.write_label(_label(frames, k, seq_list[k], t_ns[k]))
+                    writer.write_label(label_of(k, seq_list[k], t_ns[k]))
                     labels += 1
                 i = per * (k - start)
                 writer.write_packet(t_ns[k], b"".join(encoded[i : i + per]))
@@ -134,17 +135,24 @@ def _labelled(frames: ImportedFrames) -> np.ndarray:
     return has
 
 
-def _label(frames: ImportedFrames, k: int, seq: int, t_ns: int) -> LabelRecord:
-    keypoints = (
-        frames.keypoints[k]
-        if frames.keypoints is not None
-        else np.full((NUM_KEYPOINTS, 3), np.nan, dtype=np.float32)
-    )
-    return LabelRecord(
-        seq=seq,
-        t_ns=t_ns,
-        keypoints=keypoints,
-        action=NO_ACTION if frames.action is None else int(frames.action[k]),
-        progress=float("nan") if frames.progress is None else float(frames.progress[k]),
-        rep=-1 if frames.repetition is None else int(frames.repetition[k]),
-    )
+class _Labels:
+    """Each frame's label record; the columns taken out of numpy once, not per frame."""
+
+    def __init__(self, frames: ImportedFrames) -> None:
+        n = frames.times.size
+        none = np.full((NUM_KEYPOINTS, 3), np.nan, dtype=np.float32)
+        self.keypoints = [none] * n if frames.keypoints is None else list(frames.keypoints)
+        self.action = [NO_ACTION] * n if frames.action is None else frames.action.tolist()
+        nan = float("nan")
+        self.progress = [nan] * n if frames.progress is None else frames.progress.tolist()
+        self.rep = [-1] * n if frames.repetition is None else frames.repetition.tolist()
+
+    def __call__(self, k: int, seq: int, t_ns: int) -> LabelRecord:
+        return LabelRecord(
+            seq=seq,
+            t_ns=t_ns,
+            keypoints=self.keypoints[k],
+            action=self.action[k],
+            progress=self.progress[k],
+            rep=self.rep[k],
+        )

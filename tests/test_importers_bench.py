@@ -31,7 +31,10 @@ def test_a_row_per_table_format_with_a_ratio_to_the_baseline(
         assert all(float(c) >= 0 for c in cells[3:5])  # CPU seconds
         assert all(float(c.replace(",", "")) > 0 for c in cells[5:])  # rates and the ratio
     assert got["csv"][-1] == "1.00"  # the baseline's own ratio
-    assert "| format | read_pressure (s) |" in out  # where the time went
+    assert "| format | read_pressure (CPU s) |" in out  # where the time went
+    for fmt, cells in got.items():  # the whole import's two rates, in words
+        line = f"{fmt}: {cells[6]} source frames and {cells[7]} output (16 Hz) frames per CPU"
+        assert line in out
 
 
 def test_a_vendor_format_without_its_sample_says_so(
