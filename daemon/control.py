@@ -60,7 +60,7 @@ from scotti.daemon.waiting import Backoff, wait_event
 from scotti.firmware_protocol.session import EventRecord
 
 if TYPE_CHECKING:
-    from scotti.daemon.outputs.fanout import OutputThread
+    from scotti.daemon.outputs.fanout import Item, OutputThread
     from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
     from scotti.daemon.pipeline import Pipeline, Prediction
     from scotti.daemon.schemas import Status
@@ -140,6 +140,8 @@ class McapRecording:
     (as the daemon's other outputs are), plus ``/events``."""
 
     def __init__(self, path: Path, device: str, metadata: Mapping[str, str] | None) -> None:
+        # The [outputs] extra's: imported only when a recording asks for them.
+        import foxglove
         from scotti.daemon.outputs.fanout import Item, OutputThread
         from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
 
@@ -150,8 +152,6 @@ class McapRecording:
         )
         assert self.output.mcap_path is not None
         self.path: Path = self.output.mcap_path
-        import foxglove
-
         self._events = foxglove.Channel(
             EVENTS_TOPIC, schema=EVENT_CHANNEL_SCHEMA, context=self.output.context
         )
@@ -181,7 +181,7 @@ class McapRecording:
             return False
         return True
 
-    def _handle(self, item: Any) -> None:  # on the thread
+    def _handle(self, item: Item) -> None:  # on the thread
         p = item.prediction
         if p is not None:
             latency_ms = (time.monotonic_ns() - (p.last_byte_mono_ns or p.host_mono_ns)) / 1e6
@@ -235,7 +235,7 @@ class Control:
         self._next_at = 0.0  # monotonic time the next request may be handled
         self._flood_limit = max(FLOOD_DROPS_MIN, round(2 * settings.control_rate))
         self._window = (time.monotonic(), 0)  # (start, dropped by then) of the flood window
-        self._pause_s = FLOOD_PAUSE_S  # read at each pause: tests shorten it
+        self._pause_s = FLOOD_PAUSE_S  # doubled while floods go on
         self._calm_since = time.monotonic()
         self._state = "connecting"
         base = settings.client_id or f"scotti-daemon-{device_id}"
