@@ -5,7 +5,10 @@ The sessions are replayed through the daemon's path with the progress head's
 output as it is (``scotti eval``'s replay), a monotone map per predicted action
 is fitted from output to label, and it goes into the metadata of the step
 graph and of the window graph beside it (``NAME.window.onnx``), replacing any
-earlier one. Sessions of subjects the model was trained on are refused (the
+earlier one. That is an edit of the model in place, not an output file
+written beside it, so the tools' overwrite rule (refused unless ``--force``)
+does not apply: the graphs keep their names, their weights and every other
+metadata entry. Sessions of subjects the model was trained on are refused (the
 card names them): a calibration fitted on training data would hide the very
 hedging it is there to undo. Use the validation subjects; keep the test
 subjects for ``scotti eval``.
@@ -31,7 +34,12 @@ from scotti.models.runtime import ScottiRuntime, window_graph_for
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("model", type=Path, help="the step graph (.onnx); its window graph too")
+    parser.add_argument(
+        "model",
+        type=Path,
+        help="the step graph (.onnx), edited in place with its window graph: an edit of "
+        "the model, not an output file, so no --force (copy the graphs first to keep them)",
+    )
     parser.add_argument("sessions", nargs="+", type=Path, help="held-out subjects' sessions")
 
 

@@ -21,6 +21,7 @@ import json
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from common import (
@@ -74,33 +75,31 @@ def run_streaming(cmd: list[str]) -> None:
     print(f"  ({time.monotonic() - started:.0f} s)", flush=True)
 
 
-def main(argv: list[str] | None = None) -> int:
+def render_command(out: Path, effects: str, args: argparse.Namespace) -> list[str]:
+    """``scotti sim corpus`` into ``out``, run when it has no manifest: a render cut short
+    left session files there, which ``--force`` makes again."""
+    return scotti_command(
+        "sim", "corpus", "-o", out, "--subjects", str(args.subjects), "--seed", str(args.seed),
+        "--minutes-per-action", str(args.minutes_per_action), "--effects", effects, "--force",
+    )  # fmt: skip
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python experiments/corpus.py", description=__doc__)
     parser.add_argument("--subjects", type=int, default=15)
     parser.add_argument("--minutes-per-action", type=float, default=4.0)
     parser.add_argument("--seed", type=int, default=1)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     try:
         for effects, out in (("realistic", REALISTIC), ("none", CLEAN)):
             if (out / "manifest.json").is_file():
                 print(f"{out} exists: kept (delete it to render again)")
                 continue
-            run_streaming(
-                scotti_command(
-                    "sim",
-                    "corpus",
-                    "-o",
-                    out,
-                    "--subjects",
-                    str(args.subjects),
-                    "--seed",
-                    str(args.seed),
-                    "--minutes-per-action",
-                    str(args.minutes_per_action),
-                    "--effects",
-                    effects,
-                )
-            )
+            run_streaming(render_command(out, effects, args))
         manifest = json.loads((REALISTIC / "manifest.json").read_text())
         ids = [entry["file"].rsplit(".", 1)[0] for entry in manifest["sessions"]]
         if len(ids) % 3:

@@ -33,7 +33,7 @@ import sys
 from pathlib import Path
 
 from common import ROOT, RUNS, ExperimentError, load_partitions, run, scotti_command
-from partition_runs import CORPUS, PartitionRun
+from partition_runs import CORPUS, PartitionRun, export_command
 
 HERE = Path(__file__).resolve().parent
 HEADS = ("pose", "action", "progress")
@@ -98,8 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         model = run_dir / "models" / "scotti-ship.onnx"
         report = run_dir / "eval" / "test.json"
         if not report.is_file():
-            export = ["export", run_dir / "best.pt", "-o", model, "--calibrate"]
-            run(scotti_command(*export, *job.files(args.corpus), "--cache-dir", args.cache), log)
+            run(scotti_command(*export_command(job, args.corpus, args.cache)), log)
             run(scotti_command("calibrate", model, *job.files(args.corpus, job.validation)), log)
             models = ["--model", model, "--model", args.graph]
             test = job.files(args.corpus, job.test)

@@ -254,7 +254,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         started = time.monotonic()
         if not (PEOPLE / "manifest.json").is_file():
-            run(scotti_command("sim", "corpus", "-o", PEOPLE, *CORPUS), WORK / "sim.log")
+            # No manifest: a render that was cut short; its files are made again.
+            cmd = scotti_command("sim", "corpus", "-o", PEOPLE, *CORPUS, "--force")
+            run(cmd, WORK / "sim.log")
         people = sorted(PEOPLE.glob("subject-*.ses"))
         if not people:
             raise ExperimentError(f"{PEOPLE}: no simulated sessions")

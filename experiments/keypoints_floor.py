@@ -64,7 +64,8 @@ class Truth:
 
 def simulate(scene: Path, out: Path) -> Path:
     with contextlib.redirect_stdout(io.StringIO()):
-        assert scotti(["sim", str(scene), "-o", str(out)]) == 0
+        # --force: with --keep a second call measures again, the scene made anew.
+        assert scotti(["sim", str(scene), "-o", str(out), "--force"]) == 0
     return out
 
 

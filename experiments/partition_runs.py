@@ -163,8 +163,7 @@ def score(job: PartitionRun, corpus: Path, cache: Path) -> Path:
     """
     model = job.run_dir / "models" / "scotti-ship.onnx"
     log = job.run_dir / "score.log"
-    export = ["export", job.run_dir / "best.pt", "-o", model, "--calibrate"]
-    run(verb(job.window, *export, *job.files(corpus), "--cache-dir", cache), log)
+    run(verb(job.window, *export_command(job, corpus, cache)), log)
     before = job.run_dir / "models" / "export-fit"
     before.mkdir(exist_ok=True)
     for graph in (model, model.with_name("scotti-ship.window.onnx")):
@@ -176,6 +175,17 @@ def score(job: PartitionRun, corpus: Path, cache: Path) -> Path:
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text(out)
     return report
+
+
+def export_command(job: PartitionRun, corpus: Path, cache: Path | str) -> list[str | Path]:
+    """``scotti export`` of the run's best.pt, calibrated, into RUN/models/scotti-ship.onnx.
+
+    ``--force``: scoring again (the run trained on, or a scoring was cut short) replaces
+    the graphs an earlier scoring exported; ``scotti calibrate`` then edits the new ones.
+    """
+    model = job.run_dir / "models" / "scotti-ship.onnx"
+    export = ["export", job.run_dir / "best.pt", "-o", model, "--calibrate"]
+    return [*export, *job.files(corpus), "--cache-dir", cache, "--force"]
 
 
 def plan(args: argparse.Namespace) -> list[PartitionRun]:

@@ -287,7 +287,7 @@ def export_calibrated(args: argparse.Namespace) -> Path:
     args.calibrate = [p.absolute() for p in args.calibrate]
     out = args.checkpoint.parent / "models" / "scotti-ship.onnx"
     export = ["export", args.checkpoint, "-o", out, "--calibrate", *args.calibrate]
-    run(scotti_command(*export, "--cache-dir", args.cache_dir))
+    run(scotti_command(*export, "--cache-dir", args.cache_dir, "--force"))  # made again
     if args.eval:
         return out
     card = json.loads(out.with_name("scotti-ship.card.json").read_text())

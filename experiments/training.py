@@ -168,10 +168,17 @@ def train(spec: RunSpec, budget_s: float, rate: float, windows: int, log: Path) 
     return state
 
 
+def export_command(run_dir: Path, onnx: Path, *, int8: bool = False) -> list[str]:
+    """``scotti export`` of the run's last.pt; ``--force``: an export older than the
+    checkpoint (the run trained on since) is replaced."""
+    int8_flag = ["--int8"] if int8 else []
+    return scotti_command("export", run_dir / "last.pt", "-o", onnx, *int8_flag, "--force")
+
+
 def export(run_dir: Path, onnx: Path, log: Path, *, int8: bool = False) -> Path:
     """last.pt -> ONNX (checked against torch by scotti export); skipped when up to date."""
     ckpt = run_dir / "last.pt"
-    cmd = scotti_command("export", ckpt, "-o", onnx, *(["--int8"] if int8 else []))
+    cmd = export_command(run_dir, onnx, int8=int8)
     if onnx.is_file() and onnx.stat().st_mtime > ckpt.stat().st_mtime:
         COMMANDS.append(shown(cmd))  # made by an earlier call: still what made the file
         return onnx

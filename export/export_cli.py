@@ -1,4 +1,4 @@
-"""``scotti export CHECKPOINT -o models/NAME.onnx [--int8] [--calibrate SESSIONS...]``.
+"""``scotti export CHECKPOINT -o models/NAME.onnx [--int8] [--calibrate SESSIONS...] [--force]``.
 
 Writes NAME.onnx (streaming step), NAME.window.onnx, NAME.card.json and
 NAME.card.md (plus NAME.int8.onnx / NAME.int8.window.onnx with --int8), only
@@ -7,8 +7,10 @@ With ``--calibrate``, the unfamiliar score is calibrated on those session
 files (the checkpoint's training subjects for the statistics, its held-out
 subjects for the threshold; export/ood_calibration.py) and both graphs carry
 the statistics; the same held-out subjects fit the progress calibration
-(export/progress_fit.py). Exit 0 on success, 2 for a bad checkpoint or argument, 1
-when a proof fails.
+(export/progress_fit.py). An export whose files exist is refused unless
+``--force`` (firmware_protocol/overwrite.py): it replaces them all, an int8
+copy it does not write again included. Exit 0 on success, 2 for a bad
+checkpoint or argument or an export that exists, 1 when a proof fails.
 """
 
 from __future__ import annotations
@@ -18,9 +20,15 @@ import sys
 from pathlib import Path
 
 from scotti.export.errors import ExportError, ParityError
-from scotti.export.onnx_export import export_checkpoint
+from scotti.export.onnx_export import GraphPaths, export_checkpoint
 from scotti.export.ood_calibration import Calibration
 from scotti.export.parity import format_report
+from scotti.firmware_protocol.overwrite import (
+    FORCE_HELP,
+    REFUSED,
+    OutputExistsError,
+    refuse_existing,
+)
 
 
 def _threads(text: str) -> int:
@@ -34,7 +42,18 @@ def _threads(text: str) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, help="torch checkpoint written by scotti train")
     parser.add_argument(
-        "-o", "--output", type=Path, required=True, help="step graph path, e.g. models/NAME.onnx"
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="step graph path, e.g. models/NAME.onnx; it and the files named after it "
+        f"(NAME.window.onnx, NAME.card.json, NAME.card.md, NAME.int8*.onnx) are {REFUSED}",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help=f"{FORCE_HELP}; an int8 copy left from an earlier export is deleted "
+        "when this one writes none",
     )
     parser.add_argument(
         "--int8", action="store_true", help="also write dynamically quantized int8 copies"
@@ -75,6 +94,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    try:  # before the checkpoint is read or a calibration replayed: a refusal is at once
+        refuse_existing(GraphPaths.for_output(args.output).all(), force=args.force)
+    except (ExportError, OutputExistsError) as exc:
+        print(f"scotti export: {exc}", file=sys.stderr)
+        return 2
     calibration = None
     if args.calibrate:
         if not 50.0 <= args.ood_percentile < 100.0:

@@ -3,7 +3,8 @@
 Four panels: training and validation loss (the best epoch and a plateau
 marked), and the validation progress MSE, APP and action accuracy. This is
 where a run shows that it has learnt what it can: the validation loss flat
-while the training loss still falls. Needs matplotlib, not torch.
+while the training loss still falls. A PNG that exists is refused unless
+``--force`` (redrawing a run that trained on). Needs matplotlib, not torch.
 """
 
 from __future__ import annotations
@@ -16,6 +17,12 @@ from pathlib import Path
 from typing import Any
 
 from scotti.export.errors import ExportError
+from scotti.firmware_protocol.overwrite import (
+    FORCE_HELP,
+    REFUSED,
+    OutputExistsError,
+    refuse_existing,
+)
 
 
 class HistoryError(ExportError):
@@ -97,18 +104,24 @@ def plot_history(history: list[dict[str, Any]], out: Path, title: str) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="run directory (or its history.jsonl)")
     parser.add_argument(
-        "-o", "--output", type=Path, default=None, help="PNG (default RUN/history.png)"
+        "-o",
+        "--output",
+        type=Path,
+        default=None,
+        help=f"PNG (default RUN/history.png; {REFUSED})",
     )
+    parser.add_argument("--force", action="store_true", help=FORCE_HELP)
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        history = read_history(args.run)
-    except HistoryError as exc:
-        print(f"scotti train-history: {exc}", file=sys.stderr)
-        return 2
     run_dir = args.run if args.run.is_dir() else args.run.parent
     out = args.output or run_dir / "history.png"
+    try:
+        refuse_existing([out], force=args.force)
+        history = read_history(args.run)
+    except (HistoryError, OutputExistsError) as exc:
+        print(f"scotti train-history: {exc}", file=sys.stderr)
+        return 2
     plot_history(history, out, f"{run_dir.name}: {len(history)} epochs")
     print(out)
     return 0

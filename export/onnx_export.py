@@ -119,6 +119,13 @@ class GraphPaths:
             int8_window=base.with_suffix(".int8.window.onnx"),
         )
 
+    def all(self) -> list[Path]:
+        """Every file of the export, the int8 copies too (written with --int8 only)."""
+        return [self.step, self.window, self.card_json, self.card_md, *self.int8()]
+
+    def int8(self) -> list[Path]:
+        return [self.int8_step, self.int8_window]
+
 
 @dataclass
 class ExportResult:
@@ -381,6 +388,9 @@ def export_model(
             src = getattr(staged, kind)
             if src.exists():
                 os.replace(src, getattr(paths, kind))
+        if not int8:  # an earlier export's int8 copies would pass for this model's
+            for stale in paths.int8():
+                stale.unlink(missing_ok=True)
     return ExportResult(paths=paths, card=full_card, parity=parity, int8_drift=int8_drift)
 
 

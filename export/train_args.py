@@ -8,6 +8,7 @@ from typing import Any
 
 from scotti.export.devices import DEVICES, PRECISIONS
 from scotti.export.finetune import FREEZE_GROUPS
+from scotti.export.run_dir import RUN_FILES
 from scotti.export.train import TrainOptions
 from scotti.export.validation import VAL_FRACTION
 
@@ -30,7 +31,14 @@ CONFIG_PRESETS: dict[str, dict[str, Any]] = {
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     d = TrainOptions()
     parser.add_argument("sessions", nargs="+", type=Path, help="session files or directories")
-    parser.add_argument("-o", "--output", type=Path, required=True, help="run directory")
+    parser.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="run directory; one that holds a run (" + ", ".join(RUN_FILES) + ") is refused, "
+        "unless --resume or --force",
+    )
     parser.add_argument(
         "--config",
         default=None,
@@ -102,7 +110,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--test-subjects", nargs="*", default=None, help="subjects held out, never trained on"
     )
     parser.add_argument("--test-fraction", type=float, default=0.2)
-    parser.add_argument("--resume", action="store_true", help="continue from OUTPUT/last.pt")
+    again = parser.add_mutually_exclusive_group()
+    again.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue from OUTPUT/last.pt (none there and no run: a new run)",
+    )
+    again.add_argument(
+        "--force",
+        action="store_true",
+        help="start over in a run directory that holds a run: its "
+        + ", ".join(RUN_FILES)
+        + " are deleted before the new run writes (other files stay)",
+    )
     parser.add_argument("--cache", type=Path, default=None, help="decoded-session cache dir")
     parser.add_argument("--allow-invalid", action="store_true", help="keep windows with gaps")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

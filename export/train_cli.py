@@ -3,7 +3,9 @@
 Writes runs/NAME/last.pt after every epoch (and when --max-minutes runs
 out), runs/NAME/best.pt at the best validation loss, runs/NAME/history.jsonl,
 and at the end runs/NAME/test.json (best.pt on the test subjects).
-``--resume`` continues from runs/NAME/last.pt exactly where it stopped.
+``--resume`` continues from runs/NAME/last.pt exactly where it stopped. A
+run directory that holds a run is refused unless ``--resume``, or ``--force``
+(start over: the old run's files are deleted; export/run_dir.py).
 Under ``torchrun --nproc-per-node N -m scotti.cli.main train ...`` it trains
 with N processes (export/distributed.py).
 """
@@ -28,6 +30,7 @@ from scotti.export.graph_weights import checkpoint_from_graph
 from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.run_data import RunData, load_sessions, prepare
+from scotti.export.run_dir import check_run_dir, clear_run
 from scotti.export.subnormals import flushing_denormals
 from scotti.export.test_report import write_test_report
 from scotti.export.throughput import measure_precisions, measure_throughput
@@ -173,6 +176,8 @@ def train(
     torch.set_num_threads(args.threads)
     opts = _options(args)
     out: Path = args.output
+    if not args.benchmark:  # a benchmark writes nothing there
+        check_run_dir(out, resume=args.resume, force=args.force)
     resume_from = out / "last.pt"
     ckpt = load_checkpoint(resume_from) if args.resume and resume_from.is_file() else None
     if args.resume and ckpt is None:
@@ -234,6 +239,10 @@ def train(
             trainer.state.step_in_epoch,
         )
     if ctx.is_main:
+        # Only now, with the data loaded and the model built: a mistake met on the way
+        # leaves the run it was to replace as it was.
+        if args.force and (cleared := clear_run(out)):
+            log.info("--force: %s of the run in %s deleted", ", ".join(cleared), out)
         out.mkdir(parents=True, exist_ok=True)
     log.info(
         "training on %s in %s, %d process(es), %d batch worker thread(s)",

@@ -3,11 +3,16 @@
 An output that exists is refused, in one line naming it, unless ``--force``
 (then it is replaced); every tool's ``--help`` says so with ``REFUSED`` and
 ``FORCE_HELP``. ``scotti sim`` (a scene, ``corpus``, ``render``), ``scotti
-import``, ``scotti session export`` and ``scotti eval --plots`` follow it.
-The commands that remake the repository's own documents (``scotti sim
-realism``) rewrite them in place: git keeps what they replace. The daemon's
-recordings follow their own (never overwritten, a new name per start on
-request: ``daemon/recording.py``), since a service restarts on its own.
+import``, ``scotti session export``, ``scotti eval --plots`` and ``scotti
+export`` (all the files named after NAME.onnx) follow it; ``scotti train -o``
+refuses a directory that holds a run unless ``--resume`` goes on from it or
+``--force`` starts over (``export/run_dir.py``). ``scotti calibrate`` edits
+the model it is given in place (its progress map replaced): an edit, not an
+output, so no ``--force``. The commands that remake the repository's own
+documents (``scotti sim realism``) rewrite them in place: git keeps what they
+replace. The daemon's recordings follow their own (never overwritten, a new
+name per start on request: ``daemon/recording.py``), since a service restarts
+on its own.
 
 It lives here, in the room every other may import, because all those tools
 write session files or files made from them.

@@ -439,6 +439,56 @@ def test_a_run_from_a_shipped_graph_passes_init_not_config_on_every_call(tmp_pat
     assert parsed(scratch.train_command(corpus, args)).config == "small"
 
 
+def test_the_drivers_pass_force_where_they_remake_and_resume_where_they_go_on(
+    tmp_path: Path,
+) -> None:
+    import argparse
+    import dataclasses
+
+    import corpus
+    import training
+    from scotti.export import export_cli, train_args
+
+    def parser_of(add_arguments: Any) -> argparse.ArgumentParser:
+        parser = argparse.ArgumentParser()
+        add_arguments(parser)
+        return parser
+
+    export, train = parser_of(export_cli.add_arguments), parser_of(train_args.add_arguments)
+    args = partition_runs.build_parser().parse_args(["p1"])
+    (job,) = partition_runs.plan(args)
+    job = dataclasses.replace(job, run_dir=tmp_path / "run")
+    data = tmp_path / "corpus"
+    (data / "realistic").mkdir(parents=True)
+    for subject in job.train:
+        (data / "realistic" / f"{subject}.ses").write_bytes(b"")
+    # Scoring again exports the run's best.pt over the graphs a scoring before left.
+    command = partition_runs.verb(job.window, *partition_runs.export_command(job, data, data))
+    assert command[1:4] == ["-m", "scotti.cli.main", "export"]
+    scored = export.parse_args(command[4:])
+    assert scored.force
+    assert scored.output == job.run_dir / "models" / "scotti-ship.onnx"
+    assert scored.checkpoint == job.run_dir / "best.pt"
+    # Training goes on from last.pt, never starts over on its own.
+    fresh = train.parse_args(job.train_command(data, args)[4:])
+    assert (fresh.resume, fresh.force) == (False, False)
+    job.run_dir.mkdir()
+    (job.run_dir / "last.pt").write_bytes(b"")
+    again = train.parse_args(job.train_command(data, args)[4:])
+    assert (again.resume, again.force) == (True, False)
+    # experiments/training.py: the same, and a stale export replaced.
+    spec = training.RunSpec(job.run_dir, common.Partition("p1", job.train, job.test, data), "tiny")
+    resumed = train.parse_args(spec.train_args(epochs=1, stride=2, minutes=1, resume=True))
+    assert (resumed.resume, resumed.force) == (True, False)
+    onnx = tmp_path / "models" / "x.onnx"
+    exported = export.parse_args(training.export_command(job.run_dir, onnx, int8=True)[4:])
+    assert (exported.force, exported.int8, exported.output) == (True, True, onnx)
+    # A corpus without its manifest was cut short: rendered again over what it left.
+    render = corpus.render_command(tmp_path / "c", "none", corpus.build_parser().parse_args([]))
+    assert render[3:7] == ["sim", "corpus", "-o", str(tmp_path / "c")]
+    assert "--force" in render
+
+
 def test_a_bf16_run_has_its_own_directory_and_asks_scotti_train_for_bf16(tmp_path: Path) -> None:
     import argparse
     import dataclasses

@@ -50,6 +50,24 @@ def test_history_is_drawn_into_a_png(tmp_path: Path) -> None:
     assert (run / "history.png").is_file()
 
 
+def test_a_png_that_exists_is_drawn_again_only_with_force(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "run"
+    write_history(run, 3)
+    out = run / "history.png"
+    out.write_bytes(b"an earlier drawing")
+    assert main(["train-history", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"scotti train-history: {out} exists; --force replaces it\n"
+    assert out.read_bytes() == b"an earlier drawing"
+    assert main(["train-history", str(run), "--force"]) == 0
+    assert matplotlib.image.imread(out).shape[0] > 200
+    with pytest.raises(SystemExit):
+        main(["train-history", "--help"])
+    assert "unless --force" in " ".join(capsys.readouterr().out.split())
+
+
 @pytest.mark.parametrize(
     ("content", "words"),
     [

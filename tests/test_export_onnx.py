@@ -258,6 +258,46 @@ def test_cli_exports_proves_and_quantizes(
     check_sane(stream(session(int8_step), seq, 24, 8), "int8 stream")
 
 
+def test_an_export_that_exists_is_refused_unless_force(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "models" / "m.onnx"
+    assert export([str(TINY_CHECKPOINT), "-o", str(out)]) == 0
+    written = {p.name: p.read_bytes() for p in out.parent.iterdir()}
+    assert sorted(written) == ["m.card.json", "m.card.md", "m.onnx", "m.window.onnx"]
+    capsys.readouterr()
+    # Refused before the checkpoint is read: a missing one is not what it says.
+    assert export([str(tmp_path / "none.pt"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"scotti export: {out} exists (and 3 more of its outputs); --force replaces it\n"
+    assert {p.name: p.read_bytes() for p in out.parent.iterdir()} == written
+    # Any one file of NAME's export is enough: here an int8 copy left alone.
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    (lone / "m.int8.window.onnx").write_bytes(b"an older model")
+    assert export([str(TINY_CHECKPOINT), "-o", str(lone / "m.onnx")]) == 2
+    assert "m.int8.window.onnx exists;" in capsys.readouterr().err
+    assert [p.name for p in lone.iterdir()] == ["m.int8.window.onnx"]
+    # --force replaces the export, and an int8 copy it does not write again goes.
+    stale = out.with_name("m.int8.onnx")
+    stale.write_bytes(b"an older model")
+    (out.parent / "m.card.md").write_text("an older card")
+    assert export([str(TINY_CHECKPOINT), "-o", str(out), "--force"]) == 0
+    assert not stale.exists()
+    assert sorted(p.name for p in out.parent.iterdir()) == sorted(written)
+    assert (out.parent / "m.card.md").read_text().startswith("# Model card")  # a new one
+    card = json.loads((out.parent / "m.card.json").read_text())
+    assert card["files"]["step"]["sha256"] == hashlib.sha256(out.read_bytes()).hexdigest()
+
+
+def test_export_help_says_the_rule() -> None:
+    parser = argparse.ArgumentParser()
+    export_cli.add_arguments(parser)
+    text = " ".join(parser.format_help().split())
+    assert "refused if it exists, unless --force" in text
+    assert "--force" in text
+
+
 def test_output_must_end_in_onnx(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert export([str(TINY_CHECKPOINT), "-o", str(tmp_path / "m.bin")]) == 2
     assert "must end in .onnx" in capsys.readouterr().err

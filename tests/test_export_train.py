@@ -17,6 +17,7 @@ from scotti.export.data import load_session
 from scotti.export.evaluate import chunked_outputs, evaluate
 from scotti.export.losses import scotti_loss
 from scotti.export.model import Scotti, ScottiConfig
+from scotti.export.run_dir import RunExistsError, check_run_dir, clear_run
 from scotti.export.train import (
     Trainer,
     TrainingDivergedError,
@@ -188,6 +189,67 @@ def test_cli_trains_resumes_and_exports(
     out = tmp_path / "models" / "tiny.onnx"
     assert main(["export", str(run / "last.pt"), "-o", str(out)]) == 0
     assert out.is_file()
+
+
+@pytest.mark.slow
+def test_a_run_directory_that_holds_a_run_takes_resume_or_force(
+    sessions_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "run"
+    common = [str(sessions_dir), "-o", str(run), "--config", json.dumps(TINY), "--epochs", "1"]
+    common += ["--batch", "8", "--chunk", "4", "--stride", "4", "--val-subjects", "b"]
+    common += ["--test-fraction", "0", "--no-progress"]
+    assert main(["train", *common]) == 0
+    first = (run / "last.pt").read_bytes()
+    capsys.readouterr()
+    assert main(["train", *common, "--seed", "1"]) == 2
+    err = capsys.readouterr().err
+    held = "last.pt, best.pt, history.jsonl"
+    assert err == (
+        f"scotti train: {run} holds a run ({held}); --resume goes on from it, --force starts over\n"
+    )
+    assert (run / "last.pt").read_bytes() == first
+    with pytest.raises(SystemExit) as exit_:
+        main(["train", *common, "--resume", "--force"])
+    assert exit_.value.code == 2
+    assert "not allowed with argument" in capsys.readouterr().err
+    # --force starts over: none of the old run's files is left (a test.json this run
+    # does not write again included), the directory's other files are.
+    (run / "test.json").write_text("{}")
+    (run / "notes.txt").write_text("mine")
+    assert main(["train", *common, "--seed", "1", "--force"]) == 0
+    assert not (run / "test.json").exists()
+    assert (run / "notes.txt").read_text() == "mine"
+    ckpt = torch.load(run / "last.pt", weights_only=True)
+    assert (ckpt["epoch"], ckpt["options"]["seed"]) == (1, 1)
+    assert len((run / "history.jsonl").read_text().splitlines()) == 1
+    assert (run / "last.pt").read_bytes() != first
+
+
+def test_train_help_says_the_rule(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "is refused, unless --resume or --force" in text
+    assert "--force start over in a run directory that holds a run" in text
+
+
+def test_resume_needs_a_last_pt_when_the_directory_holds_a_run(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    check_run_dir(run, resume=False, force=False)  # not there yet: a new run
+    run.mkdir()
+    (run / "plan.json").write_text("{}")  # an experiment's file, no run
+    check_run_dir(run, resume=False, force=False)
+    check_run_dir(run, resume=True, force=False)  # nothing to resume: a new run
+    (run / "best.pt").write_bytes(b"")
+    for resume in (False, True):
+        with pytest.raises(RunExistsError, match="--force starts over"):
+            check_run_dir(run, resume=resume, force=False)
+    check_run_dir(run, resume=False, force=True)
+    (run / "last.pt").write_bytes(b"")
+    check_run_dir(run, resume=True, force=False)
+    assert clear_run(run) == ["last.pt", "best.pt"]
+    assert [p.name for p in run.iterdir()] == ["plan.json"]
 
 
 def test_cli_mistakes_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -33,6 +33,14 @@ def squats(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, kf.Truth]:
     return folder, exported(folder, "squat.toml")
 
 
+def test_a_kept_folder_is_measured_again(tmp_path: Path) -> None:
+    truth = tmp_path / "truth.scotti"
+    truth.write_bytes(b"the first call's file")
+    # --keep DIR a second time: the scene is simulated anew over the first call's file.
+    assert kf.simulate(SCENES / "squat.toml", truth) == truth
+    assert kf.truth_of(truth)[0].times.size > 0
+
+
 def squat_mpjpe_mm(ours: np.ndarray, truth: kf.Truth) -> float:
     squat = truth.action == ACTIONS.index("squat")
     return float(np.nanmean(kf.per_frame_error(ours, truth.keypoints)[squat]) * 1000)

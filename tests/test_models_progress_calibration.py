@@ -114,6 +114,14 @@ def test_scotti_calibrate_writes_both_graphs_and_the_runtime_applies_it(
         "calibrated": False,
         "reason": "switched off",
     }
+    # An edit of the model in place, not an output: a second fit replaces the first,
+    # no --force asked (the help says why).
+    capsys.readouterr()
+    assert main(["calibrate", str(model), str(held_out)]) == 0
+    assert ScottiRuntime(model).progress_calibration_info()["summary"]["fitted_on"] == ["s9"]
+    with pytest.raises(SystemExit):
+        main(["calibrate", "--help"])
+    assert "edited in place" in capsys.readouterr().out
 
 
 def test_a_graph_with_a_broken_calibration_does_not_load(
