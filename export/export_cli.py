@@ -23,12 +23,7 @@ from scotti.export.errors import ExportError, ParityError
 from scotti.export.onnx_export import GraphPaths, export_checkpoint
 from scotti.export.ood_calibration import Calibration
 from scotti.export.parity import format_report
-from scotti.firmware_protocol.overwrite import (
-    FORCE_HELP,
-    REFUSED,
-    OutputExistsError,
-    refuse_existing,
-)
+from scotti.firmware_protocol.overwrite import FORCE_HELP, OutputExistsError, refuse_existing
 
 
 def _threads(text: str) -> int:
@@ -46,8 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--output",
         type=Path,
         required=True,
-        help="step graph path, e.g. models/NAME.onnx; it and the files named after it "
-        f"(NAME.window.onnx, NAME.card.json, NAME.card.md, NAME.int8*.onnx) are {REFUSED}",
+        help="step graph path, e.g. models/NAME.onnx, written with NAME.window.onnx, "
+        "NAME.card.json, NAME.card.md (and NAME.int8*.onnx): refused if any of them "
+        "exists, unless --force",
     )
     parser.add_argument(
         "--force",

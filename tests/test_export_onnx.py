@@ -294,7 +294,7 @@ def test_export_help_says_the_rule() -> None:
     parser = argparse.ArgumentParser()
     export_cli.add_arguments(parser)
     text = " ".join(parser.format_help().split())
-    assert "refused if it exists, unless --force" in text
+    assert "refused if any of them exists, unless --force" in text
     assert "--force" in text
 
 
