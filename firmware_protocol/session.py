@@ -5,7 +5,8 @@ Layout (all little endian)::
     # [magic:8 "SCOTSESS"] then records: [len:4 u32] [msgpack map: len bytes] ...
 
 The first record is the header; packet and label records follow in the order
-they were written. Each record goes to the OS in one write, so a writer
+they were written. Each record, or each batch of whole records
+(``SessionWriter.write_many``), goes to the OS in one write, so a writer
 killed at any moment leaves a file whose last record at most is cut short;
 readers stop at the last whole record and report ``truncated``.
 """
@@ -41,13 +42,16 @@ MAX_RECORD_LEN: Final = 16 << 20  # a longer length prefix means corruption, not
 _BAD_RECORD: Final[dict[str, Any]] = {}  # stands for a whole record that did not decode
 
 
-def _pack(record: dict[str, Any]) -> bytes:
+def _pack(record: dict[str, Any], packer: msgpack.Packer | None = None) -> bytes:
+    """The record's body in msgpack; ``packer`` (one made with ``use_bin_type``) saves
+    making one per record and packs the same bytes."""
     try:
-        body = msgpack.packb(record, use_bin_type=True)
+        if packer is None:
+            return msgpack.packb(record, use_bin_type=True)
+        return packer.pack(record)
     except (TypeError, ValueError, OverflowError) as exc:
         msg = f"cannot store a {record.get('kind')} record in a session file: {exc}"
         raise SessionError(msg) from None
-    return len(body).to_bytes(LEN_BYTES, "little") + body
 
 
 class _ClosedOnExit:
@@ -69,7 +73,8 @@ class _ClosedOnExit:
 
 
 class SessionWriter(_ClosedOnExit):
-    """Appends records to a new session file; one OS write and flush per record.
+    """Appends records to a new session file; one OS write and flush per record
+    (per batch with ``write_many``).
 
     ``fsync_interval_s``: also fsync when that long has passed since the last
     one (None: only on close). ``flush_each``: False trades kill -9 safety for
@@ -118,6 +123,27 @@ class SessionWriter(_ClosedOnExit):
     def write(self, record: PacketRecord | LabelRecord | SourceFrameRecord | EventRecord) -> None:
         self._write(record.to_record())
 
+    def write_many(
+        self, records: Iterable[PacketRecord | LabelRecord | SourceFrameRecord | EventRecord]
+    ) -> None:
+        """Append records in one OS write: the bytes ``write`` gives for each in turn.
+
+        For writers of a whole file at once (the importer), where a write, and a
+        packer, per record cost more than the packing. Every record is packed before
+        any is written, so one that cannot be stored (``SessionError``) writes none.
+        """
+        self._open_file()
+        packer = msgpack.Packer(use_bin_type=True)
+        buffer = bytearray()
+        count = 0
+        for record in records:
+            body = _pack(record.to_record(), packer)
+            buffer += len(body).to_bytes(LEN_BYTES, "little")
+            buffer += body
+            count += 1
+        if count:
+            self._put(buffer, count)
+
     def flush(self) -> None:
         if self._file is not None:
             self._file.flush()
@@ -137,22 +163,31 @@ class SessionWriter(_ClosedOnExit):
             self._file.close()
             self._file = None
 
-    def _write(self, record: dict[str, Any]) -> None:
+    def _open_file(self) -> IO[bytes]:
         if self._file is None:
             msg = f"session file {self.path} is closed"
             raise SessionError(msg)
-        data = _pack(record)
+        return self._file
+
+    def _write(self, record: dict[str, Any]) -> None:
+        self._open_file()
+        body = _pack(record)
+        self._put(len(body).to_bytes(LEN_BYTES, "little") + body, 1)
+
+    def _put(self, data: bytes | bytearray, records: int) -> None:
+        """Hand ``data``, ``records`` whole records, to the OS in one write."""
+        file = self._open_file()
         try:
-            self._file.write(data)  # length and body in one write
+            file.write(data)  # lengths and bodies in one write
             if self._flush_each:
-                self._file.flush()
+                file.flush()
             interval = self._fsync_interval_s
             if interval is not None and time.monotonic() - self._last_fsync >= interval:
                 self.fsync()
         except OSError as exc:
             msg = f"cannot write session file {self.path}: {exc.strerror}"
             raise SessionError(msg) from None
-        self.records += 1
+        self.records += records
 
 
 class SessionReader(_ClosedOnExit):

@@ -22,6 +22,7 @@ from scotti.firmware_protocol.framing import encode_whole_frames
 from scotti.firmware_protocol.packets import CLOCK_MODULUS, SEQ_MODULUS, Foot
 from scotti.firmware_protocol.session import (
     LabelRecord,
+    PacketRecord,
     SessionHeader,
     SessionWriter,
     SourceFrameRecord,
@@ -103,19 +104,20 @@ def write_imported(
                 _held(frames.counts[start:stop], held).reshape(-1, FRAME_ROWS, FRAME_COLS),
                 SAMPLE_BITS,
             )
+            batch: list[PacketRecord | LabelRecord | SourceFrameRecord] = []
             for k in range(start, stop):
                 while next_source < len(pending_sources) and (
                     pending_sources[next_source].t_ns <= t_ns[k]
                 ):
-                    writer.write(pending_sources[next_source])
+                    batch.append(pending_sources[next_source])
                     next_source += 1
                 if labelled[k]:
-                    writer.write_label(label_of(k, seq_list[k], t_ns[k]))
+                    batch.append(label_of(k, seq_list[k], t_ns[k]))
                     labels += 1
                 i = per * (k - start)
-                writer.write_packet(t_ns[k], b"".join(encoded[i : i + per]))
-        for record in pending_sources[next_source:]:
-            writer.write(record)
+                batch.append(PacketRecord(t_ns[k], b"".join(encoded[i : i + per])))
+            writer.write_many(batch)
+        writer.write_many(pending_sources[next_source:])
     return labels
 
 

@@ -15,11 +15,13 @@ import pytest
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.session import (
     MAGIC,
+    EventRecord,
     LabelRecord,
     PacketRecord,
     SessionHeader,
     SessionReader,
     SessionWriter,
+    SourceFrameRecord,
     find_session_files,
     iter_records,
     read_session,
@@ -37,7 +39,8 @@ def label(seq: int, action: int = 0) -> LabelRecord:
     return LabelRecord(seq, 1000 * seq, keypoints, action, progress, rep=-1 if action < 0 else 2)
 
 
-def write_small(path: Path) -> list[PacketRecord | LabelRecord]:
+def write_small(path: Path, *, bulk: bool = False) -> list[PacketRecord | LabelRecord]:
+    """A few records, one ``write`` each or (``bulk``) in one ``write_many``."""
     records: list[PacketRecord | LabelRecord] = [
         PacketRecord(10, b"\x01\x02\x00"),
         label(0),
@@ -46,8 +49,11 @@ def write_small(path: Path) -> list[PacketRecord | LabelRecord]:
         PacketRecord(30, b""),
     ]
     with SessionWriter(path, HEADER) as writer:
-        for record in records:
-            writer.write(record)
+        if bulk:
+            writer.write_many(records)
+        else:
+            for record in records:
+                writer.write(record)
     return records
 
 
@@ -97,9 +103,10 @@ def record_ends(raw: bytes) -> list[int]:
     return ends
 
 
-def test_cut_at_every_byte_reads_every_whole_record(tmp_path: Path) -> None:
+@pytest.mark.parametrize("bulk", [False, True])
+def test_cut_at_every_byte_reads_every_whole_record(tmp_path: Path, bulk: bool) -> None:
     full = tmp_path / "full.scot"
-    records = write_small(full)
+    records = write_small(full, bulk=bulk)
     raw = full.read_bytes()
     ends = record_ends(raw)
     cut = tmp_path / "cut.scot"
@@ -268,8 +275,6 @@ def test_unstorable_values_are_a_session_error(tmp_path: Path) -> None:
 
 
 def test_source_frames_are_kept_and_skipped_unless_asked(tmp_path: Path) -> None:
-    from scotti.firmware_protocol.session import SourceFrameRecord
-
     path = tmp_path / "imported.scotti"
     provenance = {"pressure": {"file": "p.csv", "rows": 3, "cols": 2}}
     header = SessionHeader(source="imported", imported=provenance)
@@ -289,3 +294,61 @@ def test_source_frames_are_kept_and_skipped_unless_asked(tmp_path: Path) -> None
     assert records[0].t_ns == 5
     kinds = [type(r).__name__ for r in iter_records(path, source_frames=True)]
     assert kinds == ["SessionHeader", "SourceFrameRecord", "PacketRecord"]
+
+
+AnyRecord = PacketRecord | LabelRecord | SourceFrameRecord | EventRecord
+
+
+def mixed_records(count: int) -> list[AnyRecord]:
+    """Every kind of record a writer stores; packets from empty to past the file's buffer."""
+    rng = np.random.default_rng(7)
+    records: list[AnyRecord] = []
+    for i in range(count):
+        if i % 50 == 0:
+            source = rng.random((2, 3, 2), dtype=np.float32)
+            records.append(SourceFrameRecord(1000 * i, source))
+        if i % 7 == 0:
+            records.append(EventRecord(1000 * i + 1, "step", f"at {i}", wall_ns=17 * i))
+        if i % 3 == 0:
+            records.append(label(i, action=-1 if i % 2 else 0))
+        records.append(PacketRecord(1000 * i + 2, rng.bytes(int(rng.integers(0, 20_000)))))
+    return records
+
+
+@pytest.mark.parametrize("flush_each", [True, False])
+def test_write_many_writes_the_bytes_of_one_write_per_record(
+    tmp_path: Path, flush_each: bool
+) -> None:
+    records = mixed_records(300)
+    one_by_one, bulk = tmp_path / "one.scot", tmp_path / "bulk.scot"
+    with SessionWriter(one_by_one, HEADER, flush_each=flush_each) as writer:
+        for record in records:
+            writer.write(record)
+    with SessionWriter(bulk, HEADER, flush_each=flush_each) as many:
+        many.write_many(records[:1])
+        many.write_many([])
+        many.write_many(records[1:120])
+        many.write_many(iter(records[120:]))  # any iterable, a generator too
+    assert many.records == writer.records == 1 + len(records)  # the header is one
+    assert bulk.read_bytes() == one_by_one.read_bytes()
+    with SessionReader(bulk, source_frames=True, events=True) as reader:
+        kinds = [type(r) for r in reader.records()]
+    assert kinds == [type(r) for r in records]
+    session = read_session(bulk)
+    assert session.packets == [r for r in records if isinstance(r, PacketRecord)]
+    assert session.labels == [r for r in records if isinstance(r, LabelRecord)]
+
+
+def test_write_many_writes_none_of_a_batch_it_cannot_store(tmp_path: Path) -> None:
+    path = tmp_path / "s.scot"
+    with SessionWriter(path, HEADER) as writer:
+        writer.write_many([PacketRecord(1, b"kept")])
+        before = path.read_bytes()
+        batch = [PacketRecord(2, b"a"), PacketRecord(2**70, b"b"), PacketRecord(3, b"c")]
+        with pytest.raises(SessionError, match="cannot store a packet record"):
+            writer.write_many(batch)
+        assert path.read_bytes() == before
+        assert writer.records == 2
+    assert read_session(path).packets == [PacketRecord(1, b"kept")]
+    with pytest.raises(SessionError, match="closed"):
+        writer.write_many([PacketRecord(4, b"late")])
