@@ -472,30 +472,34 @@ class Control:
 
     async def _event_mark(self, request: EventMark) -> Reply:
         mono, wall = time.monotonic_ns(), time.time_ns()
+        # One seq for the files, the echo and the reply: predictions go on arriving
+        # while the echo is being sent, and the reply must name the frame the mark was put at.
+        seq = self._last_seq
         written: list[str] = []
         session = self.pipeline.recorder
         record = EventRecord(mono, request.label, request.detail, wall)
         if session is not None and session.mark(record):
             written.append(str(session.path))
         ours = self._recording
-        if ours is not None and ours.mcap is not None and ours.mcap.event(record, self._last_seq):
+        if ours is not None and ours.mcap is not None and ours.mcap.event(record, seq):
             written.append(str(ours.mcap.path))
         event = Event(
             label=request.label,
             detail=request.detail,
-            seq=self._last_seq,
+            seq=seq,
             host_wall_ns=wall,
             host_mono_ns=mono,
             written_to=written,
         )
         await self._send(self.settings.topic("event"), event, None)
         note = None if written else "not recording: echoed on the event topic only"
-        return self._ok("event/mark", written_to=written, note=note)
+        return self._ok("event/mark", seq=seq, written_to=written, note=note)
 
     # --- answers -----------------------------------------------------------------------
     def _ok(self, verb: str, **fields: Any) -> Reply:
         self.stats.ok += 1
-        return Reply(ok=True, verb=verb, host_wall_ns=time.time_ns(), seq=self._last_seq, **fields)
+        fields.setdefault("seq", self._last_seq)
+        return Reply(ok=True, verb=verb, host_wall_ns=time.time_ns(), **fields)
 
     def _fail(self, verb: str, reason: str) -> Reply:
         self.stats.refused += 1

@@ -695,7 +695,7 @@ def test_after_a_flood_it_stops_listening_for_a_while_then_answers_again(
 
     subscribed, reply, stats = asyncio.run(go())
     assert subscribed[-1] is False  # it unsubscribed
-    assert stats["flood_pauses"] == 1
+    assert stats["flood_pauses"] >= 1  # more when the broker's backlog outlasts the pause
     assert stats["dropped_queue_full"] > 40  # two seconds' worth at 20 requests/s
     assert reply["ok"] is True  # and answers again once the pause is over
     assert stats["subscribed"] is True

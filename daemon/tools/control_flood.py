@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import multiprocessing
 import os
@@ -42,7 +43,9 @@ from scotti.firmware_protocol.session import SessionHeader, SessionWriter
 from scotti.models.contract import FRAME_RATE_HZ
 
 DEVICE = "flood"
-WARMUP_S = 4.0  # the daemon's start and the model's window (40 frames) before the windows
+# The windows start a second after the first pose arrives (the daemon's start and the
+# model's 40-frame window take seconds, more on a loaded host), at most this late.
+STARTUP_MAX_S = 60.0
 PERIOD_MS = 1e3 / FRAME_RATE_HZ
 WINDOWS = ("quiet", "flood", "after")
 
@@ -74,27 +77,37 @@ def _flood(host: str, port: int, rate: float, seconds: float) -> None:
 
 
 async def _subscribe(
-    broker: Mosquitto, until: float, poses: list[tuple[float, float, float]], health: list[Any]
+    broker: Mosquitto,
+    stop: asyncio.Event,
+    first: asyncio.Event,
+    poses: list[tuple[float, float, float]],
+    health: list[Any],
 ) -> None:
+    """Poses (arrival s, latency ms, ms since the frame's last byte) and health until ``stop``;
+    ``first`` is set when the first pose arrives."""
     async with aiomqtt.Client(
         broker.host, broker.port, protocol=aiomqtt.ProtocolVersion.V5
     ) as client:
         await client.subscribe(f"scotti/{DEVICE}/pose", qos=0)
         await client.subscribe(f"scotti/{DEVICE}/health", qos=1)
-        with_deadline = asyncio.timeout(max(0.0, until - time.monotonic()))
-        try:
-            async with with_deadline:
-                async for message in client.messages:
-                    now_ns = time.monotonic_ns()
-                    data = json.loads(bytes(message.payload))
-                    if message.topic.value.endswith("/health"):
-                        health.append(data)
-                        continue
-                    last_byte_ns = data["predicted_for_mono_ns"] - PERIOD_MS * 1e6
-                    seen_ms = (now_ns - last_byte_ns) / 1e6
-                    poses.append((now_ns / 1e9, data["latency_ms"], seen_ms))
-        except TimeoutError:
-            pass
+
+        async def read() -> None:
+            async for message in client.messages:
+                now_ns = time.monotonic_ns()
+                data = json.loads(bytes(message.payload))
+                if message.topic.value.endswith("/health"):
+                    health.append(data)
+                    continue
+                last_byte_ns = data["predicted_for_mono_ns"] - PERIOD_MS * 1e6
+                seen_ms = (now_ns - last_byte_ns) / 1e6
+                poses.append((now_ns / 1e9, data["latency_ms"], seen_ms))
+                first.set()
+
+        reader = asyncio.create_task(read())
+        await stop.wait()
+        reader.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await reader
 
 
 def _cpu_s(pid: int) -> float | None:
@@ -121,7 +134,7 @@ def run(
 ) -> dict[str, Any]:
     """The three windows' figures and the daemon's control counts (see the module text)."""
     model = model or default_model_path()
-    total = WARMUP_S + 3 * seconds + 3.0
+    total = STARTUP_MAX_S + 3 * seconds + 3.0
     with tempfile.TemporaryDirectory(prefix="scotti-flood-") as tmp, Mosquitto() as broker:
         session = Path(tmp) / "random.scotti"
         with SessionWriter(session, SessionHeader(source="simulated", device=DEVICE)) as writer:
@@ -138,8 +151,7 @@ def run(
         )
         poses: list[tuple[float, float, float]] = []
         health: list[Any] = []
-        started = time.monotonic()
-        windows = {name: started + WARMUP_S + i * seconds for i, name in enumerate(WINDOWS)}
+        windows: dict[str, float] = {}
         flooder = multiprocessing.get_context("spawn").Process(
             target=_flood, args=(broker.host, broker.port, rate, seconds), daemon=True
         )
@@ -147,9 +159,12 @@ def run(
         cpu: dict[str, float | None] = {}
 
         async def measure() -> None:
-            listen = asyncio.create_task(
-                _subscribe(broker, started + WARMUP_S + 3 * seconds + 1.5, poses, health)
-            )
+            stop, first = asyncio.Event(), asyncio.Event()
+            listen = asyncio.create_task(_subscribe(broker, stop, first, poses, health))
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(first.wait(), STARTUP_MAX_S)
+            base = time.monotonic() + 1.0
+            windows.update({name: base + i * seconds for i, name in enumerate(WINDOWS)})
             for name in WINDOWS:
                 await asyncio.sleep(max(0.0, windows[name] - time.monotonic()))
                 cpu[name] = _cpu_s(daemon.pid)
@@ -157,6 +172,15 @@ def run(
                     flooder.start()
             await asyncio.sleep(max(0.0, windows[WINDOWS[-1]] + seconds - time.monotonic()))
             cpu["end"] = _cpu_s(daemon.pid)
+            # The counts come from a health message sent after the flood has ended (a
+            # flooder started late on a loaded host floods past its window).
+            await asyncio.to_thread(flooder.join, seconds + 30)
+            seen = len(health)
+            for _ in range(100):
+                if len(health) > seen + 1:
+                    break
+                await asyncio.sleep(0.05)
+            stop.set()
             await listen
 
         try:
@@ -174,7 +198,7 @@ def run(
     }
     next_mark = dict(zip(WINDOWS, [*WINDOWS[1:], "end"], strict=True))  # where a window ends
     for name in WINDOWS:
-        lo, hi = windows[name], windows[name] + seconds
+        lo, hi = windows.get(name, 0.0), windows.get(name, 0.0) + seconds
         inside = [p for p in poses if lo <= p[0] < hi]
         before, after = cpu.get(name), cpu.get(next_mark[name])
         out[name] = {
