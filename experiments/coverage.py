@@ -158,6 +158,7 @@ def main(argv: list[str] | None = None) -> int:
             "cpu_minutes": cpu / 60.0,
             "wall_minutes": outcome.wall_s / 60.0,
             "jobs_left": outcome.left,
+            "jobs_run": outcome.simulated + outcome.unchanged,
         }
     )
     args.write.parent.mkdir(parents=True, exist_ok=True)

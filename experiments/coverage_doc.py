@@ -83,6 +83,7 @@ class Summary:
     cpu_minutes: float
     wall_minutes: float
     jobs_left: int
+    jobs_run: int = 0  # cells and scene files scored by this invocation (the rest: cache)
 
 
 def markdown(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, Any]]) -> str:
@@ -104,7 +105,8 @@ def markdown(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, A
         f"{summary.commit}, {summary.date}",
         f"- command: `{summary.command}`",
         f"- budget: {summary.cpu_minutes:.1f} CPU minutes (the sum over cells, as each was "
-        f"measured when it was scored); this run took {summary.wall_minutes:.1f} min",
+        f"measured when it was scored); this invocation scored {summary.jobs_run} of them "
+        f"in {summary.wall_minutes:.1f} min, the others came from the cache",
     ]
     if summary.jobs_left:
         lines.append(
@@ -112,6 +114,7 @@ def markdown(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, A
             "--max-minutes; rerun the command to finish (scored cells are kept)"
         )
     lines += ["", *_headline(scored), "", _tally(rows, scored)]
+    lines += ["", "## By action", "", *_by_action(summary, rows)]
     lines += ["", "## Goals", "", *_goals(scored, scenes)]
     lines += ["", "## The unfamiliar flag as a detector of wrong predictions", ""]
     lines += _detector(scored)
@@ -130,7 +133,8 @@ def _headline(scored: Sequence[Row]) -> list[str]:
     with_app = [r for r in scored if r.app is not None]
     out = [
         f"**Worst cell: {worst.action} with {worst.label}: accuracy "
-        f"{_pct(worst.accuracy)}, APP {_num(worst.app)}.**",
+        f"{_pct(worst.accuracy)}, APP {_num(worst.app)}** ({_pct(worst.counts.share('flagged'))} "
+        "of its predictions flagged, so withheld by the daemon).",
     ]
     if with_app:
         low = min(with_app, key=lambda r: _key(r.app))
@@ -138,7 +142,56 @@ def _headline(scored: Sequence[Row]) -> list[str]:
             f"Lowest APP: {low.action} with {low.label}: APP {_num(low.app)} "
             f"(accuracy {_pct(low.accuracy)})."
         )
+    loud = max(scored, key=lambda r: r.counts.share("wrong_unflagged") or 0.0)
+    out.append(
+        f"Most wrong answers published (wrong and unflagged): {loud.action} with "
+        f"{loud.label}: {_pct(loud.counts.share('wrong_unflagged'))} of its predictions, "
+        f"{_pct(loud.counts.share('wrong_unflagged_confident'))} at a top probability "
+        f"above {CONFIDENT} (accuracy {_pct(loud.accuracy)})."
+    )
     return [" ".join(out)]
+
+
+def _by_action(summary: Summary, rows: Sequence[Row]) -> list[str]:
+    body = []
+    for action in summary.actions:
+        mine = [r for r in rows if r.action == action and not r.unchanged]
+        scored = [r for r in mine if r.accuracy is not None]
+        base = next((r for r in mine if r.path is None), None)
+        if not scored or base is None:
+            continue
+        worst = min(scored, key=lambda r: _key(r.accuracy))
+        loud = max(scored, key=lambda r: r.counts.share("wrong_unflagged") or 0.0)
+        below = sum(_key(r.accuracy) < GOAL_CELL_ACCURACY for r in scored)
+        body.append(
+            [
+                action,
+                _pct(base.accuracy),
+                _num(base.app),
+                " ".join(_pct(a) for a in base.result.get("accuracy_per_person", [])),
+                f"{below} of {len(scored)}",
+                f"{_pct(worst.accuracy)} ({worst.label})",
+                f"{_pct(loud.counts.share('wrong_unflagged'))} ({loud.label})",
+            ]
+        )
+    return [
+        "The baseline (every field at the scene's default) per action, with each person's "
+        "accuracy, and the action's cells: how many fall below the goal, the worst, and the "
+        "one publishing most wrong answers (wrong and unflagged).",
+        "",
+        *table(
+            [
+                "action",
+                "baseline accuracy",
+                "baseline APP",
+                "per person",
+                f"cells below {100 * GOAL_CELL_ACCURACY:.0f} %",
+                "worst cell",
+                "most wrong and unflagged",
+            ],
+            body,
+        ),
+    ]
 
 
 def _tally(rows: Sequence[Row], scored: Sequence[Row]) -> str:
