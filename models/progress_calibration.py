@@ -124,21 +124,24 @@ def _mse(output: npt.ArrayLike, label: npt.NDArray[np.float64]) -> float:
 def _reach_both_ends(
     kx: npt.NDArray[np.float64], ky: npt.NDArray[np.float64]
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """The map stretched linearly so that its lowest knot reads 0 and its highest 1.
+    """The map's end knots pinned to 0 and 1: the model's surest start reads 0, its surest end 1.
 
     A bin's pooled label is a mean, and the outputs' extreme bins hold frames of
     many phases (the top 2 % of a squat model's outputs are frames labelled 0.6
     to 1), so the plain isotonic map of the shipped model never went past 0.74
     to 0.88: a repetition never completed, and a counter waiting for its top
-    waited on the threshold rather than on the person. Stretching keeps the
-    order (the map stays monotone) and puts the model's surest start at 0 and
-    its surest end at 1. A map that spans less than ``MIN_SPAN`` is a model
-    without evidence of progress for that action, left as it is.
+    waited on the threshold rather than on the person. Only the two end knots
+    move (the extreme bins' own frames, a fiftieth of them each): stretching
+    the whole map instead cost a trained model's calibration its gain (progress
+    MSE 0.0262 -> 0.0293 on the frames it was fitted on). The map stays
+    monotone. A map that spans less than ``MIN_SPAN`` is a model without
+    evidence of progress for that action, left as it is.
     """
-    span = float(ky[-1] - ky[0])
-    if kx.size < 2 or span < MIN_SPAN:
+    if kx.size < 3 or float(ky[-1] - ky[0]) < MIN_SPAN:
         return kx, ky
-    return kx, np.clip((ky - ky[0]) / span, 0.0, 1.0)
+    out = ky.copy()
+    out[0], out[-1] = 0.0, 1.0
+    return kx, out
 
 
 def _isotonic_knots(
