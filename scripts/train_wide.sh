@@ -36,7 +36,8 @@ render() {  # PART FIRST_INDEX MINUTES_PER_ACTION [corpus options...]
   name=$(printf 'subject-%03d.ses' "$index")
   [[ -f $DATA/$part/$name ]] && return 0
   local tmp=$DATA/$part/.one-$index
-  "$SCOTTI" sim corpus -o "$tmp" --first-subject "$index" --subjects 1 --seed 1 \
+  # --force: a folder left by a killed render holds a partial session.
+  "$SCOTTI" sim corpus -o "$tmp" --first-subject "$index" --subjects 1 --seed 1 --force \
     --minutes-per-action "$minutes" "$@" >/dev/null
   mv "$tmp/$name" "$DATA/$part/$name"
   rm -rf "$tmp"
@@ -92,7 +93,7 @@ echo "train_wide: training $RUN on $DEVICE"
 
 model=$RUN/models/scotti-ship.onnx
 echo "train_wide: exporting $model"
-"$SCOTTI" export "$RUN/best.pt" -o "$model" --calibrate "${files[@]}" --cache-dir "$CACHE"
+"$SCOTTI" export "$RUN/best.pt" -o "$model" --calibrate "${files[@]}" --cache-dir "$CACHE" --force
 val=()
 for s in "${VALIDATION[@]}"; do val+=("$DATA"/*/"$s.ses"); done
 # Two tiny smoke people hold too few repetitions to fit the progress map.
