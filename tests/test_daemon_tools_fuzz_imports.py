@@ -34,6 +34,8 @@ def test_every_kind_of_input_is_drawn(tmp_path: Path) -> None:
     seeds = Seeds(tmp_path)
     rnd = random.Random(0)
     for name, maker in fuzz_imports.MAKERS.items():
+        if name == "vendor" and not HAS_REALDATA:
+            continue  # the vendor maker mutates the heads of ../shared/realdata's samples
         kinds = {maker(rnd, seeds).how.split(",")[0] for _ in range(200)}
         assert "valid" in kinds or name == "vendor"
         assert len(kinds) >= 4, (name, kinds)
