@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
+from scotti.daemon.tools.fuzz_inputs import mutate as mutate_bytes
 
 IMPORT_TARGETS: Final = ("csv", "npz", "h5", "vendor")
 WORKER_MEMORY: Final = 2 << 30  # address space of the worker, bytes
@@ -142,24 +143,9 @@ class Seeds:
 
 
 def mutate(rnd: random.Random, seed: bytes, edits: int = 8) -> bytes:
-    """``seed`` with 1-``edits`` edits: flips, set bytes, inserts, deletes, repeats, a cut."""
-    data = bytearray(seed)
-    for _ in range(rnd.randint(1, edits)):
-        kind = rnd.randrange(6)
-        at = rnd.randrange(len(data)) if data else 0
-        if kind == 0 and data:
-            data[at] ^= 1 << rnd.randrange(8)
-        elif kind == 1 and data:
-            data[at] = rnd.choice((0x00, 0xFF, 0x0A, 0x2C, rnd.randrange(256)))
-        elif kind == 2:
-            data[at:at] = rnd.choice((rnd.randbytes(rnd.randint(1, 64)), *_HOSTILE_BYTES))
-        elif kind == 3:
-            del data[at : at + rnd.randint(1, 64)]
-        elif kind == 4:
-            data[at:at] = data[at : at + rnd.randint(1, 600)]
-        elif kind == 5:
-            del data[at:]
-    return bytes(data)
+    """``seed`` with 1-``edits`` edits (fuzz_inputs.mutate), the text formats' hostile
+    bytes among the values and inserts."""
+    return mutate_bytes(rnd, seed, edits, (0x00, 0xFF, 0x0A, 0x2C), _HOSTILE_BYTES)
 
 
 def _numbers(rnd: random.Random, shape: tuple[int, ...]) -> np.ndarray:

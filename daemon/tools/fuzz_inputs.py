@@ -48,18 +48,30 @@ def _valid_stream() -> bytes:
 VALID_STREAM: Final = _valid_stream()
 
 
-def mutate(rnd: random.Random, seed: bytes) -> bytes:
-    """``seed`` with 1-8 edits: flips, set bytes, inserts, deletes, repeats, a cut."""
+def mutate(
+    rnd: random.Random,
+    seed: bytes,
+    edits: int = 8,
+    set_to: tuple[int, ...] = (0x00, 0xFF, 0x01),
+    inserts: tuple[bytes, ...] = (),
+) -> bytes:
+    """``seed`` with 1-``edits`` edits: flips, set bytes, inserts, deletes, repeats, a cut.
+
+    ``set_to`` are the values a set byte takes besides a random one; ``inserts``
+    are chunks an insert may take instead of random bytes (a format's own
+    hostile tokens). The defaults draw what the serial fuzz has always drawn.
+    """
     data = bytearray(seed)
-    for _ in range(rnd.randint(1, 8)):
+    for _ in range(rnd.randint(1, edits)):
         kind = rnd.randrange(6)
         at = rnd.randrange(len(data)) if data else 0
         if kind == 0 and data:
             data[at] ^= 1 << rnd.randrange(8)
         elif kind == 1 and data:
-            data[at] = rnd.choice((0x00, 0xFF, 0x01, rnd.randrange(256)))
+            data[at] = rnd.choice((*set_to, rnd.randrange(256)))
         elif kind == 2:
-            data[at:at] = rnd.randbytes(rnd.randint(1, 64))
+            chunk = rnd.randbytes(rnd.randint(1, 64))
+            data[at:at] = rnd.choice((chunk, *inserts)) if inserts else chunk
         elif kind == 3:
             del data[at : at + rnd.randint(1, 64)]
         elif kind == 4:
