@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scotti.daemon.pairing import PairingConfig
+from scotti.daemon.frames.pairing import PairingConfig
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet
 from scotti.evaluation.replay import (

@@ -29,8 +29,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
-from scotti.daemon.window import Window
+from scotti.daemon.frames.pairing import PairedFrame, Pairing, PairingConfig
+from scotti.daemon.inference.window import Window
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet, align
 from scotti.evaluation.sampling import Prediction, SampledTrack

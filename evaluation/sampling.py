@@ -1,6 +1,6 @@
 """Sampled evaluation: every K-th prediction time, through the window graph in batches.
 
-The streaming window (``daemon.window.Window``) runs the step graph on every
+The streaming window (``scotti.daemon.inference.window.Window``) runs the step graph on every
 frame. To score a uniform sample of prediction times cheaply, this keeps the
 raw counts of the last T paired frames instead, with the window's rules: a
 restart forgets them, the first prediction needs T frames in, and a window of
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
-from scotti.daemon.pairing import PairedFrame
+from scotti.daemon.frames.pairing import PairedFrame
 from scotti.models.input_checks import check_window
 from scotti.models.ood import UNFAMILIAR
 from scotti.models.runtime import ScottiRuntime

@@ -34,8 +34,8 @@ CODE: Final = (
     "models/*.py",
     "evaluation/*.py",
     "firmware_protocol/*.py",
-    "daemon/pairing.py",
-    "daemon/window.py",
+    "daemon/frames/pairing.py",
+    "daemon/inference/window.py",
     "experiments/coverage_score.py",
 )
 

@@ -12,7 +12,7 @@ and, per repeated action of the script, prints:
 - how far the predicted progress sweeps (5th and 95th percentile, and the
   share of repetitions whose predictions reach below 0.2 and above 0.8);
 - progress MSE against the labels;
-- repetitions the daemon's counter (daemon/repetitions.py, fed the predicted
+- repetitions the daemon's counter (daemon/inference/repetitions.py, fed the predicted
   action and progress like the pipeline; ``--high``/``--low`` try other
   thresholds) completes, beside what the daemon's counter completes on the
   labels.
@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 from common import ROOT
-from scotti.daemon.repetitions import RepetitionCounter
-from scotti.daemon.sources_sim import resolve_scene
+from scotti.daemon.inference.repetitions import RepetitionCounter
+from scotti.daemon.input.simulated import resolve_scene
 from scotti.evaluation.replay import replay_session
 from scotti.models import contract
 from scotti.models.runtime import ScottiRuntime

@@ -5,7 +5,7 @@ FrameAssembler), left and right foot frames are joined by their shared
 sequence number, and labels are attached per sequence number. Sequence
 numbers wrap at 2**16; they are unwrapped into one int64 timeline.
 
-Missing data is repaired as the daemon repairs it live (daemon/pairing.py),
+Missing data is repaired as the daemon repairs it live (daemon/frames/pairing.py),
 so the model trains on what it will be shown: missing rows of a foot frame
 are taken from that foot's previous frame; a foot frame that never came is
 held (the foot's previous frame repeated) for up to ``HOLD_FRAMES`` slots,

@@ -11,7 +11,7 @@ the model it is given in place (its progress map replaced): an edit, not an
 output, so no ``--force``. The commands that remake the repository's own
 documents (``scotti sim realism``) rewrite them in place: git keeps what they
 replace. The daemon's recordings follow their own (never overwritten, a new
-name per start on request: ``daemon/recording.py``), since a service restarts
+name per start on request: ``daemon/input/recording.py``), since a service restarts
 on its own.
 
 It lives here, in the room every other may import, because all those tools

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import serial
-from scotti.daemon.board_emulator import BoardEmulator, EmulatorError
-from scotti.daemon.speed import Speed, parse_speed
+from scotti.daemon.input.board_emulator import BoardEmulator, EmulatorError
+from scotti.daemon.input.speed import Speed, parse_speed
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import Foot, FrameRows
 

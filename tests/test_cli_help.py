@@ -45,7 +45,7 @@ def test_the_tools_help_has_no_rest_literals(tool: str, capsys: pytest.CaptureFi
 
 
 def test_the_daemons_help_has_no_rest_literals(capsys: pytest.CaptureFixture[str]) -> None:
-    from scotti.daemon.main import main
+    from scotti.daemon.service.main import main
 
     text = help_text(main, ["--help"], capsys)
     assert "``" not in text

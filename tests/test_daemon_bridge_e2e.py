@@ -9,7 +9,7 @@ from pathlib import Path
 
 import paho.mqtt.publish
 import pytest
-from scotti.daemon.schemas import Health, Status
+from scotti.daemon.mqtt.schemas import Health, Status
 from scotti.daemon.tools.local_broker import Mosquitto, bridge_conf
 from scotti.models.contract import WINDOW
 

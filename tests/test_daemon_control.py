@@ -26,14 +26,14 @@ import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
-from scotti.daemon.control import Control, mcap_missing
-from scotti.daemon.counters import Counters
-from scotti.daemon.main import build_parser, cli_overrides, main
-from scotti.daemon.mqtt_settings import MqttSettings
-from scotti.daemon.pipeline import Pipeline
-from scotti.daemon.schemas import Event, Reply
+from scotti.daemon.frames.pipeline import Pipeline
+from scotti.daemon.input.sources import ReplaySource
+from scotti.daemon.mqtt.control import Control, mcap_missing
+from scotti.daemon.mqtt.schemas import Event, Reply
+from scotti.daemon.service.counters import Counters
+from scotti.daemon.service.main import build_parser, cli_overrides, main
 from scotti.daemon.settings import ConfigError, load_settings
-from scotti.daemon.sources import ReplaySource
+from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.tools import control_flood
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.session import (
@@ -656,7 +656,7 @@ def test_a_flood_of_requests_is_dropped_and_counted_while_poses_keep_flowing(
 def test_after_a_flood_it_stops_listening_for_a_while_then_answers_again(
     mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import scotti.daemon.control as control_module
+    import scotti.daemon.mqtt.control as control_module
 
     monkeypatch.setattr(control_module, "FLOOD_PAUSE_S", 1.0)  # 5 s in the daemon
     session = write_synthetic_session(tmp_path / "in.scotti", frames=8)

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.schemas import Action, Health, Info, Pose, Progress, Status
+from scotti.daemon.input.board_emulator import BoardEmulator
+from scotti.daemon.mqtt.schemas import Action, Health, Info, Pose, Progress, Status
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.session import read_session
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, KEYPOINTS, WINDOW

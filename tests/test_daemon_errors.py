@@ -17,7 +17,9 @@ from tests.support.sessions import SyntheticSession
 
 def daemon_exception_classes() -> list[type[BaseException]]:
     found: list[type[BaseException]] = []
-    for module in pkgutil.iter_modules(scotti.daemon.__path__, "scotti.daemon."):
+    for module in pkgutil.walk_packages(scotti.daemon.__path__, "scotti.daemon."):
+        if module.name.startswith("scotti.daemon.tools"):
+            continue  # the tools around the service raise their own
         mod = importlib.import_module(module.name)
         for _, obj in inspect.getmembers(mod, inspect.isclass):
             if issubclass(obj, BaseException) and obj.__module__ == mod.__name__:
@@ -29,10 +31,10 @@ def test_every_daemon_exception_derives_from_daemon_error() -> None:
     classes = daemon_exception_classes()
     names = {f"{c.__module__}.{c.__qualname__}" for c in classes}
     assert {
-        "scotti.daemon.config_checks.ConfigError",
-        "scotti.daemon.sources.SourceError",
-        "scotti.daemon.recording.RecordingError",
-        "scotti.daemon.board_emulator.EmulatorError",
+        "scotti.daemon.settings.checks.ConfigError",
+        "scotti.daemon.input.sources.SourceError",
+        "scotti.daemon.input.recording.RecordingError",
+        "scotti.daemon.input.board_emulator.EmulatorError",
     } <= names
     stray = sorted(
         n

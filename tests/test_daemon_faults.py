@@ -10,8 +10,8 @@ from pathlib import Path
 
 import onnx
 import pytest
-from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.schemas import Health
+from scotti.daemon.input.board_emulator import BoardEmulator
+from scotti.daemon.mqtt.schemas import Health
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.packets import Foot
 from scotti.models.contract import META_CONTRACT_VERSION, WINDOW

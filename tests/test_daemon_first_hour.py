@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scotti.daemon.schemas import Health
+from scotti.daemon.mqtt.schemas import Health
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.session import SessionHeader, SessionWriter, read_session
 from scotti.models.contract import WINDOW
@@ -249,7 +249,7 @@ def test_a_replay_cut_short_plays_its_whole_records_with_one_warning(
         got.wait_for(lambda m: any(s["state"] == "offline" for s in payloads(m, "status")), 10)
     warnings = [ln for ln in daemon.log.splitlines() if ln.startswith("WARNING")]
     assert warnings == [
-        f"WARNING scotti.daemon.sources: replay: {cut} ends inside a record (cut short): "
+        f"WARNING scotti.daemon.input.sources: replay: {cut} ends inside a record (cut short): "
         f"replaying its {whole_records} whole packet records"
     ]
     health = Health.model_validate(payloads(got.snapshot(), "health")[-1])
@@ -282,7 +282,7 @@ class Scene:
 
 @pytest.fixture
 def short_scene(tmp_path: Path) -> Scene:
-    from scotti.daemon.sources_sim import render_scene_file
+    from scotti.daemon.input.simulated import render_scene_file
 
     path = tmp_path / "short.toml"
     path.write_text(SHORT_SCENE)

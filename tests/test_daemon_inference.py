@@ -10,16 +10,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scotti.daemon.counters import Counters, LatencyRing
-from scotti.daemon.inference import (
+from scotti.daemon.frames.pairing import PairedFrame
+from scotti.daemon.inference.engine import (
     InferenceEngine,
     InferenceJob,
     InferenceResult,
     InferenceWorker,
 )
-from scotti.daemon.pairing import PairedFrame
-from scotti.daemon.repetitions import RepetitionCounter
-from scotti.daemon.window import Window
+from scotti.daemon.inference.repetitions import RepetitionCounter
+from scotti.daemon.inference.window import Window
+from scotti.daemon.service.counters import Counters, LatencyRing
 from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_ROWS, MAX_COUNT, STANDING
 from scotti.models.runtime import ScottiRuntime
 

@@ -7,8 +7,8 @@ from typing import Literal
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scotti.daemon.latency_slot import LatencySlot
-from scotti.daemon.schemas import DeviceSeq, Pose, Progress, Status, decode, encode
+from scotti.daemon.mqtt.latency_slot import LatencySlot
+from scotti.daemon.mqtt.schemas import DeviceSeq, Pose, Progress, Status, decode, encode
 
 FORMATS: list[Literal["json", "msgpack"]] = ["json", "msgpack"]
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scotti.daemon.schemas import Health
+from scotti.daemon.mqtt.schemas import Health
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.framing import encode_packet
 from scotti.firmware_protocol.packets import Foot

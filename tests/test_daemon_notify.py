@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from scotti.daemon.notify import Notifier
+from scotti.daemon.service.notify import Notifier
 
 
 @pytest.fixture

@@ -22,16 +22,16 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scotti.daemon import messages as payload
-from scotti.daemon.app import Daemon
-from scotti.daemon.device import Device
-from scotti.daemon.inference import InferenceEngine
-from scotti.daemon.main import build_parser, cli_overrides, main
+from scotti.daemon.frames.pipeline import Prediction
+from scotti.daemon.inference.engine import InferenceEngine
+from scotti.daemon.input.sources import ReplaySource
+from scotti.daemon.mqtt import messages as payload
+from scotti.daemon.mqtt.schemas import Status
 from scotti.daemon.outputs import Outputs
-from scotti.daemon.pipeline import Prediction
-from scotti.daemon.schemas import Status
+from scotti.daemon.service.app import Daemon
+from scotti.daemon.service.device import Device
+from scotti.daemon.service.main import build_parser, cli_overrides, main
 from scotti.daemon.settings import Settings, load_settings
-from scotti.daemon.sources import ReplaySource
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.models.runtime import ScottiRuntime
 
@@ -265,7 +265,7 @@ def test_the_daemon_core_does_not_load_the_output_libraries() -> None:
     import sys
 
     code = (
-        "import sys, scotti.daemon.app, scotti.daemon.main;"
+        "import sys, scotti.daemon.service.app, scotti.daemon.service.main;"
         "print(sorted(m for m in ('foxglove', 'mcap', 'pylsl') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -522,7 +522,7 @@ def test_devices_cancelled_at_the_stop_budget_finish_their_cleanup_first(
         tasks = [asyncio.create_task(deaf(n, 0.3), name=n) for n in ("a", "b")]
         return await daemon._stop_devices(tasks)
 
-    caplog.set_level(logging.WARNING, logger="scotti.daemon.app")
+    caplog.set_level(logging.WARNING, logger="scotti.daemon.service.app")
     assert asyncio.run(stop()) == 1
     assert sorted(cleaned) == ["a", "b"]  # both finished before _stop_devices returned
     assert "did not stop within 1.2 s" in caplog.text
@@ -557,7 +557,7 @@ def test_a_device_whose_cleanup_hangs_does_not_hang_the_stop(
         await tasks[1]
         return status, took
 
-    caplog.set_level(logging.WARNING, logger="scotti.daemon.app")
+    caplog.set_level(logging.WARNING, logger="scotti.daemon.service.app")
     status, took = asyncio.run(stop())
     assert status == 1
     assert took < 10  # the budget (1.2 s) and the grace (2 s), not the hang

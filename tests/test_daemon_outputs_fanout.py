@@ -8,9 +8,9 @@ import threading
 from pathlib import Path
 
 import pytest
-from scotti.daemon import messages
+from scotti.daemon.frames.pipeline import Prediction
+from scotti.daemon.mqtt import messages
 from scotti.daemon.outputs.fanout import FRAMES_PER_DEVICE, Item, OutputThread
-from scotti.daemon.pipeline import Prediction
 
 from tests.support.outputs import predictions
 from tests.support.sessions import write_synthetic_session

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from scotti.daemon.pipeline import Prediction
+from scotti.daemon.frames.pipeline import Prediction
 from scotti.models.contract import ACTIONS, NUM_KEYPOINTS
 
 from tests.support.outputs import predictions, protobuf_class

@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 from pydantic import BaseModel
-from scotti.daemon import messages, schemas
+from scotti.daemon.mqtt import messages, schemas
 from scotti.daemon.outputs.json_schema import foxglove_schema
 from scotti.models.contract import ACTIONS, NO_ACTION
 

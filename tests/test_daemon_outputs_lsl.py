@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scotti.daemon.pipeline import Prediction
+from scotti.daemon.frames.pipeline import Prediction
 from scotti.firmware_protocol.packets import Foot
 from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_ROWS, KEYPOINTS, NUM_ACTIONS
 

@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scotti.daemon import messages
-from scotti.daemon.pipeline import Prediction
+from scotti.daemon.frames.pipeline import Prediction
+from scotti.daemon.mqtt import messages
 from scotti.models.contract import ACTIONS, NO_ACTION
 
 from tests.support.outputs import predictions

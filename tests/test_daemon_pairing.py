@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scotti.daemon.pairing import PairedFrame, Pairing
+from scotti.daemon.frames.pairing import PairedFrame, Pairing
 from scotti.firmware_protocol.assembly import FootFrame
 from scotti.firmware_protocol.packets import Foot
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS

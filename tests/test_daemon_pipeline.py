@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.counters import Counters
-from scotti.daemon.messages import frame_payloads
-from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
-from scotti.daemon.schemas import Action, Progress
-from scotti.daemon.sources import ReplaySource, SerialSource, Source
-from scotti.daemon.sources_sim import SimulatedSource
+from scotti.daemon.frames.pipeline import Pipeline, PipelineState, Prediction
+from scotti.daemon.input.board_emulator import BoardEmulator
+from scotti.daemon.input.simulated import SimulatedSource
+from scotti.daemon.input.sources import ReplaySource, SerialSource, Source
+from scotti.daemon.mqtt.messages import frame_payloads
+from scotti.daemon.mqtt.schemas import Action, Progress
+from scotti.daemon.service.counters import Counters
 from scotti.daemon.waiting import Backoff
 from scotti.firmware_protocol.packets import Foot
 from scotti.models.contract import (

@@ -10,8 +10,8 @@ from typing import Literal
 import msgpack
 import pytest
 from pydantic import BaseModel
-from scotti.daemon.publisher import FrameBatch, Publisher
-from scotti.daemon.schemas import DeviceSeq, Info, Progress, Status
+from scotti.daemon.mqtt.publisher import FrameBatch, Publisher
+from scotti.daemon.mqtt.schemas import DeviceSeq, Info, Progress, Status
 from scotti.daemon.settings import MqttSettings
 from scotti.daemon.tools.local_broker import Mosquitto
 
@@ -229,7 +229,7 @@ def test_a_full_queue_is_logged_once_not_per_drop(caplog: pytest.LogCaptureFixtu
             pub.submit(batch(seq))
         return pub
 
-    with caplog.at_level("WARNING", logger="scotti.daemon.publisher"):
+    with caplog.at_level("WARNING", logger="scotti.daemon.mqtt.publisher"):
         pub = asyncio.run(fill())
     assert pub.stats.dropped_full == 36
     lines = [r.getMessage() for r in caplog.records if "queue full" in r.getMessage()]

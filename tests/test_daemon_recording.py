@@ -15,10 +15,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
-from scotti.daemon.counters import Counters
-from scotti.daemon.pipeline import Pipeline
-from scotti.daemon.recording import Recorder, RecordingError, candidate_paths, recording_path
-from scotti.daemon.sources import ReplaySource
+from scotti.daemon.frames.pipeline import Pipeline
+from scotti.daemon.input.recording import Recorder, RecordingError, candidate_paths, recording_path
+from scotti.daemon.input.sources import ReplaySource
+from scotti.daemon.service.counters import Counters
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.session import read_session
 from scotti.models.runtime import ScottiRuntime
@@ -59,7 +59,7 @@ def test_a_fixed_name_that_exists_is_refused_with_the_hint(tmp_path: Path) -> No
 def test_time_and_device_in_the_name_make_a_new_file_at_every_start(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, "scotti.daemon.recording")
+    caplog.set_level(logging.INFO, "scotti.daemon.input.recording")
     template = tmp_path / "{device}-walk-{time}.scotti"
     before = datetime.now(UTC).replace(microsecond=0)
     recorders = [Recorder(template, device="lab1") for _ in range(3)]  # a restart loop
@@ -107,7 +107,7 @@ def test_a_recording_that_cannot_start_is_one_line(tmp_path: Path) -> None:
 CHILD = textwrap.dedent(
     """
     import sys
-    from scotti.daemon.recording import Recorder
+    from scotti.daemon.input.recording import Recorder
     recorder = Recorder(sys.argv[1])
     i = 0
     while True:
@@ -182,7 +182,7 @@ def test_the_daemon_records_into_a_new_file_per_start_and_names_it_in_info(
     assert info["topics"] == {n: f"scotti/rec/{n}" for n in names}
     recorded = read_session(actual)
     assert b"".join(p.data for p in recorded.packets) == session.data
-    assert f"INFO scotti.daemon.recording: recording to {actual}" in daemon.log
+    assert f"INFO scotti.daemon.input.recording: recording to {actual}" in daemon.log
 
 
 def test_the_daemon_will_not_start_over_a_fixed_recording_name_that_exists(

@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 
 import pytest
-from scotti.daemon.schemas import Health, Pose
+from scotti.daemon.mqtt.schemas import Health, Pose
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.models.contract import WINDOW
 

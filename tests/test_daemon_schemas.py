@@ -10,8 +10,8 @@ from typing import Any, get_args
 import msgpack
 import pytest
 from pydantic import ValidationError
-from scotti.daemon import schemas
-from scotti.daemon.schemas import (
+from scotti.daemon.mqtt import schemas
+from scotti.daemon.mqtt.schemas import (
     Action,
     DeviceSeq,
     Pose,
@@ -117,7 +117,7 @@ def test_withheld_names_are_the_ood_flags_and_a_withheld_action_is_null() -> Non
 def test_committed_docs_equal_the_generated_ones() -> None:
     for path, text in schemas.generated_files(DOCS).items():
         assert path.read_text(encoding="utf-8") == text, (
-            f"{path} is stale: python -m scotti.daemon.schemas --write"
+            f"{path} is stale: python -m scotti.daemon.mqtt.schemas --write"
         )
 
 
@@ -139,7 +139,7 @@ def test_check_mode_reports_stale_files(tmp_path: Path) -> None:
 
 
 def test_health_bad_packets_is_the_decoders_own_count_of_dropped_packets() -> None:
-    from scotti.daemon.messages import dropped_packets
+    from scotti.daemon.mqtt.messages import dropped_packets
     from scotti.firmware_protocol.framing import StreamDecoder, encode_packet
     from scotti.firmware_protocol.packets import Foot
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 from pydantic import BaseModel
+from scotti.daemon.input.speed import parse_speed
 from scotti.daemon.settings import ConfigError, load_settings, sanitise_device_id
-from scotti.daemon.speed import parse_speed
 
 from tests.support.sessions import write_synthetic_session
 
@@ -169,7 +169,6 @@ def test_missing_replay_file_and_missing_model(tmp_path: Path) -> None:
 
 
 def test_example_config_loads_and_shows_every_setting() -> None:
-    from scotti.daemon.outputs.settings import OutputSettings
     from scotti.daemon.settings import (
         DeviceSettings,
         InferenceSettings,
@@ -178,6 +177,7 @@ def test_example_config_loads_and_shows_every_setting() -> None:
         Settings,
         SourceSettings,
     )
+    from scotti.daemon.settings.outputs import OutputSettings
 
     example = Path(__file__).parent.parent / "systemd" / "scotti-daemon.toml"
     s = load_settings({}, example)

@@ -13,8 +13,9 @@ from pathlib import Path
 
 import pytest
 import serial
-from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.sources import (
+from scotti.daemon.input.board_emulator import BoardEmulator
+from scotti.daemon.input.simulated import SimulatedSource
+from scotti.daemon.input.sources import (
     ReplaySource,
     SerialSource,
     Source,
@@ -23,7 +24,6 @@ from scotti.daemon.sources import (
     SourceItem,
     explain_open_error,
 )
-from scotti.daemon.sources_sim import SimulatedSource
 from scotti.daemon.waiting import Backoff
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows

@@ -53,7 +53,7 @@ def run_tls_daemon(
 
 
 def broker_lines(daemon: DaemonProcess) -> list[str]:
-    return [line for line in daemon.log.splitlines() if "scotti.daemon.publisher" in line]
+    return [line for line in daemon.log.splitlines() if "scotti.daemon.mqtt.publisher" in line]
 
 
 def wait_for_line(daemon: DaemonProcess, text: str, timeout: float) -> None:

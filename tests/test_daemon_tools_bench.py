@@ -45,7 +45,7 @@ def test_collect_ends_on_time_under_a_flood_of_poses(mosquitto: Mosquitto) -> No
 
 
 def test_bench_percentiles_and_the_health_ring_summarise_alike() -> None:
-    from scotti.daemon.counters import LatencyRing
+    from scotti.daemon.service.counters import LatencyRing
     from scotti.daemon.tools.bench import percentiles
 
     values = [1.0, 2.0, 3.0, 10.0]
@@ -80,7 +80,7 @@ def test_the_old_bench_command_still_answers() -> None:
     import sys
 
     done = subprocess.run(
-        [sys.executable, "-m", "scotti.daemon.bench", "--help"],
+        [sys.executable, "-m", "scotti.daemon.tools.bench", "--help"],
         capture_output=True,
         text=True,
         timeout=60,

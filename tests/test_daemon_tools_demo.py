@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scotti.daemon.messages import downsample
-from scotti.daemon.schemas import Pressure
+from scotti.daemon.mqtt.messages import downsample
+from scotti.daemon.mqtt.schemas import Pressure
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.daemon.tools.viewer import (
     ViewState,
@@ -157,10 +157,10 @@ def test_pressure_payload_is_the_prediction_input_frame(
     tmp_path: Path, tiny_model_path: Path
 ) -> None:
     """At downsample 1 the payload is exactly the frame that made the prediction."""
-    from scotti.daemon.counters import Counters
-    from scotti.daemon.messages import frame_payloads
-    from scotti.daemon.pipeline import Pipeline, Prediction
-    from scotti.daemon.sources import ReplaySource
+    from scotti.daemon.frames.pipeline import Pipeline, Prediction
+    from scotti.daemon.input.sources import ReplaySource
+    from scotti.daemon.mqtt.messages import frame_payloads
+    from scotti.daemon.service.counters import Counters
     from scotti.models.runtime import ScottiRuntime
 
     session = write_synthetic_session(tmp_path / "p1.scotti", frames=44)

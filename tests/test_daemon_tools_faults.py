@@ -41,13 +41,13 @@ def test_every_fault_recovers_without_an_error_line(tiny_model_path: Path, tmp_p
     # One WARNING per outage, with its reason: the broker going away, the cut of the
     # receiver. (Counted by source: on a loaded host the reader may also see a stall.)
     lines = log.splitlines()
-    publisher = [line for line in lines if line.startswith("WARNING scotti.daemon.publisher")]
+    publisher = [line for line in lines if line.startswith("WARNING scotti.daemon.mqtt.publisher")]
     # While the broker is away the queue fills: dropping the oldest is said too (rate-limited).
     broker = [line for line in publisher if "connection lost" in line]
     assert len(broker) == 10, log
     others = [line for line in publisher if "connection lost" not in line]
     assert all("dropped the oldest prediction" in line for line in others), others
-    cuts = [line for line in lines if line.startswith("WARNING scotti.daemon.sources")]
+    cuts = [line for line in lines if line.startswith("WARNING scotti.daemon.input.sources")]
     assert len([line for line in cuts if " lost: " in line]) == 10, log
     # The silent foot never stopped the predictions.
     assert all(r.during > 0 for r in results if r.kind == "silent foot"), table

@@ -1,4 +1,4 @@
-"""``processes = N``: the devices shared among worker processes (daemon/workers.py).
+"""``processes = N``: the devices shared among worker processes (daemon/service/processes.py).
 
 Real ptys, a real mosquitto, real worker processes: a worker killed with
 SIGKILL (as the OOM killer does) is started again and its device comes back,
@@ -20,10 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from scotti.daemon.service.processes import share_devices, worker_settings
 from scotti.daemon.settings import ConfigError, DeviceSettings, load_settings
 from scotti.daemon.tools.bench import board_records
 from scotti.daemon.tools.local_broker import Mosquitto
-from scotti.daemon.workers import share_devices, worker_settings
 
 from tests.support.broker import Received, collect, payloads, start_daemon
 from tests.support.export_sessions import write_session

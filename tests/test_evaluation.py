@@ -332,9 +332,9 @@ def _daemon_predictions(path: Path, model: Path) -> list[Any]:
     """What ``scotti-daemon --replay`` predicts: the daemon's own Pipeline, no MQTT."""
     import asyncio
 
-    from scotti.daemon.counters import Counters
-    from scotti.daemon.pipeline import Pipeline, Prediction
-    from scotti.daemon.sources import ReplaySource
+    from scotti.daemon.frames.pipeline import Pipeline, Prediction
+    from scotti.daemon.input.sources import ReplaySource
+    from scotti.daemon.service.counters import Counters
 
     out: list[Prediction] = []
 

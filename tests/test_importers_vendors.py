@@ -307,9 +307,9 @@ def test_a_one_foot_file_sends_nothing_for_the_other_and_says_so(
 def test_eval_and_the_daemon_call_the_absent_foot_silent(
     tmp_path: Path, tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from scotti.daemon.counters import Counters
-    from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
-    from scotti.daemon.sources import ReplaySource
+    from scotti.daemon.frames.pipeline import Pipeline, PipelineState, Prediction
+    from scotti.daemon.input.sources import ReplaySource
+    from scotti.daemon.service.counters import Counters
     from scotti.evaluation.replay import replay_session
     from scotti.models.runtime import ScottiRuntime
 

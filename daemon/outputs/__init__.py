@@ -31,10 +31,10 @@ from scotti.daemon.errors import DaemonError
 from scotti.daemon.outputs.fanout import Item, OutputThread
 
 if TYPE_CHECKING:
-    from scotti.daemon.outputs.settings import OutputSettings
-    from scotti.daemon.pipeline import Prediction
-    from scotti.daemon.schemas import Status
+    from scotti.daemon.frames.pipeline import Prediction
+    from scotti.daemon.mqtt.schemas import Status
     from scotti.daemon.settings import Settings
+    from scotti.daemon.settings.outputs import OutputSettings
     from scotti.models.runtime import ScottiRuntime
 
 log = logging.getLogger(__name__)

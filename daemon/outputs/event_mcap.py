@@ -19,12 +19,12 @@ from scotti.daemon.outputs import EXTRA_HINT
 from scotti.firmware_protocol.session import EventRecord
 
 if TYPE_CHECKING:
+    from scotti.daemon.frames.pipeline import Prediction
+    from scotti.daemon.mqtt.schemas import Status
     from scotti.daemon.outputs.fanout import Item, OutputThread
     from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
-    from scotti.daemon.pipeline import Prediction
-    from scotti.daemon.schemas import Status
 
-log = logging.getLogger("scotti.daemon.control")
+log = logging.getLogger("scotti.daemon.mqtt.control")
 
 MCAP_CLOSE_TIMEOUT_S: Final = 5.0
 EVENTS_TOPIC: Final = "/events"  # the MCAP channel of the marked events

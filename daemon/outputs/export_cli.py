@@ -24,12 +24,12 @@ from collections.abc import AsyncGenerator
 from pathlib import Path
 from typing import Final, Literal
 
-from scotti.daemon import messages
-from scotti.daemon.counters import Counters
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.frames.pipeline import Pipeline, PipelineState, Prediction
+from scotti.daemon.input.sources import SourceEvent, SourceItem
+from scotti.daemon.mqtt import messages
 from scotti.daemon.outputs import OutputError, require
-from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
-from scotti.daemon.sources import SourceEvent, SourceItem
+from scotti.daemon.service.counters import Counters
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.overwrite import (
     FORCE_HELP,

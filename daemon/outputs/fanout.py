@@ -22,8 +22,8 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Final
 
 if TYPE_CHECKING:
-    from scotti.daemon.pipeline import Prediction
-    from scotti.daemon.schemas import Status
+    from scotti.daemon.frames.pipeline import Prediction
+    from scotti.daemon.mqtt.schemas import Status
 
 log = logging.getLogger(__name__)
 

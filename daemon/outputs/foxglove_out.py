@@ -58,12 +58,12 @@ from foxglove.messages import (
 )
 from foxglove.websocket import WebSocketServer
 from pydantic import BaseModel, Field
-from scotti.daemon import messages
+from scotti.daemon.frames.pipeline import Prediction
+from scotti.daemon.input.recording import RecordingError, new_file
+from scotti.daemon.mqtt import messages
+from scotti.daemon.mqtt.schemas import Status
 from scotti.daemon.outputs import OutputError, device_prefix
 from scotti.daemon.outputs.json_schema import foxglove_schema
-from scotti.daemon.pipeline import Prediction
-from scotti.daemon.recording import RecordingError, new_file
-from scotti.daemon.schemas import Status
 from scotti.firmware_protocol.session import LabelRecord
 from scotti.models.contract import ACTIONS, BONE_INDEX, FRAME_COLS, KEYPOINTS
 

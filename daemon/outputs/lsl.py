@@ -26,8 +26,8 @@ from typing import Final
 
 import numpy as np
 import pylsl
-from scotti.daemon.pipeline import Prediction
-from scotti.daemon.schemas import Status
+from scotti.daemon.frames.pipeline import Prediction
+from scotti.daemon.mqtt.schemas import Status
 from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, KEYPOINTS
 
 POSE_LABELS: Final = tuple(f"{k}_{axis}" for k in KEYPOINTS for axis in "xyz")

@@ -31,9 +31,9 @@ from importlib import resources
 from typing import Any, Final
 
 import numpy as np
+from scotti.daemon.frames.pipeline import Prediction
+from scotti.daemon.mqtt.schemas import Status
 from scotti.daemon.outputs import OutputError
-from scotti.daemon.pipeline import Prediction
-from scotti.daemon.schemas import Status
 from scotti.models.contract import ACTIONS, BONE_INDEX, FRAME_COLS, KEYPOINTS, MAX_COUNT, NO_ACTION
 
 log = logging.getLogger(__name__)

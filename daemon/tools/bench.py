@@ -11,7 +11,7 @@ CPU (100 % = one core) and peak RSS are sampled with psutil (the ``[bench]``
 extra: ``pip install 'scotti[bench]'``). Each N runs with
 the batched engine (``inference.batch = true``) and, with ``--modes``, one
 model call per pair (``false``), and with ``--processes`` over several worker
-processes (daemon/workers.py). A measurement, never a test.
+processes (daemon/service/processes.py). A measurement, never a test.
 
     python -m scotti.daemon.tools.bench --pairs 1 2 4 8 16 32 64 [--seconds 20]
     python -m scotti.daemon.tools.bench --pairs 32 --processes 1 2 --modes batch
@@ -35,8 +35,8 @@ from pathlib import Path
 
 import aiomqtt
 import numpy as np
-from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.counters import latency_summary
+from scotti.daemon.input.board_emulator import BoardEmulator
+from scotti.daemon.service.counters import latency_summary
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.firmware_protocol.framing import encode_packet
@@ -279,7 +279,7 @@ def run_one(
         boards.kill()
         msg = "the emulated boards did not start"
         raise RuntimeError(msg)
-    cmd = [sys.executable, "-m", "scotti.daemon.main", "--config", str(config)]
+    cmd = [sys.executable, "-m", "scotti.daemon.service.main", "--config", str(config)]
     cmd += ["--model", str(model)]
     env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
     daemon = subprocess.Popen(cmd, env=env)

@@ -14,8 +14,8 @@ import sys
 from pathlib import Path
 from types import FrameType
 
-from scotti.daemon.board_emulator import BoardEmulator, EmulatorError
-from scotti.daemon.speed import parse_speed
+from scotti.daemon.input.board_emulator import BoardEmulator, EmulatorError
+from scotti.daemon.input.speed import parse_speed
 
 
 def _speed(text: str) -> float | str:

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import aiomqtt
-from scotti.daemon.counters import latency_summary
+from scotti.daemon.service.counters import latency_summary
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.daemon.tools.bench import board_records
 from scotti.daemon.tools.local_broker import Mosquitto

@@ -25,7 +25,8 @@ from collections.abc import AsyncGenerator
 from pathlib import Path
 from typing import Final
 
-from scotti.daemon.app import Daemon
+from scotti.daemon.input.sources import Source, SourceEvent, SourceItem
+from scotti.daemon.service.app import Daemon
 from scotti.daemon.settings import (
     ConfigError,
     DeviceSettings,
@@ -33,7 +34,6 @@ from scotti.daemon.settings import (
     default_model_path,
     load_settings,
 )
-from scotti.daemon.sources import Source, SourceEvent, SourceItem
 from scotti.daemon.tools import plain_help
 from scotti.daemon.tools.generated import GeneratedBoard
 from scotti.daemon.tools.local_broker import BrokerError, Mosquitto

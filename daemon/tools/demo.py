@@ -22,9 +22,9 @@ import tempfile
 from pathlib import Path
 
 from scotti.daemon.errors import DaemonError
-from scotti.daemon.mqtt_settings import MqttSettings
+from scotti.daemon.input.simulated import resolve_scene
 from scotti.daemon.settings import EX_CONFIG, ConfigError, default_model_path
-from scotti.daemon.sources_sim import resolve_scene
+from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.tools.local_broker import running_broker
 from scotti.daemon.tools.viewer import ViewState, run_viewer
 from scotti.daemon.waiting import wait_event
@@ -64,7 +64,15 @@ async def run_demo(args: argparse.Namespace, model: Path) -> int:
         timer = asyncio.create_task(_stop_after_frames(state, args.duration, stop))
     log_path = Path(tempfile.gettempdir()) / f"scotti-demo-daemon-{os.getpid()}.log"
     async with running_broker(args.broker) as (url, protocol):
-        cmd = [sys.executable, "-m", "scotti.daemon.main", "--model", str(model), "--broker", url]
+        cmd = [
+            sys.executable,
+            "-m",
+            "scotti.daemon.service.main",
+            "--model",
+            str(model),
+            "--broker",
+            url,
+        ]
         cmd += ["--simulate", args.scene, "--speed", args.speed]
         cmd += ["--device-id", DEVICE, "--pressure"]
         env = {**os.environ, "SCOTTI_MQTT_PROTOCOL": protocol, "SCOTTI_LOG_LEVEL": "info"}

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
-from scotti.daemon.board_emulator import BoardEmulator
+from scotti.daemon.input.board_emulator import BoardEmulator
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.daemon.tools import plain_help
 from scotti.daemon.tools.fault_watch import Watcher
@@ -136,7 +136,14 @@ class FaultSoak:
         env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
         env.pop("NOTIFY_SOCKET", None)
         env |= {"SCOTTI_MQTT_HEALTH_INTERVAL_S": "0.3", "SCOTTI_MQTT_RECONNECT_MAX_S": "0.5"}
-        args = ["-m", "scotti.daemon.main", "--port", str(self.board.link), "--model", str(model)]
+        args = [
+            "-m",
+            "scotti.daemon.service.main",
+            "--port",
+            str(self.board.link),
+            "--model",
+            str(model),
+        ]
         args += ["--broker", self.broker.url, "--device-id", DEVICE]
         with self.log_path.open("wb") as log:
             self._proc = await asyncio.create_subprocess_exec(

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-from scotti.daemon.pairing import Pairing
+from scotti.daemon.frames.pairing import Pairing
 from scotti.daemon.settings import ConfigError, load_settings
 from scotti.firmware_protocol.assembly import RESTART_GAP, FrameAssembler
 from scotti.firmware_protocol.errors import DecodeError, PacketValueError, SessionError

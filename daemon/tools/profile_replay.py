@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Final
 
-from scotti.daemon.main import main as daemon_main
+from scotti.daemon.service.main import main as daemon_main
 from scotti.daemon.tools.local_broker import BrokerError, Mosquitto
 from scotti.firmware_protocol import cobs
 from scotti.firmware_protocol.errors import SessionError

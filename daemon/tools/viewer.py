@@ -27,8 +27,8 @@ import aiomqtt
 import msgpack
 import numpy as np
 import numpy.typing as npt
-from scotti.daemon.config_checks import ConfigError
-from scotti.daemon.mqtt_settings import MqttSettings
+from scotti.daemon.settings.checks import ConfigError
+from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.waiting import wait_event
 from scotti.models.contract import ACTIONS, MAX_COUNT, has_progress
 

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scotti.daemon.board_emulator import BoardEmulator
+from scotti.daemon.input.board_emulator import BoardEmulator
 
 from tests.support.sessions import SyntheticSession, write_synthetic_session
 

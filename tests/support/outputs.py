@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from scotti.daemon.counters import Counters
-from scotti.daemon.pipeline import Pipeline, Prediction
-from scotti.daemon.sources import ReplaySource
+from scotti.daemon.frames.pipeline import Pipeline, Prediction
+from scotti.daemon.input.sources import ReplaySource
+from scotti.daemon.service.counters import Counters
 from scotti.models.runtime import ScottiRuntime
 
 

@@ -24,18 +24,19 @@ from importlib import metadata
 from typing import Any
 
 import numpy as np
-from scotti.daemon import loop_errors, messages
-from scotti.daemon.counters import Counters
-from scotti.daemon.device import Device
-from scotti.daemon.inference import InferenceEngine
-from scotti.daemon.notify import Notifier
+from scotti.daemon.inference.engine import InferenceEngine
+from scotti.daemon.input.recording import Recorder
+from scotti.daemon.input.simulated import SimulatedSource
+from scotti.daemon.input.sources import ReplaySource, SerialSource, Source
+from scotti.daemon.mqtt import messages
+from scotti.daemon.mqtt.publisher import Publisher
 from scotti.daemon.outputs import Outputs, recording_metadata
-from scotti.daemon.publisher import Publisher
-from scotti.daemon.recording import Recorder
+from scotti.daemon.service import loop_errors
+from scotti.daemon.service.counters import Counters
+from scotti.daemon.service.device import Device
+from scotti.daemon.service.notify import Notifier
 from scotti.daemon.settings import Settings
-from scotti.daemon.source_settings import DeviceSettings
-from scotti.daemon.sources import ReplaySource, SerialSource, Source
-from scotti.daemon.sources_sim import SimulatedSource
+from scotti.daemon.settings.source import DeviceSettings
 from scotti.models.runtime import ScottiRuntime
 
 log = logging.getLogger(__name__)

@@ -35,8 +35,8 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from scotti.daemon.pairing import PairedFrame
-from scotti.daemon.window import Window, WindowOutput, push_batch
+from scotti.daemon.frames.pairing import PairedFrame
+from scotti.daemon.inference.window import Window, WindowOutput, push_batch
 
 log = logging.getLogger(__name__)
 

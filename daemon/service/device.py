@@ -20,18 +20,18 @@ from collections.abc import AsyncGenerator, Callable
 from typing import Any, Literal
 
 from pydantic import BaseModel
-from scotti.daemon import messages
-from scotti.daemon.control import Control
-from scotti.daemon.counters import Counters
-from scotti.daemon.inference import InferenceEngine
+from scotti.daemon.frames.pipeline import Pipeline, PipelineState, Prediction
+from scotti.daemon.inference.engine import InferenceEngine
+from scotti.daemon.input.recording import Recorder
+from scotti.daemon.input.sources import Source, SourceItem
+from scotti.daemon.mqtt import messages
+from scotti.daemon.mqtt.control import Control
+from scotti.daemon.mqtt.publisher import BrokerState, FrameBatch, Publisher
+from scotti.daemon.mqtt.schemas import Info, Status
 from scotti.daemon.outputs import DeviceOutputs, recording_metadata
-from scotti.daemon.pipeline import Pipeline, PipelineState, Prediction
-from scotti.daemon.publisher import BrokerState, FrameBatch, Publisher
-from scotti.daemon.recording import Recorder
-from scotti.daemon.schemas import Info, Status
+from scotti.daemon.service.counters import Counters
 from scotti.daemon.settings import Settings
-from scotti.daemon.source_settings import DeviceSettings
-from scotti.daemon.sources import Source, SourceItem
+from scotti.daemon.settings.source import DeviceSettings
 from scotti.daemon.waiting import wait_event
 from scotti.models.runtime import ScottiRuntime
 

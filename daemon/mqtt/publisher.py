@@ -34,10 +34,10 @@ import paho.mqtt.client as paho
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from pydantic import BaseModel
-from scotti.daemon.counters import LatencyRing
-from scotti.daemon.latency_slot import LatencySlot
-from scotti.daemon.mqtt_settings import MqttSettings
-from scotti.daemon.schemas import CONTENT_TYPES, Health, Info, Status, encode
+from scotti.daemon.mqtt.latency_slot import LatencySlot
+from scotti.daemon.mqtt.schemas import CONTENT_TYPES, Health, Info, Status, encode
+from scotti.daemon.service.counters import LatencyRing
+from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.waiting import Backoff, wait_event
 
 log = logging.getLogger(__name__)

@@ -51,9 +51,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final, Literal
 
-from scotti.daemon.board_loops import LoopRewriter, loop_steps
 from scotti.daemon.errors import DaemonError
-from scotti.daemon.speed import Speed
+from scotti.daemon.input.board_loops import LoopRewriter, loop_steps
+from scotti.daemon.input.speed import Speed
 
 log = logging.getLogger(__name__)
 

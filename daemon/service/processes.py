@@ -45,7 +45,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Final
 
-from scotti.daemon.notify import Notifier
+from scotti.daemon.service.notify import Notifier
 from scotti.daemon.settings import EX_CONFIG, DeviceSettings, Settings
 from scotti.daemon.waiting import Backoff
 
@@ -85,13 +85,13 @@ def run_worker(settings: Settings, model_path: Path, index: int) -> None:
     """A worker process's body: one ``Daemon`` over its devices; exits with its status."""
     for name in _SYSTEMD_ENV:
         os.environ.pop(name, None)
-    from scotti.daemon.main import PROG, configure_logging
+    from scotti.daemon.service.main import PROG, configure_logging
 
     configure_logging(settings.log_level, prefix=f"worker {index}: ")
     import asyncio
 
-    from scotti.daemon.app import Daemon
     from scotti.daemon.errors import DaemonError
+    from scotti.daemon.service.app import Daemon
     from scotti.models.errors import ModelError
     from scotti.models.runtime import ScottiRuntime
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 from pydantic import BaseModel
-from scotti.daemon.schemas import (
+from scotti.daemon.mqtt.schemas import (
     ACTION_NAMES,
     TOPICS,
     Action,
@@ -39,8 +39,8 @@ from scotti.models.contract import (
 from scotti.models.input_checks import input_check_thresholds
 
 if TYPE_CHECKING:
-    from scotti.daemon.pipeline import PipelineState, Prediction
-    from scotti.daemon.publisher import Publisher
+    from scotti.daemon.frames.pipeline import PipelineState, Prediction
+    from scotti.daemon.mqtt.publisher import Publisher
     from scotti.daemon.settings import Settings
     from scotti.models.runtime import ScottiRuntime
 

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Final, Literal, Protocol, TypeAlias
 import serial
 import serial_asyncio_fast
 from scotti.daemon.errors import DaemonError
-from scotti.daemon.speed import Speed
+from scotti.daemon.input.speed import Speed
 from scotti.daemon.waiting import Backoff
 
 if TYPE_CHECKING:

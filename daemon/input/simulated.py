@@ -15,9 +15,9 @@ from collections.abc import AsyncGenerator, AsyncIterator
 from importlib import resources
 from pathlib import Path
 
-from scotti.daemon.board_emulator import BoardEmulator
-from scotti.daemon.sources import SerialSource, SourceError, SourceEvent, SourceItem
-from scotti.daemon.speed import Speed
+from scotti.daemon.input.board_emulator import BoardEmulator
+from scotti.daemon.input.sources import SerialSource, SourceError, SourceEvent, SourceItem
+from scotti.daemon.input.speed import Speed
 from scotti.daemon.waiting import Backoff
 
 

@@ -147,7 +147,7 @@ def cli_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def configure_logging(level: str, prefix: str = "") -> None:
-    """``prefix``: a worker process's name before each of its lines (daemon/workers.py)."""
+    """``prefix``: a worker process's name before each of its lines (service/processes.py)."""
     fmt = prefix + "%(levelname)s %(name)s: %(message)s"
     if sys.stderr.isatty():  # journald stamps its own time
         fmt = "%(asctime)s " + fmt
@@ -171,16 +171,16 @@ def main(argv: list[str] | None = None) -> int:
         return _fail("config error", str(exc))
     configure_logging(settings.log_level)
     if settings.processes > 1 and len(settings.device_list()) > 1:
-        from scotti.daemon.workers import supervise  # no model here: the workers load it
+        from scotti.daemon.service.processes import supervise  # no model here: the workers load it
 
         return supervise(settings, model_path)
     if settings.processes > 1:
-        logging.getLogger("scotti.daemon.workers").info(
+        logging.getLogger("scotti.daemon.service.processes").info(
             "processes = %d: one device, it runs in this process", settings.processes
         )
 
     # Imported here: onnxruntime takes a moment, and a config error should not wait.
-    from scotti.daemon.app import Daemon
+    from scotti.daemon.service.app import Daemon
     from scotti.models.errors import ModelError
     from scotti.models.runtime import ScottiRuntime
 

@@ -42,12 +42,9 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 from pydantic import BaseModel, ValidationError
-from scotti.daemon.mqtt_settings import MqttSettings
-from scotti.daemon.outputs import OutputError
-from scotti.daemon.outputs.event_mcap import McapRecording, mcap_missing
-from scotti.daemon.publisher import explain
-from scotti.daemon.recording import Recorder, RecordingError
-from scotti.daemon.schemas import (
+from scotti.daemon.input.recording import Recorder, RecordingError
+from scotti.daemon.mqtt.publisher import explain
+from scotti.daemon.mqtt.schemas import (
     CONTENT_TYPES,
     REQUESTS,
     Event,
@@ -55,12 +52,15 @@ from scotti.daemon.schemas import (
     RecordStart,
     Reply,
 )
+from scotti.daemon.outputs import OutputError
+from scotti.daemon.outputs.event_mcap import McapRecording, mcap_missing
+from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.waiting import Backoff, wait_event
 from scotti.firmware_protocol.session import EventRecord
 
 if TYPE_CHECKING:
-    from scotti.daemon.pipeline import Pipeline, Prediction
-    from scotti.daemon.schemas import Status
+    from scotti.daemon.frames.pipeline import Pipeline, Prediction
+    from scotti.daemon.mqtt.schemas import Status
 
 log = logging.getLogger(__name__)
 

@@ -36,7 +36,7 @@ from pydantic_settings import (
     PydanticBaseSettingsSource,
     SettingsConfigDict,
 )
-from scotti.daemon.config_checks import (
+from scotti.daemon.settings.checks import (
     DEVICE_ID_MAX,
     EX_CONFIG,
     TOPIC_PREFIX_MAX,
@@ -45,9 +45,9 @@ from scotti.daemon.config_checks import (
     is_file,
     sanitise_device_id,
 )
-from scotti.daemon.mqtt_settings import MqttSettings
-from scotti.daemon.outputs.settings import OutputSettings
-from scotti.daemon.source_settings import DeviceSettings, SourceSettings
+from scotti.daemon.settings.mqtt import MqttSettings
+from scotti.daemon.settings.outputs import OutputSettings
+from scotti.daemon.settings.source import DeviceSettings, SourceSettings
 
 __all__ = [
     "DEFAULT_MODEL_NAME",
@@ -120,7 +120,7 @@ class Settings(BaseSettings):
     record: Path | None = None  # append the raw byte stream to this session file
     outputs: OutputSettings = OutputSettings()  # MCAP, Foxglove, LSL, web (daemon/outputs/)
     log_level: Literal["debug", "info", "warning", "error"] = "info"
-    # Worker processes the devices are shared among (daemon/workers.py): each its own
+    # Worker processes the devices are shared among (daemon/service/processes.py): each its own
     # event loop and model. 1: every device in this process.
     processes: Annotated[int, Field(ge=1, le=64)] = 1
     stop_timeout_s: Annotated[float, Field(gt=0, le=120)] = 5.0

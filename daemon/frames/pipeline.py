@@ -20,19 +20,19 @@ from typing import Final, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
-from scotti.daemon.counters import Counters
-from scotti.daemon.inference import (
+from scotti.daemon.frames.pairing import PairedFrame, Pairing, PairingConfig
+from scotti.daemon.inference.engine import (
     InferenceEngine,
     InferenceJob,
     InferenceLane,
     InferenceResult,
     InferenceWorker,
 )
-from scotti.daemon.pairing import PairedFrame, Pairing, PairingConfig
-from scotti.daemon.recording import Recorder
-from scotti.daemon.repetitions import RepetitionCounter
-from scotti.daemon.sources import Source, SourceEvent
-from scotti.daemon.window import Window
+from scotti.daemon.inference.repetitions import RepetitionCounter
+from scotti.daemon.inference.window import Window
+from scotti.daemon.input.recording import Recorder
+from scotti.daemon.input.sources import Source, SourceEvent
+from scotti.daemon.service.counters import Counters
 from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
 from scotti.firmware_protocol.errors import DecodeError
 from scotti.firmware_protocol.framing import StreamDecoder

@@ -11,7 +11,7 @@ since model contract 2: the action ``standing`` (no repetitions), with
 went up by one when the model learnt to say what it does not know: the stamp's
 ``unfamiliar_score``, and ``withheld`` on ``action`` and ``progress``.
 
-Run ``python -m scotti.daemon.schemas --write`` to regenerate
+Run ``python -m scotti.daemon.mqtt.schemas --write`` to regenerate
 ``docs/schemas/*.schema.json`` and the generated section of ``docs/mqtt.md``;
 ``--check`` fails when the committed files differ.
 """
@@ -212,7 +212,7 @@ class Health(_Payload):
     pipeline: dict[str, Any] = Field(description="Every pipeline counter (Counters.snapshot).")
 
 
-# --- remote control (daemon/control.py; docs/mqtt.md, "Remote control") ---------------
+# --- remote control (daemon/mqtt/control.py; docs/mqtt.md, "Remote control") ---------------
 # One file name: no path, no dot first; {time} and {device} as in --record.
 FILE_STEM: Final = r"^[A-Za-z0-9_{][A-Za-z0-9_.{}-]{0,63}$"
 
@@ -326,7 +326,7 @@ def decode(model: type[P], data: bytes, fmt: Literal["json", "msgpack"]) -> P:
 
 
 # --- documentation generator --------------------------------------------------
-BEGIN: Final = "<!-- BEGIN GENERATED SCHEMAS (python -m scotti.daemon.schemas --write) -->"
+BEGIN: Final = "<!-- BEGIN GENERATED SCHEMAS (python -m scotti.daemon.mqtt.schemas --write) -->"
 END: Final = "<!-- END GENERATED SCHEMAS -->"
 
 
@@ -370,7 +370,7 @@ def generated_files(docs: Path) -> dict[Path, str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m scotti.daemon.schemas")
+    parser = argparse.ArgumentParser(prog="python -m scotti.daemon.mqtt.schemas")
     parser.add_argument("--docs", type=Path, default=Path("docs"), help="docs folder")
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument("--write", action="store_true", help="regenerate the files")

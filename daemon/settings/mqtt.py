@@ -19,7 +19,7 @@ from typing import Annotated, Literal
 from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, model_validator
-from scotti.daemon.config_checks import (
+from scotti.daemon.settings.checks import (
     ConfigError,
     check_device_id,
     check_topic_prefix,
@@ -53,7 +53,7 @@ class MqttSettings(BaseModel):
     tls_ca_file: Path | None = None  # CA bundle (PEM) the broker's certificate must chain to
     tls_cert_file: Path | None = None  # client certificate (PEM), for brokers that want one
     tls_key_file: Path | None = None  # its private key (PEM); default: inside tls_cert_file
-    # Remote control (daemon/control.py, docs/mqtt.md "Remote control"): off unless asked
+    # Remote control (daemon/mqtt/control.py, docs/mqtt.md "Remote control"): off unless asked
     # for. Requests on <prefix>/<id>/cmd/<verb> over a connection of its own, one at a
     # time, at most ``control_rate`` a second; beyond ``control_queue`` waiting, dropped.
     control: bool = False

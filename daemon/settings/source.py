@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Final, Literal
 
 from pydantic import BaseModel, ConfigDict, field_validator, model_validator
-from scotti.daemon.config_checks import check_device_id, is_file
-from scotti.daemon.speed import Speed, parse_speed
+from scotti.daemon.input.speed import Speed, parse_speed
+from scotti.daemon.settings.checks import check_device_id, is_file
 
 _KINDS: Final = ("port", "replay", "simulate")  # the fields of which one names the source
 

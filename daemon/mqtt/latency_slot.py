@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Final, Literal
 
 from pydantic import BaseModel
-from scotti.daemon.schemas import encode
+from scotti.daemon.mqtt.schemas import encode
 
 _JSON_KEY: Final = b'"latency_ms":'
 _MSGPACK_KEY: Final = b"\xaalatency_ms\xcb"  # fixstr(10) "latency_ms", then float64

@@ -1,0 +1,1 @@
+"""A device's frame path in the service: bytes to paired frames to the model's window."""
