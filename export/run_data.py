@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from scotti.export.data import SessionArrays, find_sessions, load_session
-from scotti.export.validation import Splits, legacy_split, three_way_split
+from scotti.export.validation import Splits, three_way_split
 from scotti.export.windows import WindowDataset
 
 log = logging.getLogger("scotti.train")
@@ -61,24 +61,16 @@ def prepare(
     val_subjects: Sequence[str] | None,
     val_fraction: float,
     seed: int,
-    legacy: bool = False,
 ) -> RunData:
-    """Split (``legacy``: an old run's two-way split) and cut into windows; logs the split."""
-    if legacy:
-        splits = legacy_split(sessions, test_subjects, test_fraction, seed)
-        log.info(
-            "resuming a run from before the validation split: its held-out subjects are its "
-            "validation set, and it has no test set"
-        )
-    else:
-        splits = three_way_split(
-            sessions,
-            test_subjects=test_subjects,
-            test_fraction=test_fraction,
-            val_subjects=val_subjects,
-            val_fraction=val_fraction,
-            seed=seed,
-        )
+    """Split into train, validation and test, and cut into windows; logs the split."""
+    splits = three_way_split(
+        sessions,
+        test_subjects=test_subjects,
+        test_fraction=test_fraction,
+        val_subjects=val_subjects,
+        val_fraction=val_fraction,
+        seed=seed,
+    )
 
     def windows(part: list[SessionArrays]) -> WindowDataset:
         return WindowDataset(part, window, allow_invalid=allow_invalid)

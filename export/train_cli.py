@@ -36,7 +36,7 @@ from scotti.export.test_report import write_test_report
 from scotti.export.throughput import measure_precisions, measure_throughput
 from scotti.export.train import Trainer, TrainOptions, load_initial_weights
 from scotti.export.train_args import CONFIG_PRESETS, add_arguments
-from scotti.export.validation import is_legacy
+from scotti.export.validation import predates_validation_split
 
 log = logging.getLogger("scotti.train")
 
@@ -195,8 +195,6 @@ def train(
 
     data = _load_data(args, ckpt, cfg, opts, ctx)
     training_data = data.training_data()
-    if data.splits.legacy and ckpt is not None:
-        training_data["split"] = ckpt["training_data"]["split"]  # stays an old run's split
     if args.init is not None:
         training_data["init"] = str(
             ckpt["training_data"].get("init", args.init) if ckpt else args.init
@@ -283,9 +281,9 @@ def _load_data(
     sessions = load_sessions(args.sessions, cache)
     if ctx.is_main:
         distributed.barrier(ctx)
-    legacy = ckpt is not None and is_legacy(ckpt.get("training_data", {}))
-    if legacy and args.val_subjects:
-        log.warning("--val-subjects ignored: %s predates the validation split", args.output)
+    if ckpt is not None and predates_validation_split(ckpt.get("training_data", {})):
+        msg = f"{args.output} predates the validation split and cannot be resumed; train anew"
+        raise TrainCliError(msg)
     data = prepare(
         sessions,
         window=cfg.window,
@@ -295,7 +293,6 @@ def _load_data(
         val_subjects=args.val_subjects,
         val_fraction=args.val_fraction,
         seed=opts.seed,
-        legacy=legacy,
     )
     if data.train.count(opts.stride) == 0:
         msg = f"no usable training windows of {cfg.window} frames in the given sessions"

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from scotti.export.data import SessionArrays, TrainingDataError
-from scotti.export.windows import Split, split_by_subject
+from scotti.export.windows import split_by_subject
 
 VAL_FRACTION = 0.15  # of the training subjects (or of each session, with one subject)
 
@@ -36,8 +36,7 @@ class Splits:
     validation_subjects: list[str]
     test_subjects: list[str]
     test_kind: str  # "subject", "time" or "none", as Split.kind
-    validation_kind: str  # the same, for the validation set; "legacy": an old run's
-    legacy: bool = False
+    validation_kind: str  # the same, for the validation set
 
     def describe(self) -> dict[str, Any]:
         """What the checkpoint and the model card record (training_data["split"])."""
@@ -88,28 +87,7 @@ def three_way_split(
     )
 
 
-def legacy_split(
-    sessions: Sequence[SessionArrays],
-    test_subjects: Sequence[str] | None,
-    test_fraction: float,
-    seed: int,
-) -> Splits:
-    """An old run's split: what it held out was its validation set; no test set."""
-    old: Split = split_by_subject(sessions, test_subjects, test_fraction=test_fraction, seed=seed)
-    return Splits(
-        train=old.train,
-        validation=old.test,
-        test=[],
-        train_subjects=old.train_subjects,
-        validation_subjects=old.test_subjects,
-        test_subjects=[],
-        test_kind="none",
-        validation_kind=old.kind,
-        legacy=True,
-    )
-
-
-def is_legacy(training_data: dict[str, Any]) -> bool:
-    """Was this checkpoint written before the validation split (no validation_subjects)?"""
+def predates_validation_split(training_data: dict[str, Any]) -> bool:
+    """Was this checkpoint written before runs had a validation split?"""
     split = training_data.get("split", {})
     return isinstance(split, dict) and "validation_subjects" not in split

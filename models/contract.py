@@ -98,18 +98,6 @@ JOINT_ANGLES: Final[tuple[tuple[int, int], ...]] = (
 )
 
 
-def derived_points(keypoints: np.ndarray) -> dict[str, np.ndarray]:
-    """Neck and mid-hip, the two points the paper lists that COCO lacks.
-
-    ``keypoints``: (..., 19, 3). Returns arrays of shape (..., 3).
-    """
-    k = np.asarray(keypoints)
-    return {
-        "neck": 0.5 * (k[..., KP["left_shoulder"], :] + k[..., KP["right_shoulder"], :]),
-        "mid_hip": 0.5 * (k[..., KP["left_hip"], :] + k[..., KP["right_hip"], :]),
-    }
-
-
 # --- Actions, in the fixed order of the action head's logits --------------
 # New actions are appended, so an index keeps its meaning across versions.
 ACTIONS: Final[tuple[str, ...]] = (

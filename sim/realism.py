@@ -85,10 +85,6 @@ class Realism:
         """The rows some subject gave a value for (a strike pattern may not be drawn)."""
         return tuple(r for r in self.rows if r.measured)
 
-    @property
-    def all_inside(self) -> bool:
-        return all(r.inside for r in self.measured_rows)
-
 
 def measuring_scene(subject: Subject, seed: int) -> Scene:
     """The short scene of every measured action for one subject."""

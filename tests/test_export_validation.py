@@ -144,24 +144,15 @@ def test_cli_three_way_split_and_an_old_runs_resume(
     assert report["test"]["windows"] > 0
     assert "test" not in json.dumps(ckpt["history"])
 
-    # A checkpoint written before the validation split held out its --test-subjects to
-    # validate on: resumed, it keeps that split (8 training subjects, no test set).
+    # A checkpoint written before runs had a validation split cannot be resumed: one line, exit 2,
+    # and the checkpoint is left as it was.
     old = dict(ckpt)
     old["training_data"] = {
         **ckpt["training_data"],
         "split": {"kind": "subject", "train_subjects": SUBJECTS[:8], "test_subjects": SUBJECTS[8:]},
     }
-    old["options"] = {k: v for k, v in ckpt["options"].items() if k not in ("patience",)}
-    old.pop("world_size")
-    old["rng"] = {"torch": ckpt["rng"]["torch"]}
     save_checkpoint(old, run / "last.pt")
-    (run / "test.json").unlink()
-    assert main(["train", *args, "--epochs", "2", "--resume"]) == 0
-    resumed = torch.load(run / "last.pt", weights_only=True)
-    assert resumed["epoch"] == 2
-    assert resumed["training_data"]["split"] == old["training_data"]["split"]
-    assert (
-        resumed["training_data"]["windows"]["validation"]
-        == ckpt["training_data"]["windows"]["test"]
-    )
-    assert not (run / "test.json").exists()
+    before = (run / "last.pt").read_bytes()
+    assert main(["train", *args, "--epochs", "2", "--resume"]) == 2
+    assert "predates the validation split" in capsys.readouterr().err
+    assert (run / "last.pt").read_bytes() == before

@@ -102,11 +102,6 @@ class InferenceLane:
         self._in_flight += 1 - dropped
         return dropped
 
-    def restart_window(self) -> None:
-        """Start the window over before the next frame (a reconnect)."""
-        with self.engine.cond:
-            self._restart_pending = True
-
     async def wait_below(self, depth: int) -> None:
         """Wait until fewer than ``depth`` jobs are in flight (backpressure, draining)."""
         while self._in_flight >= max(depth, 1):

@@ -68,10 +68,6 @@ class Device:
         self._status_key: tuple[object, ...] | None = None
         self._logged_status: tuple[object, ...] | None = None  # the last one the log said
 
-    @property
-    def connected_once(self) -> bool:
-        return self.counters.connects > 0
-
     async def run(self, stop: asyncio.Event, info: Info) -> int:
         """0 when the source ended or ``stop`` was set and the stop was clean, else 1."""
         settings = self.settings

@@ -173,11 +173,6 @@ class EffectPlan:
         return [LineCorruption(p, rng, t0_ns) for p, rng in self.line_params]
 
 
-def place_of(name: str) -> str:
-    """Where an effect acts: kpa, counts, schedule or line."""
-    return _PLACE[name]
-
-
 def describe_effects() -> dict[str, dict[str, Any]]:
     """Name -> {place, doc, JSON schema of the parameters} (for docs and --help)."""
     return {
