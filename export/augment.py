@@ -60,7 +60,7 @@ def draw_crosstalk(rng: np.random.Generator, max_fraction: float) -> np.ndarray:
     """(2,) float32: the crosstalk added to the left and the right foot.
 
     Off (0), it draws nothing from ``rng``, so the rest of an epoch's plan is
-    what it was before this augmentation existed.
+    that of a run without this augmentation.
     """
     if max_fraction <= 0.0:
         return np.zeros(2, dtype=np.float32)

@@ -501,7 +501,7 @@ def draw_transfer(
     """With ``probability``, a drawn sensor; else None (our own insole).
 
     Off (0), it draws nothing from ``rng``: the rest of an epoch's plan is
-    what it was before this augmentation existed.
+    that of a run without this augmentation.
     """
     if probability <= 0.0:
         return None

@@ -39,9 +39,9 @@ def zero_subnormal_weights(model: torch.nn.Module) -> int:
     """Set every subnormal weight and buffer of ``model`` to 0; how many there were.
 
     An exported graph carries its weights as they are, and an ONNX runtime that
-    keeps IEEE subnormals pays for them on every call (the shipped model of
-    2026-11-24, with 26,351 subnormal weights: its window graph took 26 ms
-    against 2.0 ms zeroed, its step 2.3x; ``python experiments/subnormal_cost.py``).
+    keeps IEEE subnormals pays for them on every call (a graph with 26,351
+    subnormal weights: its window graph took 26 ms against 2.0 ms zeroed, its step
+    2.3x; ``python experiments/subnormal_cost.py``).
     """
     tiny = torch.finfo(torch.float32).tiny
     zeroed = 0

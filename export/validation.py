@@ -8,11 +8,6 @@ subjects named by ``--val-subjects``, else a seeded ``--val-fraction`` of
 the training subjects (at least one whole subject, and at least one left
 to train on); with a single training subject, the last ``val_fraction`` of
 each of its sessions, as the test split does with a single subject.
-
-Runs written before this split existed held out one set and validated on
-it (``--test-subjects`` were their validation subjects). Resuming such a
-run keeps that: its held-out subjects stay its validation set and it has
-no test set, so the resumed run trains on the same windows as before.
 """
 
 from __future__ import annotations

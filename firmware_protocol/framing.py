@@ -142,16 +142,6 @@ class DecoderCounters:
             + self.malformed
         )
 
-    @property
-    def bad_framing(self) -> int:
-        """Alias of ``bad_cobs`` (the name INTERFACES.md first used)."""
-        return self.bad_cobs
-
-    @property
-    def oversize(self) -> int:
-        """Alias of ``too_long`` (the name INTERFACES.md first used)."""
-        return self.too_long
-
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
 

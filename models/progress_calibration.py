@@ -15,7 +15,7 @@ repetition counter's rising and falling, is kept.
 (``contract.META_PROGRESS_CALIBRATION``) as JSON and is applied by the runtime
 (models/runtime.py) to every prediction, daemon and ``scotti eval`` alike; it
 is fitted by ``scotti calibrate`` (evaluation/calibrate_cli.py). A model
-without it runs as before. Numpy only.
+without it gives the network's own progress. Numpy only.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The onnxruntime wrapper the daemon runs: load, check against the contract, infer.
 
-A SCOTTI export is two graphs from one set of weights (INTERFACES.md):
+A SCOTTI export is two graphs from one set of weights (ARCHITECTURE.md, model I/O):
 ``NAME.onnx``, the streaming step (one new frame + the cached embeddings of
 the previous T-1 frames -> pose, action logits, progress, the new frame's
 embedding), and ``NAME.window.onnx`` (B windows of T frames -> the heads).

@@ -1,11 +1,10 @@
 """Subnormal weights of an ONNX graph, set to zero before onnxruntime sees them.
 
 Weight decay leaves the weights no gradient reaches subnormal (below 1.2e-38 in
-float32), and x86 multiplies subnormals through a microcode assist: the shipped
-model of 2026-11-24 carried 26,351 of them, and its window graph took 26 ms a
-call against 2.0 ms with them zeroed, its step 2.3x (``python
-experiments/subnormal_cost.py``; no output moved). ``scotti export`` now writes
-them as 0; this covers graphs exported before, or elsewhere.
+float32), and x86 multiplies subnormals through a microcode assist: a graph with
+26,351 of them took 26 ms a window call against 2.0 ms with them zeroed, its step
+2.3x (``python experiments/subnormal_cost.py``; no output moved). ``scotti export``
+writes them as 0; this covers graphs exported elsewhere.
 
 Why not onnxruntime's ``session.set_denormal_as_zero``: with one intra-op
 thread the graph runs on the caller's thread, so the option only helps by

@@ -68,7 +68,7 @@ class Daemon:
 
     @property
     def counters(self) -> Counters:
-        """The first device's counters (the one-pair daemon's, as before)."""
+        """The first device's counters: the one-pair daemon's, which its tools and tests read."""
         return self.devices[0].counters if self.devices else Counters()
 
     @property

@@ -8,7 +8,7 @@ the daemon starts N worker processes instead, each a whole daemon
 (``app.Daemon``) over its share of the ``[[devices]]``: every N-th device, so
 receivers listed in order spread evenly. Each worker has its own event loop,
 model and inference engine (batching its own devices' frames), and one MQTT
-client per device as before: topics, messages and recordings are those of the
+client per device: topics, messages and recordings are those of the
 one-process daemon, and a subscriber cannot tell the difference.
 
 This process, the supervisor, holds no model and reads no port. It

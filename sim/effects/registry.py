@@ -73,7 +73,8 @@ EFFECT_MODELS: Final[dict[str, type[EffectParams]]] = {
     # the serial line, on bytes
     "line_corruption": LineCorruptionParams,
 }
-# Former effects that the insole model (scotti.sim.insole) now is.
+# Names a scene may still give as effects that are insole parameters (scotti.sim.insole):
+# the error says where they go.
 _NOW_INSOLE: Final = {
     "gain_spread": "gain_sigma",
     "transfer": "threshold_kpa, p_half_kpa, exponent, saturation_counts",
