@@ -6,6 +6,7 @@
 #   scripts/train_wide.sh                      # CPU: hours; data/corpus13, runs/v13-p1-wide
 #   DEVICE=cuda JOBS=16 scripts/train_wide.sh  # a GPU host: minutes
 #   SMOKE=1 scripts/train_wide.sh              # the whole chain on two tiny people first
+#   TRAIN_ONLY=1 RUN=runs/x scripts/train_wide.sh  # train (or resume) only: a GPU host's share
 #
 # Every step is checkpointed: the people already rendered and decoded are not redone,
 # and training resumes from RUN/last.pt. Nothing here needs a GPU.
@@ -24,6 +25,7 @@ TRANSFER=${TRANSFER:-0.5}          # share of windows seen through a drawn forei
 WORKERS=${WORKERS:-$((JOBS > 2 ? JOBS - 2 : 0))}
 MORE=${MORE:-48}                   # people rendered through wide insoles (subject-033 on)
 MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-}
+TRAIN_ONLY=${TRAIN_ONLY:-0}        # 1: stop after training (export and calibrate elsewhere)
 # p1 of experiments/partitions.json: training people; 011/012 and 031/032 validate.
 P1_TRAIN=(000 001 002 003 004 006 008 009 011 012)
 VALIDATION=(subject-011 subject-012 subject-031 subject-032)
@@ -91,6 +93,10 @@ echo "train_wide: training $RUN on $DEVICE"
   --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" \
   --cache "$CACHE" --no-progress "${resume[@]}"
 
+if [[ $TRAIN_ONLY == 1 ]]; then
+  echo "train_wide: trained $RUN (TRAIN_ONLY=1: no export)"
+  exit 0
+fi
 model=$RUN/models/scotti-ship.onnx
 echo "train_wide: exporting $model"
 "$SCOTTI" export "$RUN/best.pt" -o "$model" --calibrate "${files[@]}" --cache-dir "$CACHE" --force
