@@ -26,6 +26,7 @@ WORKERS=${WORKERS:-$((JOBS > 2 ? JOBS - 2 : 0))}
 MORE=${MORE:-48}                   # people rendered through wide insoles (subject-033 on)
 MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-}
 TRAIN_ONLY=${TRAIN_ONLY:-0}        # 1: stop after training (export and calibrate elsewhere)
+RENDER_ONLY=${RENDER_ONLY:-0}      # 1: stop after rendering and decoding
 # p1 of experiments/partitions.json: training people; 011/012 and 031/032 validate.
 P1_TRAIN=(000 001 002 003 004 006 008 009 011 012)
 VALIDATION=(subject-011 subject-012 subject-031 subject-032)
@@ -81,6 +82,10 @@ with ProcessPoolExecutor(jobs) as pool:
     list(pool.map(load_session, files, [cache] * len(files)))
 EOF
 
+if [[ $RENDER_ONLY == 1 ]]; then
+  echo "train_wide: rendered and decoded (RENDER_ONLY=1: no training)"
+  exit 0
+fi
 resume=()
 [[ -f $RUN/last.pt ]] && resume=(--resume)
 transfer=()
