@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scotti.daemon.frames.pairing import PairingConfig
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet
 from scotti.evaluation.replay import (
@@ -27,6 +26,7 @@ from scotti.evaluation.replay import (
 from scotti.evaluation.sampling import window_timing
 from scotti.evaluation.scores import random_baseline, score, task_metrics
 from scotti.evaluation.segments import BATCH
+from scotti.firmware_protocol.pairing import PairingConfig
 from scotti.models.ood import shares_of
 from scotti.models.runtime import ScottiRuntime
 

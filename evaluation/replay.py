@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scotti.daemon.frames.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.daemon.inference.window import Window
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet, align
@@ -38,6 +37,7 @@ from scotti.evaluation.segments import BATCH, SegmentTrack
 from scotti.firmware_protocol.assembly import FrameAssembler
 from scotti.firmware_protocol.framing import StreamDecoder
 from scotti.firmware_protocol.packets import FrameRows
+from scotti.firmware_protocol.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
 from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models.contract import ACTIONS

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
-from scotti.daemon.frames.pairing import PairedFrame
+from scotti.firmware_protocol.pairing import PairedFrame
 from scotti.models.input_checks import check_window
 from scotti.models.ood import UNFAMILIAR
 from scotti.models.runtime import ScottiRuntime

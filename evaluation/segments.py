@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 import numpy.typing as npt
-from scotti.daemon.frames.pairing import PairedFrame
 from scotti.evaluation.sampling import Prediction
+from scotti.firmware_protocol.pairing import PairedFrame
 from scotti.models.input_checks import OUT_OF_RANGE, UNLOADED, FrameStats, frame_stats, window_flags
 from scotti.models.ood import UNFAMILIAR
 from scotti.models.runtime import ScottiRuntime

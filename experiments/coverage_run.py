@@ -34,7 +34,6 @@ CODE: Final = (
     "models/*.py",
     "evaluation/*.py",
     "firmware_protocol/*.py",
-    "daemon/frames/pairing.py",
     "daemon/inference/window.py",
     "experiments/coverage_score.py",
 )

@@ -19,24 +19,28 @@ What happens when things go wrong (each counted, each flagged on the pair):
   (``restart``) instead of pretending the frames in between happened;
 - missing rows of a frame are taken from that foot's previous frame
   (``rows_missing``).
+
+``PairedFrame.feet`` says per foot where its half came from (``WHOLE``,
+``PATCHED``, ``PARTIAL``, ``HELD``, ``FILLED``): what training data needs to
+know which moments are real (export/data.py).
 """
 
 from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Final, Protocol
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
+from scotti.firmware_protocol.assembly import FootFrame
+from scotti.firmware_protocol.packets import DEFAULT_COLS, DEFAULT_ROWS
 from scotti.firmware_protocol.wrap import clock_delta_us, seq_delta
-from scotti.models.contract import (
-    FRAME_COLS,
-    FRAME_RATE_HZ,
-    FRAME_ROWS,
-    SILENT_FOOT_HOLD_FRAMES,
-    WINDOW_RESTART_GAP_FRAMES,
-)
+
+# The repair rules, the same live and in training (each equals its models.contract name):
+FRAME_RATE_HZ: Final = 16.0  # the insoles' frame rate (FRAME_RATE_HZ)
+HOLD_FRAMES: Final = 8  # a silent foot's last frame is repeated 0.5 s (SILENT_FOOT_HOLD_FRAMES)
+RESTART_GAP_FRAMES: Final = 16  # a longer gap (1 s) restarts the window (WINDOW_RESTART_GAP_FRAMES)
 
 LEFT: Final = 0
 RIGHT: Final = 1
@@ -45,22 +49,12 @@ _SEQ_MASK: Final = 0xFFFF
 _CLOCK_MASK: Final = 0xFFFFFFFF
 _RECENT: Final = 64  # seqs per foot remembered to spot duplicates
 
-
-class FootFrameLike(Protocol):
-    """What pairing reads of ``firmware_protocol``'s ``FootFrame``."""
-
-    @property
-    def foot(self) -> int: ...
-    @property
-    def seq(self) -> int: ...
-    @property
-    def board_clock_us(self) -> int: ...
-    @property
-    def counts(self) -> npt.NDArray[np.uint16]: ...
-    @property
-    def rows_missing(self) -> npt.NDArray[np.bool_]: ...
-    @property
-    def last_byte_ns(self) -> int: ...
+# Where a foot's half of a pair came from:
+WHOLE: Final = "whole"  # its frame, every row received
+PATCHED: Final = "patched"  # its frame, missing rows taken from the foot's previous frame
+PARTIAL: Final = "partial"  # its frame, missing rows zero (no previous frame to take them from)
+HELD: Final = "held"  # no frame: the foot's last frame repeated (up to ``hold_s``)
+FILLED: Final = "filled"  # no frame: zeros (silent past ``hold_s``, or never heard)
 
 
 @dataclass(frozen=True)
@@ -68,9 +62,9 @@ class PairingConfig:
     rate_hz: float = FRAME_RATE_HZ
     reorder_frames: int = 2  # moments to wait for a late or missing frame
     # a silent foot is held this long, then filled and reported silent (0.5 s)
-    hold_s: float = SILENT_FOOT_HOLD_FRAMES / FRAME_RATE_HZ
+    hold_s: float = HOLD_FRAMES / FRAME_RATE_HZ
     # a longer gap of both feet restarts the window (1 s)
-    gap_s: float = WINDOW_RESTART_GAP_FRAMES / FRAME_RATE_HZ
+    gap_s: float = RESTART_GAP_FRAMES / FRAME_RATE_HZ
 
     @property
     def period_us(self) -> float:
@@ -95,6 +89,7 @@ class PairedFrame:
     last_byte_mono_ns: int  # host time of the last byte of the newest frame in the pair
     flags: tuple[str, ...] = ()
     restart: bool = False  # the window must start over with this frame
+    feet: tuple[str, str] = (WHOLE, WHOLE)  # where each half came from (left, right)
 
 
 @dataclass
@@ -119,6 +114,7 @@ class _Entry:
     clock: int
     last_byte_ns: int
     rows_missing: bool
+    source: str  # WHOLE, PATCHED or PARTIAL
 
 
 @dataclass
@@ -164,9 +160,9 @@ class Pairing:
         self._next_k = None
         self._restart_next = True
 
-    def push(self, frame: FootFrameLike) -> list[PairedFrame]:
+    def push(self, frame: FootFrame) -> list[PairedFrame]:
         foot = int(frame.foot)
-        if foot not in (LEFT, RIGHT) or frame.counts.shape != (FRAME_ROWS, FRAME_COLS):
+        if foot not in (LEFT, RIGHT) or frame.counts.shape != (DEFAULT_ROWS, DEFAULT_COLS):
             self.counters.bad_geometry += 1
             return []
         self.counters.frames_in[foot] += 1
@@ -202,7 +198,7 @@ class Pairing:
 
     # --- placing a frame -----------------------------------------------------
 
-    def _place(self, foot: int, frame: FootFrameLike) -> int:
+    def _place(self, foot: int, frame: FootFrame) -> int:
         """The pair index of ``frame``; learns the foot's offset when needed."""
         track = self._tracks[foot]
         if track.offset is None:
@@ -221,13 +217,13 @@ class Pairing:
             return track.ext - track.offset
         return track.ext + d - track.offset
 
-    def _clock_agrees(self, track: _Track, frame: FootFrameLike, d: int) -> bool:
+    def _clock_agrees(self, track: _Track, frame: FootFrame, d: int) -> bool:
         """Did the board's clock run as long as its seq says? (No: it restarted.)"""
         elapsed = clock_delta_us(frame.board_clock_us, track.clock)
         expected = d * self.config.period_us
         return abs(elapsed - expected) <= 0.2 * abs(expected)
 
-    def _learn(self, foot: int, frame: FootFrameLike) -> int:
+    def _learn(self, foot: int, frame: FootFrame) -> int:
         track, other = self._tracks[foot], self._tracks[1 - foot]
         next_k = self._next_k
         other_active = (
@@ -249,16 +245,22 @@ class Pairing:
         track.offset = frame.seq - k
         return k
 
-    def _entry(self, track: _Track, frame: FootFrameLike) -> _Entry:
+    def _entry(self, track: _Track, frame: FootFrame) -> _Entry:
         counts = np.asarray(frame.counts, dtype=np.uint16)
         missing = np.asarray(frame.rows_missing, dtype=bool)
         has_missing = bool(missing.any())
+        source = WHOLE
         if has_missing:
             counts = counts.copy()
-            counts[missing] = 0 if track.last_counts is None else track.last_counts[missing]
+            if track.last_counts is None:
+                counts[missing], source = 0, PARTIAL
+            else:
+                counts[missing], source = track.last_counts[missing], PATCHED
             self.counters.rows_missing += 1
         track.last_counts = counts
-        return _Entry(counts, frame.seq, frame.board_clock_us, frame.last_byte_ns, has_missing)
+        return _Entry(
+            counts, frame.seq, frame.board_clock_us, frame.last_byte_ns, has_missing, source
+        )
 
     # --- sending pairs -------------------------------------------------------
 
@@ -297,6 +299,7 @@ class Pairing:
         seqs: list[int] = []
         clocks: list[int] = []
         flags: list[str] = []
+        feet: list[str] = []
         last_byte = 0
         for foot, track in enumerate(self._tracks):
             got = entry.get(foot)
@@ -308,6 +311,7 @@ class Pairing:
                 seqs.append(got.seq)
                 clocks.append(got.clock)
                 last_byte = max(last_byte, got.last_byte_ns)
+                feet.append(got.source)
                 if got.rows_missing:
                     flags.append("rows_missing")
                 continue
@@ -316,10 +320,12 @@ class Pairing:
             if held is not None and track.missed <= self.config.hold_frames:
                 halves.append(held.counts)
                 flags.append(f"{name}_held")
+                feet.append(HELD)
                 self.counters.held[foot] += 1
             else:
-                halves.append(np.zeros((FRAME_ROWS, FRAME_COLS), dtype=np.uint16))
+                halves.append(np.zeros((DEFAULT_ROWS, DEFAULT_COLS), dtype=np.uint16))
                 flags.append(f"{name}_filled")
+                feet.append(FILLED)
                 self.counters.filled[foot] += 1
             seqs.append(-1 if track.offset is None else (k + track.offset) & _SEQ_MASK)
             step = round(track.missed * self.config.period_us)
@@ -333,4 +339,5 @@ class Pairing:
             last_byte_mono_ns=last_byte,
             flags=tuple(dict.fromkeys(flags)),
             restart=restart,
+            feet=(feet[LEFT], feet[RIGHT]),
         )

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scotti.daemon.frames.pairing import PairedFrame
 from scotti.daemon.inference.engine import (
     InferenceEngine,
     InferenceJob,
@@ -20,6 +19,7 @@ from scotti.daemon.inference.engine import (
 from scotti.daemon.inference.repetitions import RepetitionCounter
 from scotti.daemon.inference.window import Window
 from scotti.daemon.service.counters import Counters, LatencyRing
+from scotti.firmware_protocol.pairing import PairedFrame
 from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_ROWS, MAX_COUNT, STANDING
 from scotti.models.runtime import ScottiRuntime
 

@@ -202,7 +202,7 @@ def test_a_single_subject_is_split_in_time(tmp_path: Path) -> None:
 
 
 def test_repair_policy_is_what_the_daemon_feeds_the_model_live() -> None:
-    from scotti.daemon.frames.pairing import PairingConfig
+    from scotti.firmware_protocol.pairing import PairingConfig
 
     live = PairingConfig()
     assert (live.hold_frames, live.gap_frames) == (HOLD_FRAMES, MAX_GAP) == (8, 16)

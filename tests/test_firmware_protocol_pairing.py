@@ -3,9 +3,19 @@
 from __future__ import annotations
 
 import numpy as np
-from scotti.daemon.frames.pairing import PairedFrame, Pairing
+from scotti.firmware_protocol import pairing as rules
 from scotti.firmware_protocol.assembly import FootFrame
 from scotti.firmware_protocol.packets import Foot
+from scotti.firmware_protocol.pairing import (
+    FILLED,
+    HELD,
+    PARTIAL,
+    PATCHED,
+    WHOLE,
+    PairedFrame,
+    Pairing,
+)
+from scotti.models import contract
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS
 
 L, R = Foot.LEFT, Foot.RIGHT
@@ -130,10 +140,12 @@ def test_a_silent_foot_is_held_then_filled_and_reported_silent() -> None:
     assert len(silent) == 2 + len(lefts)  # then at the left's pace
     hold = pairing.config.hold_frames  # 8 = 0.5 s
     assert all(p.flags == ("right_held",) for p in silent[:hold])
+    assert all(p.feet == (WHOLE, HELD) for p in silent[:hold])
     assert all(int(p.counts[0, FRAME_COLS]) == 101 + 3 for p in silent[:hold])  # R3 repeated
     assert silent[0].seqs == (4, 4)  # the seq the right board would have sent
     assert silent[0].clocks[1] == 5_000_000 + 4 * PERIOD_US
     assert all(p.flags == ("right_filled",) for p in silent[hold:])
+    assert all(p.feet == (WHOLE, FILLED) for p in silent[hold:])
     assert not silent[hold].counts[:, FRAME_COLS:].any()
     assert pairing.foot_states() == {"left": "ok", "right": "silent"}
     assert pairing.counters.held == [0, hold]
@@ -158,10 +170,27 @@ def test_missing_rows_are_taken_from_the_previous_frame_of_that_foot() -> None:
     pairing = Pairing()
     out = feed(pairing, [*both(1), frame(L, 1, missing=(0, 5, 31)), frame(R, 1)])
     assert out[1].flags == ("rows_missing",)
+    assert out[1].feet == (PATCHED, WHOLE)
     left = out[1].counts[:, :FRAME_COLS]
     assert (left[0, 0], left[5, 3], left[31, 21]) == (1, 1, 1)  # from moment 0
     assert left[1, 0] == 2  # its own rows kept
     assert pairing.counters.rows_missing == 1
+
+
+def test_missing_rows_of_a_foot_s_first_frame_stay_zero_and_say_so() -> None:
+    pairing = Pairing()
+    out = feed(pairing, [frame(L, 0), frame(R, 0, missing=(2, 3)), *both(2, start=1)])
+    assert out[0].feet == (WHOLE, PARTIAL)
+    assert out[0].flags == ("rows_missing",)
+    assert not out[0].counts[2:4, FRAME_COLS:].any()
+    assert [p.feet for p in out[1:]] == [(WHOLE, WHOLE)] * 2
+
+
+def test_the_repair_rules_are_the_model_contract_s() -> None:
+    assert rules.FRAME_RATE_HZ == contract.FRAME_RATE_HZ
+    assert rules.HOLD_FRAMES == contract.SILENT_FOOT_HOLD_FRAMES
+    assert rules.RESTART_GAP_FRAMES == contract.WINDOW_RESTART_GAP_FRAMES
+    assert (rules.DEFAULT_ROWS, rules.DEFAULT_COLS) == (FRAME_ROWS, FRAME_COLS)
 
 
 def test_a_short_gap_of_both_feet_is_bridged_a_long_one_restarts() -> None:

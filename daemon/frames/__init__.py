@@ -1,1 +1,2 @@
-"""A device's frame path in the service: bytes to paired frames to the model's window."""
+"""A device's pipeline in the service: the one frame path (``firmware_protocol.frame_path``)
+feeding the model's window and the inference worker."""

@@ -1,5 +1,5 @@
-"""One frame's way through the daemon: source -> record -> decode -> assemble ->
-pair -> window/inference -> ``on_prediction``.
+"""One frame's way through the daemon: source -> record -> the frame path (decode,
+assemble, pair: ``firmware_protocol.frame_path``) -> window/inference -> ``on_prediction``.
 
 Everything here runs on the event loop except the model, which runs on the
 inference worker's thread. Nothing on this path blocks: a live source is
@@ -20,7 +20,6 @@ from typing import Final, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
-from scotti.daemon.frames.pairing import PairedFrame, Pairing, PairingConfig
 from scotti.daemon.inference.engine import (
     InferenceEngine,
     InferenceJob,
@@ -33,10 +32,9 @@ from scotti.daemon.inference.window import Window
 from scotti.daemon.input.recording import Recorder
 from scotti.daemon.input.sources import Source, SourceEvent
 from scotti.daemon.service.counters import Counters
-from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
-from scotti.firmware_protocol.errors import DecodeError
-from scotti.firmware_protocol.framing import StreamDecoder
-from scotti.firmware_protocol.packets import BoardStatus, FrameRows
+from scotti.firmware_protocol.frame_path import FramePath, FrameWatch
+from scotti.firmware_protocol.packets import BoardStatus
+from scotti.firmware_protocol.pairing import PairedFrame, PairingConfig
 from scotti.models.contract import FRAME_RATE_HZ, NO_ACTION, has_progress
 from scotti.models.ood import withheld
 from scotti.models.runtime import ScottiRuntime
@@ -100,11 +98,10 @@ class Pipeline:
         self.source = source
         self.counters = counters
         self.recorder = recorder
-        self.decoder = StreamDecoder()
-        self.assembler = FrameAssembler()
-        self.pairing = Pairing(pairing)
-        counters.pairing = self.pairing.counters
-        counters.decoder, counters.assembly = self.decoder.counters, self.assembler.counters
+        self.frames = FramePath(pairing, _StatusCount(counters))
+        counters.pairing = self.frames.pairing.counters
+        counters.decoder = self.frames.decoder.counters
+        counters.assembly = self.frames.assembler.counters
         self.window = Window(runtime)
         # Many devices share one engine (one model call for all of them); alone, a
         # pipeline runs its own.
@@ -165,14 +162,8 @@ class Pipeline:
         counters.chunks_in += 1
         if self.recorder is not None:
             self.recorder.tap(t_ns, data)
-        for packet in self.decoder.feed(data):
-            if isinstance(packet, FrameRows):
-                for frame in self.assembler.push(packet, t_ns):
-                    await self._pair(frame)
-            elif isinstance(packet, BoardStatus):
-                counters.board_status += 1
-            elif isinstance(packet, DecodeError):
-                log.debug("bad packet: %s", packet)
+        for pair in self.frames.feed(data, t_ns):
+            await self._submit(pair)
 
     async def _on_source_event(self, event: SourceEvent) -> None:
         counters = self.counters
@@ -192,17 +183,10 @@ class Pipeline:
             counters.disconnects += 1
         self._connected = False
         self._disconnect_reason = event.reason
-        self.decoder.reset()
-        self.pairing.reset()
+        self.frames.reset()
 
     async def _end_of_stream(self) -> None:
-        for frame in self.assembler.flush():
-            await self._pair(frame)
-        for pair in self.pairing.flush():
-            await self._submit(pair)
-
-    async def _pair(self, frame: FootFrame) -> None:
-        for pair in self.pairing.push(frame):
+        for pair in self.frames.end():
             await self._submit(pair)
 
     async def _submit(self, pair: PairedFrame) -> None:
@@ -300,7 +284,7 @@ class Pipeline:
     # --- state --------------------------------------------------------------------
 
     def _update_state(self) -> None:
-        feet = self.pairing.foot_states()
+        feet = self.frames.pairing.foot_states()
         reasons = [f"{foot} insole silent" for foot, s in feet.items() if s == "silent"]
         if not self._connected:
             reasons.insert(0, f"receiver disconnected: {self._disconnect_reason}")
@@ -326,6 +310,16 @@ class Pipeline:
         except Exception:  # a failing consumer never kills the reader
             self.counters.callback_errors += 1
             log.debug("pipeline callback failed", exc_info=True)
+
+
+class _StatusCount(FrameWatch):
+    """Board status packets counted into the daemon's counters."""
+
+    def __init__(self, counters: Counters) -> None:
+        self.counters = counters
+
+    def status(self, status: BoardStatus) -> None:
+        self.counters.board_status += 1
 
 
 def _read_only(array: npt.NDArray[np.uint16]) -> npt.NDArray[np.uint16]:

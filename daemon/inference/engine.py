@@ -35,8 +35,8 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from scotti.daemon.frames.pairing import PairedFrame
 from scotti.daemon.inference.window import Window, WindowOutput, push_batch
+from scotti.firmware_protocol.pairing import PairedFrame
 
 log = logging.getLogger(__name__)
 

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scotti.daemon.frames.pairing import FOOT_NAMES, PairingCounters
 from scotti.firmware_protocol.assembly import AssemblerCounters
 from scotti.firmware_protocol.framing import DecoderCounters
+from scotti.firmware_protocol.pairing import FOOT_NAMES, PairingCounters
 
 
 class LatencyRing:

@@ -16,12 +16,12 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-from scotti.daemon.frames.pairing import Pairing
 from scotti.daemon.settings import ConfigError, load_settings
 from scotti.firmware_protocol.assembly import RESTART_GAP, FrameAssembler
 from scotti.firmware_protocol.errors import DecodeError, PacketValueError, SessionError
 from scotti.firmware_protocol.framing import StreamDecoder, encode_packet
 from scotti.firmware_protocol.packets import BoardStatus, Foot, FrameRows, Packet
+from scotti.firmware_protocol.pairing import Pairing
 from scotti.firmware_protocol.session import MAGIC, SessionHeader, SessionWriter, read_session
 from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, SAMPLE_BITS

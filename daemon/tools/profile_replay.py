@@ -32,7 +32,7 @@ PARTS: Final = (
     ("idle (waiting for work)", ("select", "epoll", "{method 'acquire'", "threading.py")),
     ("COBS + packet decoding", ("firmware_protocol/cobs", "firmware_protocol/framing",
                                 "firmware_protocol/packets", "cobs.cobs")),
-    ("assembly + pairing", ("firmware_protocol/assembly", "daemon/pairing",
+    ("assembly + pairing", ("firmware_protocol/assembly", "firmware_protocol/pairing",
                             "firmware_protocol/wrap")),
     ("counters", ("daemon/counters", "dataclasses")),
     ("publishing (payloads, MQTT)", ("daemon/publisher", "daemon/messages", "daemon/schemas",
