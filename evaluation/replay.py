@@ -1,9 +1,9 @@
 """One session file replayed through the daemon's path, predictions aligned with
 its labels (``SessionReplay``).
 
-The path is the daemon's, step by step and as fast as the model allows:
-``StreamDecoder`` -> ``FrameAssembler`` -> ``Pairing`` -> ``Window`` (the
-streaming step graph with its embedding cache). A prediction made from the
+The path is the daemon's, as fast as the model allows: the one frame path
+(``firmware_protocol.frame_path``: decode, assemble, pair) -> the model's
+streaming window. A prediction made from the
 frames t-T..t-1 is for time t, so it is scored against the label record of
 the frame after the newest one in its window. The first T labelled frames of
 a session therefore have no prediction (the window warms up on T frames and
@@ -34,12 +34,9 @@ from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet, align
 from scotti.evaluation.sampling import Prediction, SampledTrack
 from scotti.evaluation.segments import BATCH, SegmentTrack
-from scotti.firmware_protocol.assembly import FrameAssembler
-from scotti.firmware_protocol.framing import StreamDecoder
-from scotti.firmware_protocol.packets import FrameRows
-from scotti.firmware_protocol.pairing import PairedFrame, Pairing, PairingConfig
+from scotti.firmware_protocol.frame_path import FramePath, PairSeq
+from scotti.firmware_protocol.pairing import PairedFrame, PairingConfig
 from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
-from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models.contract import ACTIONS
 from scotti.models.ood import flag_counts, withheld
 from scotti.models.runtime import ScottiRuntime, load_pair
@@ -131,11 +128,9 @@ def replay_session_models(
     if batch < 1:
         msg = f"--batch must be at least 1, got {batch}"
         raise EvaluationError(msg)
-    decoder = StreamDecoder()
-    assembler = FrameAssembler()
-    pairs = Pairing(pairing)
+    frame_path = FramePath(pairing)
     labels: list[LabelRecord] = []
-    clock = _SeqClock()
+    clock = PairSeq()
     with SessionReader(path) as reader:
         subject = _subject_of(reader.header.subject) or Path(path).stem
         tracks: list[_Track | SampledTrack | SegmentTrack]
@@ -150,7 +145,7 @@ def replay_session_models(
         silent = {"left": 0, "right": 0}
 
         def take(pair: PairedFrame) -> None:
-            ext = clock.unwrap(pair.seqs[0] if pair.seqs[0] >= 0 else pair.seqs[1])
+            ext = clock.of(pair)
             for foot in silent:
                 silent[foot] += f"{foot}_filled" in pair.flags
             for track in tracks:
@@ -161,15 +156,9 @@ def replay_session_models(
                 labels.append(record)
                 continue
             assert isinstance(record, PacketRecord)
-            for packet in decoder.feed(record.data):
-                if isinstance(packet, FrameRows):
-                    for frame in assembler.push(packet, record.t_ns):
-                        for pair in pairs.push(frame):
-                            take(pair)
-        for frame in assembler.flush():
-            for pair in pairs.push(frame):
+            for pair in frame_path.feed(record.data, record.t_ns):
                 take(pair)
-        for pair in pairs.flush():
+        for pair in frame_path.end():
             take(pair)
     for track in tracks:
         track.finish()
@@ -178,7 +167,7 @@ def replay_session_models(
         out.made = track.made
         out.predictions = len(out.made)
         out.window_restarts = track.restarts
-        out.decode_errors = decoder.counters.errors
+        out.decode_errors = frame_path.decoder.counters.errors
         out.silent_pairs = dict(silent)
         out.frames, out.unlabelled = align(track.made, labels)
         out.evaluated = len(out.frames)
@@ -224,24 +213,6 @@ class _Track:
 
     def finish(self) -> None:
         """Nothing is pending: every step ran as its pair came."""
-
-
-class _SeqClock:
-    """Unwraps the u16 seqs of successive pairs (and labels) onto one axis."""
-
-    def __init__(self) -> None:
-        self._raw: int | None = None
-        self._ext = 0
-
-    def unwrap(self, seq: int) -> int | None:
-        if seq < 0:
-            return None
-        if self._raw is None:
-            self._raw, self._ext = seq, seq
-        else:
-            self._ext += seq_delta(seq, self._raw)
-            self._raw = seq
-        return self._ext
 
 
 def _subject_of(subject: dict[str, Any] | None) -> str | None:

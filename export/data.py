@@ -1,22 +1,21 @@
-"""Labelled session files -> training arrays on a sequence grid, and windows over them.
+"""Labelled session files -> training arrays, one slot per paired frame, and windows over them.
 
-A session is decoded exactly as the daemon decodes it (StreamDecoder, then
-FrameAssembler), left and right foot frames are joined by their shared
-sequence number, and labels are attached per sequence number. Sequence
-numbers wrap at 2**16; they are unwrapped into one int64 timeline.
+A session goes through the one frame path the daemon serves from
+(``firmware_protocol.frame_path``: decode, assemble, pair, repair), so the
+frames training reads are, byte for byte, the frames the daemon hands its
+window on replay (tests/test_frame_path_parity.py). The repair rules are
+the pairing's: missing rows come from that foot's previous frame, a foot
+frame that never came is held (its previous frame repeated) for up to
+``HOLD_FRAMES`` moments, then zero-filled; a short gap of both feet is
+bridged, a longer one (``RESTART_GAP_FRAMES``) restarts the window, which
+starts a new segment here; windows never cross segments. ``valid`` says which foot arrived
+whole, ``repaired`` which was patched or held; ``WindowDataset`` drops, by
+default, every window with an input frame that is neither (a zero-filled
+foot: the daemon flags those moments as degraded, they are no training
+material).
 
-Missing data is repaired as the daemon repairs it live (daemon/frames/pairing.py),
-so the model trains on what it will be shown: missing rows of a foot frame
-are taken from that foot's previous frame; a foot frame that never came is
-held (the foot's previous frame repeated) for up to ``HOLD_FRAMES`` slots,
-then left as zeros. ``valid`` says what arrived whole, ``repaired`` what was
-reconstructed; ``WindowDataset`` drops, by default, every window with an
-input frame that is neither (a zero-filled foot: the daemon flags those
-moments as degraded, they are no training material). The frame grid has one
-slot per sequence number, so a window of T slots is always T/16 s long. A
-gap of more than ``MAX_GAP`` sequence numbers with no frame and no label
-(the daemon restarts its window there) starts a new segment instead of a
-run of empty slots; windows never cross segments.
+Each slot carries the pair's unwrapped sequence number (the left foot's,
+the right's where the left was never heard) and the label of that number.
 
 Decoded sessions are cached as ``.npz`` (keyed by path, size and mtime), so
 repeated training runs do not decode again.
@@ -29,6 +28,7 @@ import json
 import logging
 import os
 import tempfile
+from collections import defaultdict, deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -36,20 +36,18 @@ from typing import Any
 
 import numpy as np
 from scotti.export.errors import ExportError
-from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
+from scotti.firmware_protocol import pairing as repair
 from scotti.firmware_protocol.errors import SessionError
-from scotti.firmware_protocol.framing import StreamDecoder
-from scotti.firmware_protocol.packets import Foot, FrameRows
-from scotti.firmware_protocol.session import find_session_files, read_session
+from scotti.firmware_protocol.frame_path import FramePath, PairSeq, stream_pairs
+from scotti.firmware_protocol.pairing import FILLED, HELD, PATCHED, WHOLE, PairedFrame
+from scotti.firmware_protocol.session import LabelRecord, find_session_files, read_session
+from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models import contract
 
 log = logging.getLogger(__name__)
 
 # Bump when the decoded arrays change meaning: old cache files are then ignored.
-CACHE_VERSION = 3  # 3: progress NaN wherever the action has none (contract v2)
-# What the daemon's pairing does live (models.contract), so training sees the same:
-HOLD_FRAMES = contract.SILENT_FOOT_HOLD_FRAMES  # a missing foot frame: previous one, this long
-MAX_GAP = contract.WINDOW_RESTART_GAP_FRAMES  # a longer run of empty slots: new segment
+CACHE_VERSION = 4  # 4: one slot per paired frame, from the daemon's own frame path
 SEQ_MODULUS = 1 << 16
 
 
@@ -59,15 +57,15 @@ class TrainingDataError(ExportError):
 
 @dataclass(frozen=True)
 class SessionArrays:
-    """One session on its sequence grid: N slots, one per (unwrapped) sequence number."""
+    """One session as the daemon pairs it: N slots, one per paired frame."""
 
     path: str
     subject: str
     frames: np.ndarray  # (N, H, 2W) uint16 counts, left foot columns 0..W-1, right W..2W-1
     valid: np.ndarray  # (N, 2) bool: that foot's frame arrived with all rows (left, right)
     repaired: np.ndarray  # (N, 2) bool: rows filled or frame held from the foot's previous
-    seq: np.ndarray  # (N,) int64 unwrapped sequence number, +1 per slot within a segment
-    segment: np.ndarray  # (N,) int32, increases at gaps longer than MAX_GAP
+    seq: np.ndarray  # (N,) int64 unwrapped sequence number, +1 per slot but at a board restart
+    segment: np.ndarray  # (N,) int32, increases where the daemon restarts its window
     has_label: np.ndarray  # (N,) bool
     keypoints: np.ndarray  # (N, 19, 3) float32 metres, NaN without a label
     action: np.ndarray  # (N,) int64 index into ACTIONS, NO_ACTION for a transition or no label
@@ -99,23 +97,6 @@ class SessionArrays:
         )
 
 
-def unwrap_seq(raw: Sequence[int] | np.ndarray, reference: int | None = None) -> np.ndarray:
-    """Wrapping u16 sequence numbers, in arrival order -> int64 timeline.
-
-    Each number is placed at the signed wrap-aware distance from its
-    predecessor (the first from ``reference``, an unwrapped value, if given).
-    """
-    r = np.asarray(raw, dtype=np.int64)
-    if r.size == 0:
-        return r
-    steps = (np.diff(r) + SEQ_MODULUS // 2) % SEQ_MODULUS - SEQ_MODULUS // 2
-    first = int(r[0])
-    if reference is not None:
-        delta = (first - reference + SEQ_MODULUS // 2) % SEQ_MODULUS - SEQ_MODULUS // 2
-        first = reference + delta
-    return first + np.concatenate([[0], np.cumsum(steps)])
-
-
 def subject_of(subject: dict[str, Any] | None, path: Path) -> str:
     """The subject id: the header's ``subject`` dict ("id" or "name"), else the file stem."""
     if isinstance(subject, dict):
@@ -133,105 +114,57 @@ def decode_session(path: Path) -> SessionArrays:
     except (SessionError, OSError) as exc:
         msg = f"{path}: {exc}"
         raise TrainingDataError(msg) from None
-    rows, cols = session.header.rows, session.header.cols
+    geometry = (session.header.rows, session.header.cols)
+    if geometry != (repair.DEFAULT_ROWS, repair.DEFAULT_COLS):
+        msg = f"{path}: {geometry[0]} x {geometry[1]} frames; the model takes 32 x 22"
+        raise TrainingDataError(msg)
+    frame_path = FramePath()
+    pairs = list(stream_pairs(((r.t_ns, r.data) for r in session.packets), frame_path))
+    if not pairs:
+        msg = f"{path}: no foot frames in the session"
+        raise TrainingDataError(msg)
+    made = frame_path.pairing.counters
     counters: dict[str, int] = {
         "bad_records": session.bad_records + session.unknown_records,
         "truncated": int(session.truncated),
-        "decode_errors": 0,
-        "wrong_geometry": 0,
-        "duplicate_frames": 0,
-        "incomplete_frames": 0,
+        "decode_errors": frame_path.decoder.counters.errors,
+        "wrong_geometry": made.bad_geometry,
+        "duplicate_frames": made.duplicates + made.late,
+        "incomplete_frames": made.rows_missing,
+        "restarts": made.restarts,
+        "resyncs": made.resyncs,
     }
-    decoder = StreamDecoder()
-    assembler = FrameAssembler()
-    feet: dict[int, list[FootFrame]] = {int(Foot.LEFT): [], int(Foot.RIGHT): []}
-
-    def collect(done: Iterable[FootFrame]) -> None:
-        for ff in done:
-            if ff.counts.shape != (rows, cols):
-                counters["wrong_geometry"] += 1
-                continue
-            feet[int(ff.foot)].append(ff)
-
-    for record in session.packets:
-        for item in decoder.feed(record.data):
-            if isinstance(item, FrameRows):
-                collect(assembler.push(item, record.t_ns))
-            elif isinstance(item, Exception):
-                counters["decode_errors"] += 1
-    collect(assembler.flush())
-
     labels = sorted(session.labels, key=lambda lab: lab.t_ns)
-    return _to_grid(
+    return _to_slots(
         path=path,
         subject=subject_of(session.header.subject, path),
-        rows=rows,
-        cols=cols,
-        feet=feet,
+        pairs=pairs,
         labels=labels,
         counters=counters,
     )
 
 
-def _to_grid(
+def _to_slots(
     *,
     path: Path,
     subject: str,
-    rows: int,
-    cols: int,
-    feet: dict[int, list[FootFrame]],
-    labels: Sequence[Any],
+    pairs: Sequence[PairedFrame],
+    labels: Sequence[LabelRecord],
     counters: dict[str, int],
 ) -> SessionArrays:
-    # One timeline for both feet and the labels: the left foot's first frame
-    # (or whatever came first) is the reference the others are unwrapped near.
-    reference: int | None = None
-    unwrapped: dict[int, np.ndarray] = {}
-    for foot in (int(Foot.LEFT), int(Foot.RIGHT)):
-        u = unwrap_seq([ff.seq for ff in feet[foot]], reference)
-        unwrapped[foot] = u
-        if reference is None and u.size:
-            reference = int(u[0])
-    label_seq = unwrap_seq([lab.seq for lab in labels], reference)
-    every = np.concatenate([*unwrapped.values(), label_seq])
-    if every.size == 0:
-        msg = f"{path}: no foot frames and no labels in the session"
-        raise TrainingDataError(msg)
-
-    # The grid: consecutive sequence numbers, with gaps > MAX_GAP cut into segments.
-    present = np.unique(every)
-    breaks = np.flatnonzero(np.diff(present) > MAX_GAP) + 1
-    pieces = np.split(present, breaks)
-    seq = np.concatenate([np.arange(p[0], p[-1] + 1, dtype=np.int64) for p in pieces])
-    segment = np.concatenate(
-        [np.full(p[-1] - p[0] + 1, i, dtype=np.int32) for i, p in enumerate(pieces)]
-    )
-    n = seq.size
-
-    frames = np.zeros((n, rows, 2 * cols), dtype=np.uint16)
-    valid = np.zeros((n, 2), dtype=bool)
-    seen = np.zeros((n, 2), dtype=bool)
-    rows_missing: dict[tuple[int, int], np.ndarray] = {}
-    for foot in (int(Foot.LEFT), int(Foot.RIGHT)):
-        slots = np.searchsorted(seq, unwrapped[foot])
-        c0 = foot * cols
-        for ff, slot in zip(feet[foot], slots, strict=True):
-            if seen[slot, foot]:
-                counters["duplicate_frames"] += 1  # a reset or a repeat: keep the first
-                continue
-            seen[slot, foot] = True
-            frames[slot, :, c0 : c0 + cols] = ff.counts
-            complete = bool(ff.complete) and not bool(np.any(ff.rows_missing))
-            if complete:
-                valid[slot, foot] = True
-            else:
-                missing = np.asarray(ff.rows_missing, dtype=bool)
-                frames[slot, missing, c0 : c0 + cols] = 0
-                rows_missing[int(slot), foot] = missing
-                counters["incomplete_frames"] += 1
-    counters["missing_left"] = int(n - seen[:, 0].sum())
-    counters["missing_right"] = int(n - seen[:, 1].sum())
-    repaired = repair_like_the_daemon(frames, seen, rows_missing, segment, cols)
+    n = len(pairs)
+    frames = np.stack([p.counts for p in pairs])
+    feet = np.array([p.feet for p in pairs])
+    valid = feet == WHOLE
+    repaired = (feet == PATCHED) | (feet == HELD)
+    segment = np.cumsum([p.restart for p in pairs], dtype=np.int32)
+    unwrap = PairSeq()
+    seq = np.zeros(n, dtype=np.int64)
+    for i, p in enumerate(pairs):
+        ext = unwrap.of(p)
+        seq[i] = ext if ext is not None else (seq[i - 1] + 1 if i else 0)
+    counters["missing_left"] = int(np.isin(feet[:, 0], (HELD, FILLED)).sum())
+    counters["missing_right"] = int(np.isin(feet[:, 1], (HELD, FILLED)).sum())
     counters["zero_filled"] = int((~(valid | repaired)).sum())
 
     has_label = np.zeros(n, dtype=bool)
@@ -239,7 +172,9 @@ def _to_grid(
     action = np.full(n, contract.NO_ACTION, dtype=np.int64)
     progress = np.full(n, np.nan, dtype=np.float32)
     bad_labels = 0
-    for lab, slot in zip(labels, np.searchsorted(seq, label_seq), strict=True):
+    for lab, slot in zip(labels, label_slots(seq, labels), strict=True):
+        if slot is None:
+            continue
         kp = np.asarray(_label_keypoints(lab), dtype=np.float32)
         act = int(lab.action)
         if kp.shape != (contract.NUM_KEYPOINTS, 3) or not -1 <= act < contract.NUM_ACTIONS:
@@ -269,40 +204,24 @@ def _to_grid(
     )
 
 
-def repair_like_the_daemon(
-    frames: np.ndarray,
-    seen: np.ndarray,
-    rows_missing: dict[tuple[int, int], np.ndarray],
-    segment: np.ndarray,
-    cols: int,
-) -> np.ndarray:
-    """Fill missing rows and hold missing feet in place; returns ``repaired`` (N, 2).
+def label_slots(seq: np.ndarray, labels: Sequence[LabelRecord]) -> list[int | None]:
+    """The slot of each label (``None``: no pair at its time), labels in time order.
 
-    ``frames`` (N, H, 2W) is changed in place. ``seen``: (N, 2) the foot frame
-    arrived (whole or not); ``rows_missing``: the rows lost, per (slot, foot).
-    """
-    n = frames.shape[0]
-    repaired = np.zeros((n, 2), dtype=bool)
-    for foot in (int(Foot.LEFT), int(Foot.RIGHT)):
-        c0 = foot * cols
-        last: np.ndarray | None = None  # the foot's previous frame (repaired), a view
-        missed = 0
-        for slot in range(n):
-            if slot and segment[slot] != segment[slot - 1]:
-                last, missed = None, 0  # the daemon starts over after a long gap
-            view = frames[slot, :, c0 : c0 + cols]
-            if seen[slot, foot]:
-                missing = rows_missing.get((slot, foot))
-                if missing is not None and last is not None:
-                    view[missing] = last[missing]
-                    repaired[slot, foot] = True
-                last, missed = view, 0
-            else:
-                missed += 1
-                if last is not None and missed <= HOLD_FRAMES:
-                    view[:] = last
-                    repaired[slot, foot] = True
-    return repaired
+    Label seqs are unwrapped on the slots' axis; where a board restart makes a
+    number come round again, the k-th label of a number goes to the k-th slot
+    of it, so both pass in time order."""
+    slots_of: dict[int, deque[int]] = defaultdict(deque)
+    for slot, ext in enumerate(seq.tolist()):
+        slots_of[ext].append(slot)
+    ext = int(seq[0]) if len(seq) else 0
+    prev = ext % SEQ_MODULUS
+    out: list[int | None] = []
+    for lab in labels:
+        ext += seq_delta(lab.seq, prev)
+        prev = lab.seq
+        free = slots_of.get(ext)
+        out.append(free.popleft() if free else None)
+    return out
 
 
 def _label_keypoints(label: Any) -> np.ndarray:

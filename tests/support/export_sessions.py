@@ -62,20 +62,27 @@ def write_session(
     drop_rows: Collection[tuple[int, int, int]] = (),
     garbage_every: int = 0,
     seq_jump: tuple[int, int] = (0, 0),
+    restart: tuple[int, int] | None = None,
 ) -> Path:
     """Write ``frames`` frames (both feet, 4 row packets each) and a label per frame.
 
     ``drop_foot``: (k, foot) pairs whose whole frame is never sent.
     ``drop_rows``: (k, foot, block) triples whose row block is never sent.
     ``garbage_every``: put junk bytes on the line before every n-th frame.
-    ``seq_jump``: (k, n): from frame k on, sequence numbers are n further on (an outage).
+    ``seq_jump``: (k, n): from frame k on, sequence numbers, board clock and host time are
+    n frames further on (an outage: nothing was sent for n frames).
+    ``restart``: (k, seq): from frame k on, the boards count again from ``seq``, their
+    clocks from 0 (both insoles restarted; the host's time goes on).
     """
     header = SessionHeader(source="simulated", subject={"id": subject} if subject else None)
     t0 = 1_000_000_000
     with SessionWriter(path, header, overwrite=True) as w:  # tests rewrite a file in place
         for k in range(frames):
-            seq = (first_seq + k + (seq_jump[1] if k >= seq_jump[0] > 0 else 0)) % (1 << 16)
-            t_ns = t0 + k * 62_500_000
+            step = k + (seq_jump[1] if k >= seq_jump[0] > 0 else 0)
+            seq, clock = (first_seq + step) % (1 << 16), step * 62_500
+            if restart is not None and k >= restart[0]:
+                seq, clock = (restart[1] + k - restart[0]) % (1 << 16), (k - restart[0]) * 62_500
+            t_ns = t0 + step * 62_500_000
             if garbage_every and k % garbage_every == 0:
                 w.write_packet(t_ns, b"\x13\x37garbage\x00")
             for foot in (Foot.LEFT, Foot.RIGHT):
@@ -88,7 +95,7 @@ def write_session(
                     rows = FrameRows(
                         foot=foot,
                         seq=seq,
-                        board_clock_us=(k * 62_500) % (1 << 32),
+                        board_clock_us=clock % (1 << 32),
                         rows=ROWS,
                         cols=COLS,
                         sample_bits=contract.SAMPLE_BITS,
