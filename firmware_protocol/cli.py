@@ -1,7 +1,8 @@
 """``scotti session info FILE [--json]``: what a session file holds.
 
 Source, device, geometry, duration; per foot the row blocks, frames,
-incomplete frames and sequence gaps; bad packets by reason; labels; the
+incomplete frames and sequence gaps; bad packets by reason; the pairs the
+daemon would make (held, zero-filled, gaps, restarts); labels; the
 board's status reports; the events marked while recording; whether the file was
 cut short.
 """
@@ -115,6 +116,17 @@ def _imported(info: dict[str, Any]) -> str:
     return "; ".join(parts) or "-"
 
 
+def _pairs(p: dict[str, Any]) -> str:
+    """What the daemon's pairing would make of the frames (firmware_protocol/pairing.py)."""
+    held, filled = p.get("held", [0, 0]), p.get("filled", [0, 0])
+    return (
+        f"pairs     {p.get('pairs_out', 0)} as the daemon pairs them; held left {held[0]},"
+        f" right {held[1]}; zero-filled left {filled[0]}, right {filled[1]};"
+        f" gaps bridged {p.get('gaps', 0)}, window restarts {p.get('restarts', 0)},"
+        f" board resyncs {p.get('resyncs', 0)}"
+    )
+
+
 def _action(index: int, names: Sequence[str]) -> str:
     if index < 0:
         return "none"
@@ -164,6 +176,7 @@ def render(s: SessionSummary, action_names: Sequence[str] = ()) -> str:
     ]
     if dropped:
         lines.append(f"assembly  {', '.join(dropped)}")
+    lines.append(_pairs(s.pairing))
     labels = s.labels
     if labels.count:
         actions = ", ".join(

@@ -1,7 +1,7 @@
 """What a session file holds, in numbers: the facts behind ``scotti session info``.
 
-The packets are run through the same decoder and assembler the daemon uses,
-so the counts here are what a replay of the file would see.
+The packets go through the daemon's own frame path (``frame_path``), so the
+counts here, the pairs included, are what a replay of the file would see.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import os
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from scotti.firmware_protocol.assembly import FootFrame, FrameAssembler
-from scotti.firmware_protocol.framing import StreamDecoder
+from scotti.firmware_protocol.assembly import FootFrame
+from scotti.firmware_protocol.frame_path import FramePath, FrameWatch
 from scotti.firmware_protocol.packets import BoardStatus, Foot, FrameRows
 from scotti.firmware_protocol.session import (
     EventRecord,
@@ -154,6 +154,7 @@ class SessionSummary:
     )
     decoder: dict[str, int] = field(default_factory=dict)
     assembler: dict[str, int] = field(default_factory=dict)
+    pairing: dict[str, Any] = field(default_factory=dict)  # the pairs a replay would make
     labels: LabelSummary = field(default_factory=LabelSummary)
     events: EventSummary = field(default_factory=EventSummary)
     first_packet_ns: int | None = None  # host time of the first packet record
@@ -174,6 +175,7 @@ class SessionSummary:
             "feet": {side: foot.as_dict() for side, foot in self.feet.items()},
             "decoder": self.decoder,
             "assembler": self.assembler,
+            "pairing": self.pairing,
             "labels": {
                 "count": self.labels.count,
                 "actions": {str(k): v for k, v in sorted(self.labels.actions.items())},
@@ -188,15 +190,30 @@ class SessionSummary:
         }
 
 
+class _Counting(FrameWatch):
+    """Blocks, foot frames and status reports into the summary, per foot."""
+
+    def __init__(self, summary: SessionSummary) -> None:
+        header = summary.header
+        self.geometry = (header.rows, header.cols, header.sample_bits)
+        self.feet = {Foot.LEFT: summary.feet["left"], Foot.RIGHT: summary.feet["right"]}
+        self.summary = summary
+
+    def block(self, block: FrameRows) -> None:
+        self.feet[block.foot].blocks += 1
+
+    def frame(self, frame: FootFrame) -> None:
+        self.feet[frame.foot].add(frame, self.geometry)
+
+    def status(self, status: BoardStatus) -> None:
+        self.summary.status.add(status)  # DecodeError values are in the decoder's counters
+
+
 def summarize(path: str | os.PathLike[str]) -> SessionSummary:
     """Read a whole session file and count what it holds; raises ``SessionError``."""
-    decoder = StreamDecoder()
-    assembler = FrameAssembler()
     with SessionReader(path, events=True) as reader:
-        header = reader.header
-        summary = SessionSummary(str(path), header)
-        geometry = (header.rows, header.cols, header.sample_bits)
-        side = {Foot.LEFT: summary.feet["left"], Foot.RIGHT: summary.feet["right"]}
+        summary = SessionSummary(str(path), reader.header)
+        frame_path = FramePath(watch=_Counting(summary))
         first_ns: int | None = None
         last_ns = 0
         for record in reader.records():
@@ -212,21 +229,16 @@ def summarize(path: str | os.PathLike[str]) -> SessionSummary:
             summary.stream_bytes += len(record.data)
             first_ns = record.t_ns if first_ns is None else first_ns
             last_ns = record.t_ns
-            for item in decoder.feed(record.data):
-                if isinstance(item, FrameRows):
-                    side[item.foot].blocks += 1
-                    for frame in assembler.push(item, record.t_ns):
-                        side[frame.foot].add(frame, geometry)
-                elif isinstance(item, BoardStatus):
-                    summary.status.add(item)  # DecodeError values are in the decoder's counters
-        for frame in assembler.flush():
-            side[frame.foot].add(frame, geometry)
+            frame_path.feed(record.data, record.t_ns)
+        frame_path.end()
     summary.file_bytes = os.stat(path).st_size
     summary.whole_record_bytes = reader.bytes_read
     summary.first_packet_ns = first_ns
     summary.duration_s = 0.0 if first_ns is None else (last_ns - first_ns) / 1e9
+    decoder = frame_path.decoder
     summary.decoder = decoder.counters.as_dict() | {"pending_at_end": decoder.pending}
-    summary.assembler = assembler.counters.as_dict()
+    summary.assembler = frame_path.assembler.counters.as_dict()
+    summary.pairing = asdict(frame_path.pairing.counters)
     summary.truncated = reader.truncated
     summary.bad_records = reader.bad_records
     summary.unknown_records = reader.unknown_records

@@ -1,8 +1,10 @@
 """Pictures of a session: pressure maps, skeleton, action and progress.
 
 Reads any session file with labels (simulated or labelled recordings): the
-packets go through the real decoder and frame assembler, the labels give the
-pose (pose frame: x forward, y left, z up) and the action and progress.
+packets go through the daemon's own frame path (``firmware_protocol.frame_path``),
+so the feet drawn are the pairs the model is shown (a lost frame held or
+zero-filled as the daemon does); the labels give the pose (pose frame: x
+forward, y left, z up) and the action and progress.
 
 Foot maps are drawn as seen from above with the toes up. The data's column 0
 is medial on both insoles, so the right foot is drawn as sent and the left
@@ -12,14 +14,15 @@ foot mirrored, giving an anatomical pair (big toes towards the middle).
 from __future__ import annotations
 
 import os
+from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-from scotti.firmware_protocol.assembly import FrameAssembler
-from scotti.firmware_protocol.framing import StreamDecoder
-from scotti.firmware_protocol.packets import FrameRows
+from scotti.firmware_protocol.assembly import FootFrame
+from scotti.firmware_protocol.frame_path import FramePath, FrameWatch, stream_pairs
+from scotti.firmware_protocol.pairing import PairedFrame
 from scotti.firmware_protocol.session import (
     LabelRecord,
     PacketRecord,
@@ -44,7 +47,7 @@ class Span:
     """The labelled frames of a time span of a session."""
 
     time_s: np.ndarray  # (n,) since the session's first label
-    counts: np.ndarray  # (n, 2, rows, cols) uint16, zeros where a frame was lost
+    counts: np.ndarray  # (n, 2, rows, cols) uint16 as the daemon pairs them, zeros: no pair
     keypoints: np.ndarray  # (n, 19, 3) pose frame
     action: np.ndarray  # (n,)
     progress: np.ndarray  # (n,)
@@ -61,9 +64,9 @@ def load_span(
     """Frames and labels from ``start_s`` for ``duration_s`` (None: to the end)."""
     header: SessionHeader | None = None
     labels: list[LabelRecord] = []
-    blocks: list[tuple[int, FrameRows]] = []
+    chunks: list[tuple[int, bytes]] = []
+    early: deque[tuple[int, bytes]] = deque()
     sources: list[SourceFrameRecord] = []
-    decoder = StreamDecoder()
     t0: int | None = None
     begin = end = 0
     try:
@@ -81,12 +84,16 @@ def load_span(
                     break
             elif isinstance(record, SourceFrameRecord):
                 sources.append(record)
+            elif isinstance(record, PacketRecord) and t0 is None:
+                # Before the first label: the span starts there, keep the last second.
+                early.append((record.t_ns, record.data))
+                while early[0][0] < record.t_ns - _MARGIN_NS:
+                    early.popleft()
             elif (
                 isinstance(record, PacketRecord)
                 and begin - _MARGIN_NS <= record.t_ns < end + _MARGIN_NS
             ):
-                items = decoder.feed(record.data)
-                blocks += [(record.t_ns, p) for p in items if isinstance(p, FrameRows)]
+                chunks.append((record.t_ns, record.data))
     except SimError:
         raise
     except Exception as exc:  # the protocol's SessionError and OS errors, as one line
@@ -97,7 +104,8 @@ def load_span(
     if header is None or not labels:
         msg = f"{path}: no labelled frames in that span"
         raise RenderError(msg)
-    span = _assemble(header, labels, blocks, t0 or 0)
+    chunks = [c for c in early if c[0] >= begin - _MARGIN_NS] + chunks
+    span = _assemble(header, labels, list(stream_pairs(chunks)), t0 or 0)
     return _with_sources(span, sources, begin, end, t0 or 0)
 
 
@@ -108,8 +116,7 @@ def _unlabelled_span(
     duration_s: float | None,
 ) -> Span:
     """A session without labels: the frames themselves give the time axis (no skeleton)."""
-    decoder = StreamDecoder()
-    blocks: list[tuple[int, FrameRows]] = []
+    chunks: list[tuple[int, bytes]] = []
     sources: list[SourceFrameRecord] = []
     t0: int | None = None
     try:
@@ -123,18 +130,13 @@ def _unlabelled_span(
                 if record.t_ns >= end + _MARGIN_NS:
                     break
                 if record.t_ns >= begin - _MARGIN_NS:
-                    items = decoder.feed(record.data)
-                    blocks += [(record.t_ns, p) for p in items if isinstance(p, FrameRows)]
+                    chunks.append((record.t_ns, record.data))
     except Exception as exc:  # the protocol's SessionError and OS errors, as one line
         msg = f"cannot read {path}: {exc}"
         raise RenderError(msg) from None
-    assembler = FrameAssembler(max_in_progress=4)
-    times: dict[int, int] = {}
-    for t_ns, block in blocks:
-        for frame in assembler.push(block, t_ns):
-            times.setdefault(frame.seq, frame.last_byte_ns)
-    for frame in assembler.flush():
-        times.setdefault(frame.seq, frame.last_byte_ns)
+    arrivals = _Arrivals()
+    pairs = list(stream_pairs(chunks, FramePath(watch=arrivals)))
+    times = arrivals.times
     begin = (t0 or 0) + round(start_s * 1e9)
     end = begin + round(duration_s * 1e9) if duration_s is not None else 2**62
     nothing = np.full((len(KP), 3), np.nan, dtype=np.float32)
@@ -146,8 +148,18 @@ def _unlabelled_span(
     if not labels:
         msg = f"{path}: no frames in that span"
         raise RenderError(msg)
-    span = _assemble(header, labels, blocks, t0 or 0)
+    span = _assemble(header, labels, pairs, t0 or 0)
     return _with_sources(span, sources, begin, end, t0 or 0)
+
+
+class _Arrivals(FrameWatch):
+    """When each frame's seq first arrived: the time axis of a file without labels."""
+
+    def __init__(self) -> None:
+        self.times: dict[int, int] = {}
+
+    def frame(self, frame: FootFrame) -> None:
+        self.times.setdefault(frame.seq, frame.last_byte_ns)
 
 
 def _with_sources(
@@ -162,19 +174,14 @@ def _with_sources(
 
 
 def _assemble(
-    header: SessionHeader, labels: list[LabelRecord], blocks: list[tuple[int, FrameRows]], t0: int
+    header: SessionHeader, labels: list[LabelRecord], pairs: list[PairedFrame], t0: int
 ) -> Span:
-    assembler = FrameAssembler(max_in_progress=4)
-    frames = []
-    for t_ns, block in blocks:
-        frames += assembler.push(block, t_ns)
-    frames += assembler.flush()
     index = {label.seq: i for i, label in enumerate(labels)}  # seq is unique within a span
     counts = np.zeros((len(labels), 2, header.rows, header.cols), np.uint16)
-    for f in frames:
-        i = index.get(f.seq)
-        if i is not None and f.counts.shape == counts.shape[2:]:
-            counts[i, int(f.foot)] = f.counts
+    for pair in pairs:
+        i = index.get(pair.seqs[0] if pair.seqs[0] >= 0 else pair.seqs[1])
+        if i is not None and pair.counts.shape == (header.rows, 2 * header.cols):
+            counts[i, 0], counts[i, 1] = np.hsplit(pair.counts, 2)
     return Span(
         time_s=np.array([(label.t_ns - t0) / 1e9 for label in labels]),
         counts=counts,

@@ -40,6 +40,9 @@ def test_summary_counts_what_the_file_holds(demo: Path) -> None:
     assert s.status.link_down_reports == {"left": 0, "right": 3}
     assert s.duration_s == pytest.approx(40 * 0.0625)  # garbage record, then 40 frame slots
     assert not s.truncated
+    # As the daemon pairs them: the two lost moments bridged with both feet held.
+    assert (s.pairing["pairs_out"], s.pairing["gaps"], s.pairing["held"]) == (40, 2, [2, 2])
+    assert (s.pairing["rows_missing"], s.pairing["restarts"]) == (1, 0)
 
 
 def test_info_text(demo: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -53,6 +56,7 @@ def test_info_text(demo: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert lines["incomplete frames"] == ["1", "0"]
     assert lines["sequence gaps"] == ["2", "2"]
     assert "bad packets bad_cobs=1" in out
+    assert "pairs     40 as the daemon pairs them; held left 2, right 2;" in out
     assert "labels    38" in out
     assert "link DOWN" in out
     assert "complete (ends on a whole record)" in out
