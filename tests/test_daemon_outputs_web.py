@@ -52,8 +52,14 @@ class LiveView:
 
         self.loop.call_soon_threadsafe(call)
 
+    def watched(self, *devices: str) -> None:
+        """Until the server's process has told the daemon these devices have readers (the
+        daemon renders a device's frames only then)."""
+        indices = {self.output.devices.index(d) for d in devices}
+        assert self.output.front.wait_for(lambda f: indices <= f.watched, 10)
+
     def close(self) -> None:
-        asyncio.run_coroutine_threadsafe(self.output.close(), self.loop).result(5)
+        asyncio.run_coroutine_threadsafe(self.output.close(), self.loop).result(10)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(5)
         self.loop.close()
@@ -127,7 +133,7 @@ def test_two_devices_one_server_a_page_and_a_feed_each(
         assert (hello["device"], hello["devices"]) == ("a", ["a", "b"])  # the chooser's
         assert _event(feed_b)["device"] == "b"
         assert _event(feed_b)["state"] == "degraded"  # b's status, to b's new client
-        time.sleep(0.2)  # both clients registered before the frames go out
+        two.watched("a", "b")  # both clients registered before the frames go out
         for to_a, to_b in zip(preds[:3], preds[3:6], strict=True):
             two.send(to_a, device="a")
             two.send(to_b, device="b")
@@ -150,7 +156,7 @@ def test_a_lone_device_is_also_under_its_id(view: LiveView, preds: list[Predicti
     with urllib.request.urlopen(view.url + "devices/scotti/events", timeout=5) as feed:
         hello = _event(feed)
         assert (hello["device"], hello["devices"]) == ("scotti", ["scotti"])
-        time.sleep(0.2)
+        view.watched("scotti")
         view.send(preds[0])
         assert _event(feed)["seq"] == preds[0].seq
 
@@ -158,27 +164,26 @@ def test_a_lone_device_is_also_under_its_id(view: LiveView, preds: list[Predicti
 def test_stopping_with_a_client_behind_ends_its_feed(
     view: LiveView, preds: list[Prediction]
 ) -> None:
-    from scotti.daemon.outputs.web import CLIENT_QUEUE
-
-    sent = preds[: CLIENT_QUEUE + 2]
+    """Frames go out faster than the client reads, then the daemon stops: the feed ends
+    (the read returns), in order, with the newest frame last."""
 
     async def flood_then_stop() -> None:
-        for p in sent:  # on the loop, in one go: the client's queue fills before it reads
+        for p in preds:  # on the loop, in one go: the client has not read any of them
             view.output.prediction("scotti", p, 4.2)
-        await asyncio.sleep(0)  # the frames reach the queue; the client has not run yet
-        await view.output.close()  # the daemon stops now, with the client's queue full
+        await view.output.close()  # the daemon stops now, with the client behind
 
     with urllib.request.urlopen(view.url + "events", timeout=5) as feed:
         assert _event(feed)["type"] == "hello"
-        time.sleep(0.2)  # the client registered before the frames go out
-        asyncio.run_coroutine_threadsafe(flood_then_stop(), view.loop).result(5)
+        view.watched("scotti")  # the client registered before the frames go out
+        asyncio.run_coroutine_threadsafe(flood_then_stop(), view.loop).result(10)
         rest = feed.read()  # to the end of the stream: the server ended it
     seqs = [
         json.loads(e.strip().removeprefix(b"data: "))["seq"]
         for e in rest.split(b"\n\n")
         if e.strip()
     ]
-    assert seqs == [p.seq for p in sent[-(CLIENT_QUEUE - 1) :]]  # the newest, then the end
+    assert seqs[-1] == preds[-1].seq  # the newest, then the end
+    assert seqs == sorted(seqs)
 
 
 @pytest.mark.skipif(not (CHROMIUM and CHROMEDRIVER), reason="needs chromium and chromium-driver")

@@ -28,6 +28,7 @@ from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Final, Protocol
 
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.outputs import guard
 from scotti.daemon.outputs.fanout import Item, OutputThread
 
 if TYPE_CHECKING:
@@ -98,6 +99,18 @@ def require(module: str, what: str) -> None:
         raise OutputError(msg) from None
 
 
+def rules_of(settings: OutputSettings) -> guard.Rules:
+    """Who may connect to the Foxglove and web servers (``guard``), from ``[outputs]``."""
+    token = settings.token.get_secret_value() if settings.token is not None else None
+    return guard.Rules(
+        max_connections=settings.max_connections,
+        bound_host=settings.host,
+        allowed_hosts=settings.allowed_hosts,
+        allowed_origins=settings.allowed_origins,
+        token=token,
+    )
+
+
 class Outputs:
     """The outputs of one daemon run; ``prediction`` and ``status`` are called from the
     event loop and return at once."""
@@ -127,6 +140,7 @@ class Outputs:
         ``OutputError`` when one cannot start. ``metadata``: what a recording says made
         it (``recording_metadata``), the MCAP file's ``scotti`` record."""
         opened: list[Output] = []
+        rules = rules_of(settings)
         try:
             if settings.record_mcap is not None or settings.foxglove is not None:
                 require("foxglove", "--record-mcap / --foxglove")
@@ -139,6 +153,7 @@ class Outputs:
                         host=settings.host,
                         devices=devices,
                         metadata=metadata,
+                        rules=rules,
                     )
                 )
             if settings.lsl:
@@ -153,7 +168,8 @@ class Outputs:
             if settings.web is not None:
                 from scotti.daemon.outputs.web import WebOutput
 
-                opened.append(await WebOutput.start(settings.host, settings.web, devices))
+                web = await WebOutput.start(settings.host, settings.web, devices, rules)
+                opened.append(web)
         except BaseException:
             await cls(opened).close()  # no thread yet (no devices): closes at once
             raise

@@ -62,7 +62,8 @@ from scotti.daemon.frames.pipeline import Prediction
 from scotti.daemon.input.recording import RecordingError, new_file
 from scotti.daemon.mqtt import messages
 from scotti.daemon.mqtt.schemas import Status
-from scotti.daemon.outputs import OutputError, device_prefix
+from scotti.daemon.outputs import OutputError, device_prefix, guard
+from scotti.daemon.outputs.front_process import FrontProcess, listen
 from scotti.daemon.outputs.json_schema import foxglove_schema
 from scotti.firmware_protocol.session import LabelRecord
 from scotti.models.contract import ACTIONS, BONE_INDEX, FRAME_COLS, KEYPOINTS
@@ -217,6 +218,11 @@ class FoxgloveOutput:
     ``{time}``, ``{device}``, a directory; a fixed name that exists is refused);
     ``overwrite`` (``scotti session export --force``) replaces it instead.
     ``metadata``: the ``scotti`` record written first (model, sha256, settings).
+
+    Served live, clients connect to ``host:port`` through a gate of its own process
+    (``front.py``: ``guard``'s cap, Host, Origin and token, then every byte both ways);
+    the SDK's server itself listens on 127.0.0.1 at a port the gate alone is told.
+    ``rules``: who may connect (default ``guard.Rules()``).
     """
 
     name = "foxglove"
@@ -230,6 +236,7 @@ class FoxgloveOutput:
         overwrite: bool = False,
         devices: Sequence[str] = ("scotti",),
         metadata: Mapping[str, str] | None = None,
+        rules: guard.Rules | None = None,
     ) -> None:
         self.context = foxglove.Context()
         if mcap is not None and not overwrite:
@@ -242,20 +249,41 @@ class FoxgloveOutput:
         self.host = host
         self._writer: foxglove.mcap.MCAPWriter | None = None
         self._server: WebSocketServer | None = None
+        self.gate: FrontProcess | None = None
+        self._port: int | None = None
+        listener = listen(host, port, "--foxglove") if port is not None else None
         try:
             if mcap is not None:
                 self._writer = foxglove.open_mcap(
                     mcap, context=self.context, allow_overwrite=overwrite
                 )
-            if port is not None:
+            if listener is not None:
+                self._port = listener.getsockname()[1]
                 self._server = foxglove.start_server(
-                    name="scotti-daemon", host=host, port=port, context=self.context
+                    name="scotti-daemon", host="127.0.0.1", port=0, context=self.context
                 )
         except Exception as exc:  # the library's own errors: file exists, port in use
+            if listener is not None:
+                listener.close()
             self._stop_sinks()
             target = f"MCAP file {mcap}" if self._writer is None and mcap else f"port {port}"
             msg = f"cannot open {target}: {exc}"
             raise OutputError(msg) from None
+        if listener is not None and self._server is not None:
+            base = rules or guard.Rules()
+            rules = guard.Rules(
+                max_connections=base.max_connections,
+                bound_host=host,
+                allowed_hosts=base.allowed_hosts,
+                allowed_origins=base.allowed_origins,
+                token=base.token,
+            )
+            config = {"mode": "proxy", "upstream_port": self._server.port}
+            try:
+                self.gate = FrontProcess.start("foxglove", listener, rules, config)
+            except OutputError:
+                self._stop_sinks()
+                raise
         if metadata is not None:
             self.write_metadata("scotti", dict(metadata))
         self.devices = {
@@ -270,12 +298,18 @@ class FoxgloveOutput:
 
     @property
     def port(self) -> int | None:
-        return self._server.port if self._server is not None else None
+        """Where clients connect (the gate's), ``None`` when not served (or stopped)."""
+        return self._port if self._server is not None else None
+
+    @property
+    def counters(self) -> dict[str, Any]:
+        """The gate's: connections now, the cap, refusals by reason (empty when not live)."""
+        return dict(self.gate.counters) if self.gate is not None else {}
 
     def __str__(self) -> str:
         parts = [f"MCAP {self.mcap_path}"] if self.mcap_path else []
         if self._server is not None:
-            parts.append(f"Foxglove WebSocket ws://{self.host}:{self._server.port}")
+            parts.append(f"Foxglove WebSocket ws://{self.host}:{self._port}")
         if len(self.devices) > 1:
             parts.append(f"channels of {len(self.devices)} devices under /<id>/")
         return "foxglove: " + ", ".join(parts)
@@ -306,7 +340,12 @@ class FoxgloveOutput:
             self._writer.write_metadata(name, values)
 
     async def close(self) -> None:
-        self._stop_sinks()
+        gate, self.gate = self.gate, None
+        try:
+            if gate is not None:  # first: no client is served by a stopped server
+                await gate.close()
+        finally:
+            self._stop_sinks()
 
     def _stop_sinks(self) -> None:
         """Close the MCAP file and stop the server. The server stops even when the

@@ -95,6 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     out.add_argument("--lsl", action="store_true", default=None, help="Lab Streaming Layer")
     out.add_argument("--web", type=int, metavar="PORT", help="browser live view on PORT")
+    out.add_argument(
+        "--max-connections", type=int, metavar="N",
+        help="connections each of the Foxglove and web servers takes at a time (default 64)",
+    )  # fmt: skip
     p.add_argument(
         "--processes", type=int, metavar="N",
         help="share the [[devices]] among N worker processes (default 1; docs/performance.md)",
@@ -127,6 +131,7 @@ _CLI_FIELDS: dict[str, tuple[str | None, str]] = {
     "foxglove": ("outputs", "foxglove"),
     "lsl": ("outputs", "lsl"),
     "web": ("outputs", "web"),
+    "max_connections": ("outputs", "max_connections"),
     "log_level": (None, "log_level"),
     "processes": (None, "processes"),
 }
