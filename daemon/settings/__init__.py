@@ -240,6 +240,11 @@ class _TomlSource(PydanticBaseSettingsSource):
         except tomllib.TOMLDecodeError as exc:
             msg = f"config file {path}: {exc}"
             raise ConfigError(msg) from None
+        except UnicodeDecodeError as exc:  # TOML is UTF-8; tomllib lets this one through
+            msg = (
+                f"config file {path}: not UTF-8 (byte 0x{exc.object[exc.start]:02x} at {exc.start})"
+            )
+            raise ConfigError(msg) from None
         if "password" in data.get("mqtt", {}):
             msg = "mqtt.password: not allowed in the config file; use SCOTTI_MQTT_PASSWORD"
             raise ConfigError(msg + " or mqtt.password_file")

@@ -18,10 +18,19 @@ from pathlib import Path
 from typing import Annotated, Literal
 from urllib.parse import urlsplit
 
-from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SecretStr,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 from scotti.daemon.settings.checks import (
     ConfigError,
     check_device_id,
+    check_mqtt_string,
     check_topic_prefix,
     is_file,
     sanitise_device_id,
@@ -70,6 +79,12 @@ class MqttSettings(BaseModel):
     @classmethod
     def _prefix(cls, v: str) -> str:
         return check_topic_prefix(v)
+
+    @field_validator("client_id", "username")
+    @classmethod
+    def _mqtt_string(cls, v: str | None, info: ValidationInfo) -> str | None:
+        # Sent in CONNECT: one the broker refuses would fail every reconnect.
+        return None if v is None else check_mqtt_string(v, str(info.field_name))
 
     @field_validator("broker")
     @classmethod
