@@ -46,6 +46,9 @@ def sha256_of(path: Path) -> str:
 
 
 def open_session(path: Path, threads: int) -> ort.InferenceSession:
+    # Off before any session exists: a robot's host sends nothing about its model
+    # anywhere (onnxruntime's telemetry events; its builds for Windows emit them).
+    ort.disable_telemetry_events()
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1

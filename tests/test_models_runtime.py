@@ -340,3 +340,25 @@ def test_step_batch_gives_each_row_what_step_gives_it(
         step_rt.step_batch(x[:, :3], past)
     with pytest.raises(ModelError, match="needs the step graph"):
         window_rt.step_batch(x, past)
+
+
+def test_loading_a_model_turns_onnxruntime_telemetry_off(tiny_model_path: Path) -> None:
+    """onnxruntime keeps no readable telemetry state, so the call itself is watched: a
+    profile hook sees every C function the load calls, in this thread, unmocked."""
+    import sys
+
+    import onnxruntime as ort
+
+    called: list[object] = []
+
+    def watch(frame: object, event: str, arg: object) -> None:
+        if event == "c_call" and arg in (ort.disable_telemetry_events, ort.enable_telemetry_events):
+            called.append(arg)
+
+    sys.setprofile(watch)
+    try:
+        ScottiRuntime(tiny_model_path)
+    finally:
+        sys.setprofile(None)
+    assert called, "the model loaded without disable_telemetry_events()"
+    assert called[-1] is ort.disable_telemetry_events  # and nothing turned it back on
