@@ -7,10 +7,11 @@ overall and per action, next to a random baseline. ``--plots DIR`` writes the
 precision-margin curve and the confusion matrix as PNG files. ``--every K``
 scores every K-th prediction time only, through the window graph next to each
 model (NAME.window.onnx) in batches: a uniform sample for a fraction of the time.
-``--batch K`` (default 16) runs K segments of a session side by side in each
-step-graph call, the same predictions as frame by frame (``--batch 1``, the
-daemon's own window), in 73 % of the CPU time with the shipped model: the
-model's arithmetic, not the call, is most of a step (docs/performance.md).
+Every prediction is made one way, batched streaming: ``--batch K`` (default
+16) runs K segments of a session side by side in each step-graph call, the
+same predictions as the daemon's window frame by frame (``--batch 1``), in
+73 % of the CPU time with the shipped model: the model's arithmetic, not the
+call, is most of a step (docs/performance.md).
 
 A session without labels (a live recording) has nothing to score: the report
 says so in one line and gives what the model made of it (predictions, the
@@ -76,7 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="K",
         help=f"step K segments of each session in one call of the step graph, the same "
         f"predictions as frame by frame (default {BATCH}, fewer for short sessions; "
-        "1: frame by frame through the daemon's window)",
+        "1: frame by frame)",
     )
 
 
@@ -196,15 +197,9 @@ def _made_lines(report: dict[str, Any]) -> list[str]:
     if "step_ms_per_row" in report:
         row = report["step_ms_per_row"]
         lines.append(
-            f"  every prediction, streaming step graph on up to {row['largest_batch']} "
-            f"segments at a time: {row['mean']:.2f} ms per step row "
+            f"  every prediction, batched streaming (the step graph) on up to "
+            f"{row['largest_batch']} segments at a time: {row['mean']:.2f} ms per step row "
             "(throughput, not streaming latency)"
-        )
-    elif report["graph"] == "step":
-        step = report["step_ms"]
-        lines.append(
-            f"  every prediction, streaming step graph: median {step['median']:.2f} ms, "
-            f"p99 {step['p99']:.2f} ms per step"
         )
     else:
         w = report["window_ms_per_prediction"]

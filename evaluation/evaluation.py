@@ -14,7 +14,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet
 from scotti.evaluation.replay import (
@@ -145,7 +144,7 @@ def _report(
         "sessions": [r.summary() | {"metrics": task_metrics(r.scores)} for r in replays],
         "subjects": sorted({r.subject for r in replays}),
     }
-    if window_graph is None and any(r.step_batches for r in replays):
+    if window_graph is None:
         # Segments side by side: throughput per step-graph row (warm-up rows included).
         batches = [b for r in replays for b in r.step_batches]
         rows = sum(n for _, n in batches)
@@ -153,14 +152,7 @@ def _report(
             "mean": sum(ms for ms, _ in batches) / rows if rows else float("nan"),
             "rows": rows,
             "batches": len(batches),
-            "largest_batch": max(n for _, n in batches),
-        }
-    elif window_graph is None:
-        steps = np.array([ms for r in replays for ms in r.step_ms], dtype=np.float64)
-        report["step_ms"] = {
-            "median": float(np.median(steps)) if steps.size else float("nan"),
-            "p99": float(np.percentile(steps, 99)) if steps.size else float("nan"),
-            "steps": int(steps.size),
+            "largest_batch": max((n for _, n in batches), default=0),
         }
     else:
         report["model"]["window_graph"] = {

@@ -9,10 +9,12 @@ the frame after the newest one in its window. The first T labelled frames of
 a session therefore have no prediction (the window warms up on T frames and
 the first prediction is for frame T).
 
-``batch=K`` > 1 (the default) makes the same predictions K segments of the
-session at a time, one step-graph call per time step for all of them
-(``evaluation.segments``); ``batch=1`` steps the daemon's own ``Window`` frame
-by frame. ``every=K`` > 1 scores every K-th prediction time instead, through
+The model runs one way for every prediction: batched streaming
+(``evaluation.segments``), the step graph with its embedding cache on K
+segments of the session side by side (``batch=K``, default 16; ``batch=1``
+is frame by frame), the predictions the daemon's window makes
+(tests/test_evaluation.py compares them with the daemon's own pipeline).
+``every=K`` > 1 scores every K-th prediction time instead, through
 the window graph in batches (``evaluation.sampling``): same decoding,
 assembly, pairing and restarts, a fraction of the model time.
 
@@ -21,7 +23,6 @@ No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
 
 from __future__ import annotations
 
-import time
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -29,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scotti.daemon.inference.window import Window
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet, align
 from scotti.evaluation.sampling import Prediction, SampledTrack
@@ -58,7 +58,6 @@ class SessionReplay:
     degraded_pairs: int = 0  # pairs with a held, filled or patched foot
     # pairs with a foot zero-filled: silent past the hold (an insole off, or a one-foot file)
     silent_pairs: dict[str, int] = field(default_factory=lambda: {"left": 0, "right": 0})
-    step_ms: list[float] = field(default_factory=list, repr=False)  # step graph, batch 1
     step_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)  # (ms, rows)
     window_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)
     model_cpu_s: float = 0.0  # CPU time in the model's graph (this thread), for the rate
@@ -133,11 +132,9 @@ def replay_session_models(
     clock = PairSeq()
     with SessionReader(path) as reader:
         subject = _subject_of(reader.header.subject) or Path(path).stem
-        tracks: list[_Track | SampledTrack | SegmentTrack]
-        if every == 1 and batch > 1:
+        tracks: list[SampledTrack | SegmentTrack]
+        if every == 1:
             tracks = [SegmentTrack(r, SessionReplay(str(path), subject), batch) for r in runtimes]
-        elif every == 1:
-            tracks = [_Track(Window(r), SessionReplay(str(path), subject)) for r in runtimes]
         else:
             graphs = window_graphs(runtimes) if windows is None else windows
             tracks = [SampledTrack(w, every, SessionReplay(str(path), subject)) for w in graphs]
@@ -183,36 +180,6 @@ def actions_published(made: Sequence[Prediction]) -> Counter[str]:
     counts: Counter[str] = Counter(dict.fromkeys(ACTIONS, 0))
     counts.update(ACTIONS[int(np.argmax(m.probs))] for m in made if withheld(m.flags) is None)
     return counts
-
-
-@dataclass
-class _Track:
-    """One model's window over the shared pairs, and what it predicted."""
-
-    window: Window
-    out: SessionReplay
-    made: list[Prediction] = field(default_factory=list)
-
-    def take(self, pair: PairedFrame, ext: int | None) -> None:
-        if pair.restart:
-            self.window.restart()
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        result = self.window.push(pair.counts).result
-        self.out.step_ms.append((time.perf_counter() - start) * 1e3)
-        self.out.model_cpu_s += time.thread_time() - start_cpu
-        self.out.pairs += 1
-        self.out.degraded_pairs += bool(pair.flags)
-        if result is not None and ext is not None:
-            self.made.append(
-                Prediction(ext + 1, result.pose, result.action_probs, result.progress, result.flags)
-            )
-
-    @property
-    def restarts(self) -> int:
-        return self.window.restarts
-
-    def finish(self) -> None:
-        """Nothing is pending: every step ran as its pair came."""
 
 
 def _subject_of(subject: dict[str, Any] | None) -> str | None:

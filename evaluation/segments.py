@@ -1,7 +1,7 @@
-"""Batched segment replay: every prediction of the streaming step graph, K at a time.
+"""Batched streaming: how evaluation runs the model for every prediction, K segments at a time.
 
-The sequential replay (``replay._Track``) runs one step-graph call per paired
-frame, batch 1. Here the paired frames of a session are held (raw counts,
+The daemon's window runs one step-graph call per paired frame. Here the
+paired frames of a session are held (raw counts,
 ``CHUNK_FRAMES`` at most at a time) and cut into K contiguous segments; one
 onnxruntime call per time step then runs the step of all K segments at once,
 on the graph's batch axis, each segment with its own embedding cache.
@@ -18,8 +18,9 @@ nothing: the first T-1 frames after it are warm-up there as in the daemon.
 
 The warm-up costs T-1 extra steps per segment, so a segment is at least
 ``MIN_SEGMENT_FRAMES`` long (under 10 % extra); a short session gets fewer
-segments, down to one. ``tests/test_evaluation_segments.py`` compares every
-prediction and flag with the sequential replay on a real exported model.
+segments, down to one (``batch=1``: frame by frame). ``tests/test_evaluation_segments.py``
+compares every prediction and flag with the daemon's own window stepped frame by
+frame, on a real exported model.
 """
 
 from __future__ import annotations

@@ -227,7 +227,7 @@ def test_every_k_samples_the_streaming_predictions_through_the_window_graph(
         np.testing.assert_allclose(got.pose, want.pose, atol=1e-4)
         np.testing.assert_allclose(got.probs, want.probs, atol=1e-4)
         assert got.progress == pytest.approx(want.progress, abs=1e-4)
-    assert sampled.step_ms == []  # the step graph never ran
+    assert sampled.step_batches == []  # the step graph never ran
     assert sum(n for _, n in sampled.window_batches) == sampled.predictions
 
 
@@ -238,7 +238,7 @@ def test_cli_every_reports_what_was_done(
     assert main(["eval", str(session), "--model", model, "--json", "--every", "4"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert (report["every"], report["graph"]) == (4, "window")
-    assert "step_ms" not in report
+    assert "step_ms_per_row" not in report
     assert report["window_ms_per_prediction"]["windows"] == report["metrics"]["frames"]
     assert report["metrics"]["frames"] == (FRAMES - 40 + 1) // 4
     assert report["model"]["window_graph"]["path"].endswith("scotti-tiny.window.onnx")
@@ -246,7 +246,8 @@ def test_cli_every_reports_what_was_done(
     assert main(["eval", str(session), "--model", model, "--json", "--batch", "1"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert (report["every"], report["graph"]) == (1, "step")
-    assert report["step_ms"]["steps"] == FRAMES
+    assert report["step_ms_per_row"]["rows"] == FRAMES
+    assert report["step_ms_per_row"]["largest_batch"] == 1
     assert main(["eval", str(session), "--model", model, "--json"]) == 0  # batched segments
     report = json.loads(capsys.readouterr().out)
     assert (report["every"], report["graph"]) == (1, "step")

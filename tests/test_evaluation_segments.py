@@ -1,5 +1,6 @@
-"""Batched segment replay (``evaluation.segments``): K segments of a session in each
-step-graph call make exactly the predictions of the frame-by-frame replay."""
+"""Batched streaming (``evaluation.segments``): K segments of a session in each
+step-graph call make exactly the predictions of the daemon's own window stepped frame
+by frame."""
 
 from __future__ import annotations
 
@@ -10,9 +11,13 @@ import numpy as np
 import onnx
 import pytest
 from scotti.cli.main import main
+from scotti.daemon.inference.window import Window
 from scotti.evaluation import segments
 from scotti.evaluation.evaluation import SessionReplay, evaluate_sessions, replay_session
+from scotti.evaluation.frames import Prediction
+from scotti.firmware_protocol.frame_path import PairSeq, stream_pairs
 from scotti.firmware_protocol.packets import Foot
+from scotti.firmware_protocol.session import PacketRecord, SessionReader
 from scotti.models.contract import MAX_COUNT, META_OOD
 from scotti.models.input_checks import OUT_OF_RANGE, UNLOADED
 from scotti.models.ood import UNFAMILIAR, OodStats, flag_shares
@@ -66,17 +71,35 @@ def _counts_pair(i: int) -> np.ndarray:
     return np.concatenate([_counts(Foot.LEFT, i, i), _counts(Foot.RIGHT, i, i)], axis=1)
 
 
-def assert_same_replay(batched: SessionReplay, sequential: SessionReplay) -> None:
-    assert batched.summary() == sequential.summary()
-    assert [m.ext for m in batched.made] == [m.ext for m in sequential.made]
-    assert [m.flags for m in batched.made] == [m.flags for m in sequential.made]
-    for ours, theirs in zip(batched.made, sequential.made, strict=True):
+def frame_by_frame(path: Path, runtime: ScottiRuntime) -> tuple[list[Prediction], int]:
+    """The daemon's own ``Window`` stepped pair by pair: its predictions and restarts."""
+    with SessionReader(path) as reader:
+        chunks = [(r.t_ns, r.data) for r in reader if isinstance(r, PacketRecord)]
+    window, seq, made = Window(runtime), PairSeq(), []
+    for pair in stream_pairs(chunks):
+        ext = seq.of(pair)
+        if pair.restart:
+            window.restart()
+        result = window.push(pair.counts).result
+        if result is not None and ext is not None:
+            made.append(
+                Prediction(ext + 1, result.pose, result.action_probs, result.progress, result.flags)
+            )
+    return made, window.restarts
+
+
+def assert_same_replay(batched: SessionReplay, path: Path, runtime: ScottiRuntime) -> None:
+    made, restarts = frame_by_frame(path, runtime)
+    assert batched.window_restarts == restarts
+    assert [m.ext for m in batched.made] == [m.ext for m in made]
+    assert [m.flags for m in batched.made] == [m.flags for m in made]
+    for ours, theirs in zip(batched.made, made, strict=True):
         np.testing.assert_allclose(ours.pose, theirs.pose, atol=1e-5)
         np.testing.assert_allclose(ours.probs, theirs.probs, atol=1e-5)
         assert ours.progress == pytest.approx(theirs.progress, abs=1e-5)
-    assert flag_shares([m.flags for m in batched.made]) == flag_shares(
-        [m.flags for m in sequential.made]
-    )
+    assert flag_shares([m.flags for m in batched.made]) == flag_shares([m.flags for m in made])
+    one = replay_session(path, runtime, batch=1)  # one segment: the same counts
+    assert batched.summary() == one.summary()
 
 
 @pytest.mark.parametrize("batch", [3, 7, 64])
@@ -89,13 +112,11 @@ def test_segments_predict_what_frame_by_frame_predicts(
     silent = {(k, foot) for k in range(150, 170) for foot in (0, 1)}
     path = write_session(tmp_path / "gap.ses", 301, first_seq=65_500, drop_foot=silent)
     runtime = ScottiRuntime(tiny_model_path)
-    sequential = replay_session(path, runtime, batch=1)
     batched = replay_session(path, runtime, batch=batch)
-    assert sequential.window_restarts == 1
-    assert len(sequential.made) > 200
-    assert_same_replay(batched, sequential)
+    assert batched.window_restarts == 1
+    assert len(batched.made) > 200
+    assert_same_replay(batched, path, runtime)
     assert max(n for _, n in batched.step_batches) == batch  # it did run K segments at once
-    assert not sequential.step_batches
 
 
 @pytest.mark.parametrize("frames", [25, 39, 40, 41, 55])
@@ -105,10 +126,9 @@ def test_sessions_around_one_window_long(
 ) -> None:
     path = write_session(tmp_path / "short.ses", frames)
     runtime = ScottiRuntime(tiny_model_path)
-    sequential = replay_session(path, runtime, batch=1)
     batched = replay_session(path, runtime, batch=8)
-    assert len(sequential.made) == max(0, frames - runtime.window + 1)
-    assert_same_replay(batched, sequential)
+    assert len(batched.made) == max(0, frames - runtime.window + 1)
+    assert_same_replay(batched, path, runtime)
 
 
 @pytest.mark.usefixtures("small_segments")
@@ -116,10 +136,9 @@ def test_flags_count_exactly_as_frame_by_frame(tmp_path: Path, calibrated: Scott
     path = write_synthetic_session(
         tmp_path / "flags.ses", frames=FLAG_FRAMES, counts_of=_counts
     ).path
-    sequential = replay_session(path, calibrated, batch=1)
     batched = replay_session(path, calibrated, batch=6)
-    assert_same_replay(batched, sequential)
-    flags = [m.flags for m in sequential.made]
+    assert_same_replay(batched, path, calibrated)
+    flags = [m.flags for m in batched.made]
     for flag in (UNLOADED, OUT_OF_RANGE, UNFAMILIAR):  # each one both set and not
         assert 0 < sum(flag in f for f in flags) < len(flags), flag
 
@@ -132,7 +151,7 @@ def test_a_long_session_keeps_its_default_segments_long(
     runtime = ScottiRuntime(tiny_model_path)
     batched = replay_session(path, runtime)
     assert max(n for _, n in batched.step_batches) == 2
-    assert_same_replay(batched, replay_session(path, runtime, batch=1))
+    assert_same_replay(batched, path, runtime)
 
 
 @pytest.mark.usefixtures("small_segments")
@@ -150,7 +169,7 @@ def test_cli_batch_reports_the_same_scores(
     assert "frames per CPU s" in run.err
     assert five["rate"]["paired_frames"] == one["rate"]["paired_frames"] == 150
     assert five["step_ms_per_row"]["largest_batch"] == 5
-    assert "step_ms_per_row" not in one
+    assert one["step_ms_per_row"]["largest_batch"] == 1
     for key in ("metrics", "per_action", "confusion", "ood", "sessions"):
         assert _rounded(five[key]) == _rounded(one[key]), key
     assert main(["eval", str(path), "--model", model, "--batch", "5"]) == 0
@@ -181,11 +200,11 @@ def test_a_session_cut_mid_record_replays_alike(tmp_path: Path, tiny_model_path:
     cut = tmp_path / "cut.ses"
     cut.write_bytes(path.read_bytes()[: len(path.read_bytes()) * 2 // 3 + 5])
     runtime = ScottiRuntime(tiny_model_path)
-    sequential = replay_session(cut, runtime, batch=1)
-    assert 60 < sequential.pairs < 200
-    assert_same_replay(replay_session(cut, runtime, batch=4), sequential)
+    batched = replay_session(cut, runtime, batch=4)
+    assert 60 < batched.pairs < 200
+    assert_same_replay(batched, cut, runtime)
     report = evaluate_sessions([cut], runtime, batch=4)
-    assert report["rate"]["paired_frames"] == sequential.pairs
+    assert report["rate"]["paired_frames"] == batched.pairs
 
 
 def _rounded(value: object) -> object:
