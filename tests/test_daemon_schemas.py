@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 from pathlib import Path
 from typing import Any, get_args
 
@@ -127,8 +128,16 @@ def test_doc_generator_replaces_only_its_section() -> None:
     assert out.startswith("# Title\n\nprose\n\n")
     assert out.endswith("\n\nafter\n")
     assert "stale section" not in out  # ("old" is in "threshold")
-    assert '"title": "Pose"' in out
+    assert "| `pose` | [pose.schema.json](schemas/pose.schema.json) | 2 |" in out
     assert schemas.render_doc(out) == out
+
+
+def test_the_doc_links_every_schema_file_the_generator_writes(tmp_path: Path) -> None:
+    files = schemas.generated_files(tmp_path)
+    written = {p.relative_to(tmp_path).as_posix() for p in files if p.suffix == ".json"}
+    linked = set(re.findall(r"\]\((schemas/[^)]+)\)", schemas.render_doc_section()))
+    assert linked == written
+    assert len(linked) == len(schemas.json_schemas())  # one file per topic, none shared
 
 
 def test_check_mode_reports_stale_files(tmp_path: Path) -> None:

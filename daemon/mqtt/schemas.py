@@ -12,8 +12,8 @@ went up by one when the model learnt to say what it does not know: the stamp's
 ``unfamiliar_score``, and ``withheld`` on ``action`` and ``progress``.
 
 Run ``python -m scotti.daemon.mqtt.schemas --write`` to regenerate
-``docs/schemas/*.schema.json`` and the generated section of ``docs/mqtt.md``;
-``--check`` fails when the committed files differ.
+``docs/schemas/*.schema.json`` and the table in ``docs/mqtt.md`` that links
+them; ``--check`` fails when the committed files differ.
 """
 
 from __future__ import annotations
@@ -337,13 +337,22 @@ def json_schemas() -> dict[str, str]:
     return {t: json.dumps(m.model_json_schema(), indent=2) + "\n" for t, m in models.items()}
 
 
+def schema_file_name(topic: str) -> str:
+    """The file under ``docs/schemas/`` that holds ``topic``'s schema."""
+    return f"{topic.replace('/', '.')}.schema.json"
+
+
 def render_doc_section() -> str:
-    blocks = [BEGIN, ""]
+    """One row per topic: a link to its schema file, its version and its fields."""
+    lines = [BEGIN, "", "| topic | JSON Schema | schema_version | fields |", "|---|---|---|---|"]
     for topic, text in json_schemas().items():
-        blocks += [f"### `{topic}`", "", "<details><summary>JSON Schema</summary>", ""]
-        blocks += ["```json", text.rstrip("\n"), "```", "", "</details>", ""]
-    blocks.append(END)
-    return "\n".join(blocks)
+        properties = json.loads(text)["properties"]
+        version = properties.get("schema_version", {}).get("const", "-")
+        fields = ", ".join(f"`{name}`" for name in properties if name != "schema_version")
+        name = schema_file_name(topic)
+        lines.append(f"| `{topic}` | [{name}](schemas/{name}) | {version} | {fields or '-'} |")
+    lines += ["", END]
+    return "\n".join(lines)
 
 
 def render_doc(current: str) -> str:
@@ -359,10 +368,7 @@ def render_doc(current: str) -> str:
 
 def generated_files(docs: Path) -> dict[Path, str]:
     """Every generated file and its expected content."""
-    files = {
-        docs / "schemas" / f"{t.replace('/', '.')}.schema.json": s
-        for t, s in json_schemas().items()
-    }
+    files = {docs / "schemas" / schema_file_name(t): s for t, s in json_schemas().items()}
     mqtt_md = docs / "mqtt.md"
     current = mqtt_md.read_text(encoding="utf-8") if mqtt_md.exists() else "# MQTT API\n"
     files[mqtt_md] = render_doc(current)
