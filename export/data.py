@@ -36,9 +36,9 @@ from typing import Any
 
 import numpy as np
 from scotti.export.errors import ExportError
-from scotti.firmware_protocol import pairing as repair
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.frame_path import FramePath, PairSeq, stream_pairs
+from scotti.firmware_protocol.packets import DEFAULT_COLS, DEFAULT_ROWS
 from scotti.firmware_protocol.pairing import FILLED, HELD, PATCHED, WHOLE, PairedFrame
 from scotti.firmware_protocol.session import LabelRecord, find_session_files, read_session
 from scotti.firmware_protocol.wrap import seq_delta
@@ -111,11 +111,13 @@ def decode_session(path: Path) -> SessionArrays:
     """Decode one labelled session file into arrays (no cache)."""
     try:
         session = read_session(path)
-    except (SessionError, OSError) as exc:
+    except SessionError as exc:  # names the file (and the place) already
+        raise TrainingDataError(str(exc)) from None
+    except OSError as exc:
         msg = f"{path}: {exc}"
         raise TrainingDataError(msg) from None
     geometry = (session.header.rows, session.header.cols)
-    if geometry != (repair.DEFAULT_ROWS, repair.DEFAULT_COLS):
+    if geometry != (DEFAULT_ROWS, DEFAULT_COLS):
         msg = f"{path}: {geometry[0]} x {geometry[1]} frames; the model takes 32 x 22"
         raise TrainingDataError(msg)
     frame_path = FramePath()

@@ -190,7 +190,6 @@ def test_the_repair_rules_are_the_model_contract_s() -> None:
     assert rules.FRAME_RATE_HZ == contract.FRAME_RATE_HZ
     assert rules.HOLD_FRAMES == contract.SILENT_FOOT_HOLD_FRAMES
     assert rules.RESTART_GAP_FRAMES == contract.WINDOW_RESTART_GAP_FRAMES
-    assert (rules.DEFAULT_ROWS, rules.DEFAULT_COLS) == (FRAME_ROWS, FRAME_COLS)
 
 
 def test_a_short_gap_of_both_feet_is_bridged_a_long_one_restarts() -> None:
