@@ -31,10 +31,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from common import ExperimentError, fmt, table, utc_now
+from common import ExperimentError, fmt, table, utc_now, write_section
 from configs import CONFIGS, window_of
 from measure import describe
-from partition_table import check_held_out, pairs, report_of, run_lines, write_section
+from partition_table import check_held_out, pairs, report_of, run_lines
 from tables_doc import METRICS
 
 SECTION = "archs"  # the doc's <!-- archs:begin --> ... <!-- archs:end --> lines

@@ -15,6 +15,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from common import table
+
 VAL_KEYS = ("loss", "mpjpe_mm", "action_accuracy", "progress_mse", "app")
 # The options of export/train.py's TrainOptions a reader needs to train the same model.
 RECIPE_KEYS = (
@@ -89,19 +91,26 @@ def training_markdown(block: dict[str, Any] | None) -> list[str]:
         f"{block['train_seconds'] / 60:.0f} min of training on this CPU "
         "(time of the epochs after any resume).",
         "",
-        "| epoch | train loss | val loss | val MPJPE (mm) | val accuracy | val progress MSE "
-        "| val APP |",
-        "|---|---|---|---|---|---|---|",
     ]
+    rows = []
     for e in block["epochs"]:
         v = e["val"]
         if v["loss"] is None:
-            lines.append(f"| {e['epoch']} | {e['train_loss']:.4f} | - | - | - | - | - |")
+            rows.append([str(e["epoch"]), f"{e['train_loss']:.4f}", *["-"] * 5])
             continue
-        lines.append(
-            f"| {e['epoch']} | {e['train_loss']:.4f} | {v['loss']:.4f} | {v['mpjpe_mm']:.1f} | "
-            f"{100 * v['action_accuracy']:.2f} % | {v['progress_mse']:.4f} | {v['app']:.4f} |"
+        rows.append(
+            [
+                str(e["epoch"]),
+                f"{e['train_loss']:.4f}",
+                f"{v['loss']:.4f}",
+                f"{v['mpjpe_mm']:.1f}",
+                f"{100 * v['action_accuracy']:.2f} %",
+                f"{v['progress_mse']:.4f}",
+                f"{v['app']:.4f}",
+            ]
         )
+    header = ["epoch", "train loss", "val loss", "val MPJPE (mm)", "val accuracy"]
+    lines += table([*header, "val progress MSE", "val APP"], rows)
     if block.get("recipe"):
         lines += ["", f"Recipe (`scotti train` options): {recipe_line(block['recipe'])}."]
     if block.get("command"):

@@ -195,10 +195,31 @@ def fmt(values: Sequence[float], digits: int, scale: float = 1.0) -> str:
     return f"{mean:.{digits}f} ± {sd:.{digits}f}"
 
 
-def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+# --- writing docs ---------------------------------------------------------------
+# Every driver that writes into docs/ does it through these: a markdown table, and
+# the text between a doc's ``<!-- NAME:begin -->`` and ``<!-- NAME:end -->`` lines.
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]], align: str = "") -> list[str]:
+    """A markdown table's lines; ``align`` has an ``r`` for each right-aligned column."""
+    rule = "".join("---:|" if a == "r" else "---|" for a in align.ljust(len(header), "l"))
+    lines = ["| " + " | ".join(header) + " |", "|" + rule]
     lines += ["| " + " | ".join(row) + " |" for row in rows]
     return lines
+
+
+def write_between_markers(doc: Path, text: str, begin: str, end: str) -> None:
+    """Replace what stands between DOC's ``begin`` and ``end`` lines with ``text``."""
+    content = doc.read_text()
+    start, stop = content.find(begin), content.find(end)
+    if start < 0 or stop < start:
+        raise ExperimentError(f"{doc}: no {begin} ... {end} section to write into")
+    doc.write_text(content[: start + len(begin)] + "\n" + text + content[stop:])
+
+
+def write_section(doc: Path, text: str, section: str) -> None:
+    """Replace what stands between DOC's ``<!-- SECTION:begin/end -->`` lines."""
+    write_between_markers(doc, text, f"<!-- {section}:begin -->", f"<!-- {section}:end -->")
 
 
 def read_json(path: Path) -> dict[str, Any]:

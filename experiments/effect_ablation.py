@@ -28,8 +28,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from common import RUNS, ExperimentError, run, scotti_command, table, utc_now
-from partition_table import write_between_markers
+from common import RUNS, ExperimentError, run, scotti_command, table, utc_now, write_between_markers
 
 BEGIN, END = "<!-- ablation:begin -->", "<!-- ablation:end -->"
 CORPUS_SEED = 1  # data/corpus7/realistic: scotti sim corpus --seed 1

@@ -20,8 +20,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from common import ExperimentError, pairs, table, utc_now
-from partition_table import write_section
+from common import ExperimentError, pairs, table, utc_now, write_section
 
 HEADER = (
     "run", "epoch", "train loss", "val loss", "val accuracy", "val progress MSE", "val APP",

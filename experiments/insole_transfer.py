@@ -38,8 +38,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from common import ROOT, ExperimentError, run, scotti_command, table, utc_now
-from partition_table import write_between_markers
+from common import ROOT, ExperimentError, run, scotti_command, table, utc_now, write_between_markers
 from scotti.export.sensor_transfer import OURS, ForeignSensor, cell_layouts, draw_sensor, render
 from scotti.export.sensor_transfer import with_curve as curve
 

@@ -37,9 +37,10 @@ from common import (
     scotti_command,
     table,
     utc_now,
+    write_between_markers,
 )
 from measure import describe
-from partition_table import check_held_out, load_report, pairs, write_between_markers
+from partition_table import check_held_out, load_report, pairs
 from scotti.models.runtime import window_graph_for
 from tables_doc import METRICS
 

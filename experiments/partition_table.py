@@ -36,10 +36,21 @@ from pathlib import Path
 from typing import Any
 
 from card_training import training_block
-from common import ROOT, ExperimentError, fmt, from_root, pairs, table, utc_now
+from common import (
+    ROOT,
+    ExperimentError,
+    fmt,
+    from_root,
+    pairs,
+    table,
+    utc_now,
+    write_section,
+)
 from tables_doc import METRICS, per_action, plot_confusion, plot_curves, table1
 
-BEGIN, END = "<!-- partitions:begin -->", "<!-- partitions:end -->"
+SECTION = "partitions"  # the doc's <!-- partitions:begin --> ... :end --> lines
+BEGIN, END = f"<!-- {SECTION}:begin -->", f"<!-- {SECTION}:end -->"
+
 FLAGS = ("unloaded", "out_of_range", "unfamiliar")
 
 
@@ -180,19 +191,6 @@ def markdown(
     return "\n".join(lines) + "\n"
 
 
-def write_between_markers(doc: Path, text: str, begin: str = BEGIN, end: str = END) -> None:
-    content = doc.read_text()
-    start, stop = content.find(begin), content.find(end)
-    if start < 0 or stop < start:
-        raise ExperimentError(f"{doc}: no {begin} ... {end} section to write into")
-    doc.write_text(content[: start + len(begin)] + "\n" + text + content[stop:])
-
-
-def write_section(doc: Path, text: str, section: str) -> None:
-    """Replace what stands between DOC's ``<!-- SECTION:begin/end -->`` lines (``--section``)."""
-    write_between_markers(doc, text, f"<!-- {section}:begin -->", f"<!-- {section}:end -->")
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python experiments/partition_table.py",
@@ -203,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", action="append", default=[], metavar="NAME=RUN_DIR")
     parser.add_argument("--pick", default="", help="the model whose path contains this")
     parser.add_argument("--write", type=Path, help="replace the marked section of this doc")
-    parser.add_argument("--section", default="partitions", help="which marked section of --write")
+    parser.add_argument("--section", default=SECTION, help="which marked section of --write")
     parser.add_argument("--img", type=Path, help="draw the confusion matrix and curves here")
     parser.add_argument(
         "--clean",

@@ -36,8 +36,8 @@ from typing import Any, Final
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import ROOT, ExperimentError, run, scotti_command
-from partition_table import write_between_markers
+from common import ROOT, ExperimentError, run, scotti_command, write_between_markers
+from common import table as markdown_table
 
 REALDATA = ROOT.parent / "shared" / "realdata"
 WORK = ROOT / "data" / "realdata"
@@ -168,39 +168,39 @@ def _pct(value: float | None) -> str:
 def table(recordings: list[Recording], rows: list[dict[str, Any]], command: str) -> str:
     by_file = {r.name: r for r in recordings}
     models = list(dict.fromkeys(r["model"] for r in rows))
-    lines = [
-        f"Written by `{command}` on {time.strftime('%Y-%m-%d')}.",
-        "",
-        "| file | sensor | does | model | windows | walking | standing | out_of_range "
-        "| unfamiliar | confident wrong | of which unflagged | read as (most) |",
-        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
-    ]
+    header = ["file", "sensor", "does", "model", "windows", "walking", "standing"]
+    header += ["out_of_range", "unfamiliar", "confident wrong", "of which unflagged"]
+    per_file = []
     for row in rows:
         rec = by_file[row["file"]]
         does = rec.activity + (" (one foot)" if rec.one_foot else "")
         if rec.standing:
             does += ", stands first"
         top = sorted(row.get("actions", {}).items(), key=lambda kv: -kv[1])[:2]
-        read = ", ".join(f"{a} {n}" for a, n in top)
-        lines.append(
-            f"| {row['file']} | {rec.sensor} | {does} | {row['model']} | {row['predictions']} "
-            f"| {_pct(row.get('walking'))} | {_pct(row.get('standing'))} "
-            f"| {_pct(row.get('out_of_range'))} | {_pct(row.get('unfamiliar'))} "
-            f"| {_pct(row.get('confident_wrong'))} | {_pct(row.get('confident_wrong_unflagged'))} "
-            f"| {read} |"
+        shares = ["walking", "standing", "out_of_range", "unfamiliar", "confident_wrong"]
+        per_file.append(
+            [row["file"], rec.sensor, does, row["model"], str(row["predictions"])]
+            + [_pct(row.get(k)) for k in [*shares, "confident_wrong_unflagged"]]
+            + [", ".join(f"{a} {n}" for a, n in top)]
         )
+    lines = [f"Written by `{command}` on {time.strftime('%Y-%m-%d')}.", ""]
+    lines += markdown_table([*header, "read as (most)"], per_file, "llllrrrrrrrl")
     lines += ["", "Pooled over the files (both feet present), per model:", ""]
-    lines += ["| model | walking | standing | unfamiliar | confident wrong | unflagged |"]
-    lines += ["|---|---:|---:|---:|---:|---:|"]
+    pooled = []
     for model in models:
         mine = [r for r in rows if r["model"] == model and not by_file[r["file"]].one_foot]
-        lines.append(
-            f"| {model} | {_pooled(mine, 'walking', 'walking_windows')} "
-            f"| {_pooled(mine, 'standing', 'standing_windows')} "
-            f"| {_pooled(mine, 'unfamiliar', 'predictions')} "
-            f"| {_pooled(mine, 'confident_wrong', 'predictions')} "
-            f"| {_pooled(mine, 'confident_wrong_unflagged', 'predictions')} |"
+        pooled.append(
+            [
+                model,
+                _pooled(mine, "walking", "walking_windows"),
+                _pooled(mine, "standing", "standing_windows"),
+                _pooled(mine, "unfamiliar", "predictions"),
+                _pooled(mine, "confident_wrong", "predictions"),
+                _pooled(mine, "confident_wrong_unflagged", "predictions"),
+            ]
         )
+    header = ["model", "walking", "standing", "unfamiliar", "confident wrong", "unflagged"]
+    lines += markdown_table(header, pooled, "lrrrrr")
     return "\n".join(lines) + "\n"
 
 

@@ -28,8 +28,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from common import ExperimentError, fmt, table, utc_now
-from partition_table import check_held_out, pairs, report_of, run_lines, write_section
+from common import ExperimentError, fmt, table, utc_now, write_section
+from partition_table import check_held_out, pairs, report_of, run_lines
 from tables_doc import METRICS, ROW_NAMES
 
 PER_SUBJECT = ("mpjpe_mm", "action_accuracy", "progress_mse", "app")

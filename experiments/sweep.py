@@ -14,8 +14,9 @@ two threads, against recomputing the whole window, measured once per config
 and precision on the first partition's model (weights do not change it);
 FLOPs come from the ONNX graphs. ``--ship`` then ships the first partition's
 model of the most accurate config whose streaming step stays under 10 ms p99
-on one thread as models/scotti-default.*. Resumable: a second call continues
-unfinished training and reuses finished results.
+on one thread as models/scotti-default.* (through scripts/ship_default.py).
+Resumable: a second call continues unfinished training and reuses finished
+results.
 """
 
 from __future__ import annotations
@@ -315,7 +316,7 @@ def ship(
     )
     cmd = [
         sys.executable,
-        str(HERE / "ship_default.py"),
+        str(ROOT / "scripts" / "ship_default.py"),
         str(group / "models" / f"{name}-{lead.name}.onnx"),  # NAME.onnx; --int8 picks the copy
         *(["--int8"] if choice["precision"] == "int8" else []),
     ]

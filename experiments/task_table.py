@@ -30,8 +30,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from common import ExperimentError, fmt, mean_sd, table, utc_now
-from partition_table import check_held_out, load_report, pairs, run_lines, write_section
+from common import ExperimentError, fmt, mean_sd, table, utc_now, write_section
+from partition_table import check_held_out, load_report, pairs, run_lines
 from tables_doc import METRICS, ROW_NAMES, TASK_OF
 
 SECTION = "tasks"

@@ -1,12 +1,12 @@
 """Ship an exported model as the daemon's default: models/scotti-default.* with its card.
 
-    python experiments/ship_default.py runs/X/models/NAME.onnx [--int8] \\
+    python scripts/ship_default.py runs/X/models/NAME.onnx [--int8] \\
         --eval runs/.../p1.json ... --data "what it was trained on" [--note "..."]
 
 or, in one command from a training checkpoint (export with the unfamiliar
 score calibrated, held-out evaluation, ship):
 
-    python experiments/ship_default.py --checkpoint runs/X/best.pt \\
+    python scripts/ship_default.py --checkpoint runs/X/best.pt \\
         --calibrate data/corpus/realistic --data "what it was trained on" [--every 4]
 
 ``--checkpoint`` runs ``scotti export CKPT -o runs/X/models/scotti-ship.onnx
@@ -37,6 +37,13 @@ from pathlib import Path
 from typing import Any
 
 import onnx
+from scotti.export.card import ood_markdown
+from scotti.models.contract import META_CARD
+from scotti.models.runtime import ScottiRuntime
+
+# The card's pieces (training history, graph measurements, run logging) are the ones
+# the experiment drivers use for the docs, so a card and a doc say the same things.
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
 from card_training import training_block, training_markdown
 from common import (
     ROOT,
@@ -50,9 +57,6 @@ from common import (
     utc_now,
 )
 from measure import describe
-from scotti.export.card import ood_markdown
-from scotti.models.contract import META_CARD
-from scotti.models.runtime import ScottiRuntime
 
 MODELS = ROOT / "models"
 NAME = "scotti-default"
@@ -324,7 +328,7 @@ def load_reports(specs: list[str]) -> list[dict[str, Any]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python experiments/ship_default.py", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python scripts/ship_default.py", description=__doc__)
     parser.add_argument("model", type=Path, nargs="?", help="exported fp32 step graph (NAME.onnx)")
     parser.add_argument(
         "--checkpoint", type=Path, help="export this training checkpoint first (one command)"

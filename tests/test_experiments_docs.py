@@ -19,6 +19,7 @@ from scotti.models.contract import NUM_ACTIONS, has_progress
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 sys.path.insert(0, str(EXPERIMENTS))
+sys.path.insert(0, str(EXPERIMENTS.parent / "scripts"))  # ship_default, the release step
 
 import common  # noqa: E402
 import corpus  # noqa: E402
