@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import time
+from pathlib import Path
 
 import aiomqtt
 import pytest
@@ -73,6 +74,12 @@ def test_the_bench_runs_two_pairs_in_one_daemon_and_prints_their_row(
     cells = [c.strip() for c in rows[0].strip("|").split("|")]
     assert float(cells[2]) > 0  # poses per second per pair: both devices published
     assert float(cells[6]) > 0  # the daemon's RSS was sampled
+    peaks = [line for line in out.splitlines() if line.startswith("| 2 | 1 | MQTT only |")]
+    assert len(peaks) == 1, out
+    rss, threads, fds = (float(c) for c in peaks[0].strip("|").split("|")[3:])
+    assert rss >= float(cells[6])  # from the start: at least the steady state's peak
+    assert threads >= 2  # the event loop and the inference worker
+    assert fds >= 2 + 3  # two serial ports beside stdin, stdout and stderr
 
 
 def test_the_old_bench_command_still_answers() -> None:
@@ -88,3 +95,22 @@ def test_the_old_bench_command_still_answers() -> None:
     )
     assert done.returncode == 0
     assert "--pairs" in done.stdout
+
+
+def test_everything_turns_on_what_the_units_limits_must_allow(tmp_path: Path) -> None:
+    from scotti.daemon.settings import load_settings
+    from scotti.daemon.tools.bench import config_text
+
+    links = [tmp_path / "tty00", tmp_path / "tty01"]
+    broker = Mosquitto()  # only its URL: nothing is started
+    for processes, outputs in ((1, True), (2, False)):  # outputs serve one process only
+        path = tmp_path / f"p{processes}.toml"
+        path.write_text(config_text(links, broker, True, processes=processes, everything=True))
+        s = load_settings({}, path)
+        assert s.mqtt.control
+        assert (s.outputs.web is not None, s.outputs.foxglove is not None) == (outputs, outputs)
+        assert [d.id for d in s.device_list()] == ["pair00", "pair01"]
+    path.write_text(config_text(links, broker, True))
+    plain = load_settings({}, path)
+    assert not plain.mqtt.control
+    assert not plain.outputs.any

@@ -8,7 +8,9 @@ measures what a consumer sees: receipt time minus the frame's last byte
 (``predicted_for_mono_ns`` - 1/16 s, the same host clock). The daemon's own
 ``latency_ms`` (last byte -> publish) comes from the payload. The daemon's
 CPU (100 % = one core) and peak RSS are sampled with psutil (the ``[bench]``
-extra: ``pip install 'scotti[bench]'``). Each N runs with
+extra: ``pip install 'scotti[bench]'``), and from the daemon's start to the
+end of the run its peak memory, threads and open descriptors, from which the
+unit's MemoryMax, TasksMax and LimitNOFILE are set (docs/deploy.md). Each N runs with
 the batched engine (``inference.batch = true``) and, with ``--modes``, one
 model call per pair (``false``), and with ``--processes`` over several worker
 processes (daemon/service/processes.py). A measurement, never a test.
@@ -168,31 +170,66 @@ async def collect(
     return out
 
 
+@dataclass
+class Peaks:
+    """The most a daemon (its processes together) held at once since it started."""
+
+    rss_mib: float = 0.0
+    threads: int = 0  # what systemd's TasksMax counts
+    fds: int = 0  # open descriptors, what LimitNOFILE bounds (per process: the largest)
+
+    def update(self, tree: list[psutil.Process]) -> None:
+        held = [_held(p) for p in tree]
+        self.rss_mib = max(self.rss_mib, sum(h[0] for h in held) / 2**20)
+        self.threads = max(self.threads, sum(h[1] for h in held))
+        self.fds = max(self.fds, max((h[2] for h in held), default=0))
+
+
 def sample_process(
     pid: int,
     seconds: float,
     warmup: float | threading.Event,
     others: tuple[int, ...] = (),
+    peaks: Peaks | None = None,
 ) -> tuple[float, float, float]:
     """Mean CPU % (100 = one core) and peak RSS in MiB of ``pid`` and its children (a
     daemon with ``processes`` > 1: the supervisor and its workers, RSS summed) over
     ``seconds`` after ``warmup`` (seconds, or an event: once it is set), and the CPU %
-    of ``others`` together (the bench's own load on the host)."""
+    of ``others`` together (the bench's own load on the host). ``peaks``: updated from
+    now (the daemon's start) to the end, the model load and every connection included."""
     proc = psutil.Process(pid)
     rest = [psutil.Process(p) for p in others]
-    if isinstance(warmup, threading.Event):
-        warmup.wait(READY_TIMEOUT_S + seconds)
-    else:
-        time.sleep(warmup)
-    tree = [proc, *proc.children(recursive=True)]  # workers are up once poses flow
+    peaks = peaks if peaks is not None else Peaks()
+    ready = warmup if isinstance(warmup, threading.Event) else threading.Event()
+    until = time.monotonic() + (READY_TIMEOUT_S + seconds if ready is warmup else float(warmup))
+    while not ready.wait(0.2) and time.monotonic() < until:
+        peaks.update([proc, *_children(proc)])
+    tree = [proc, *_children(proc)]  # workers are up once poses flow
     for p in (*tree, *rest):
         p.cpu_percent(None)
     rss, end = 0, time.monotonic() + seconds
     while time.monotonic() < end:
         time.sleep(0.5)
         rss = max(rss, sum(_rss(p) for p in tree))
+        peaks.update(tree)
     cpu = sum(_cpu(p) for p in tree)
     return cpu, rss / 2**20, sum(p.cpu_percent(None) for p in rest)
+
+
+def _children(proc: psutil.Process) -> list[psutil.Process]:
+    try:
+        return list(proc.children(recursive=True))
+    except psutil.NoSuchProcess:
+        return []
+
+
+def _held(proc: psutil.Process) -> tuple[int, int, int]:
+    """(RSS bytes, threads, open descriptors) of ``proc``; zeros once it is gone."""
+    try:
+        with proc.oneshot():
+            return int(proc.memory_info().rss), proc.num_threads(), proc.num_fds()
+    except psutil.NoSuchProcess:
+        return 0, 0, 0
 
 
 def _rss(proc: psutil.Process) -> int:
@@ -234,6 +271,8 @@ class Row:
     rss: float  # the daemon (and its workers, summed), MiB
     bench_cpu: float  # the emulated boards, the subscriber and mosquitto, % of one core
     load: float  # 1-minute load average at the end
+    peaks: Peaks  # from the daemon's start to the end of the run
+    everything: bool = False  # remote control and (one process) the web and Foxglove servers
 
     @property
     def rate(self) -> float:
@@ -242,16 +281,26 @@ class Row:
 
 
 def config_text(
-    links: list[Path], broker: Mosquitto, batch: bool, max_batch: int = 8, processes: int = 1
+    links: list[Path],
+    broker: Mosquitto,
+    batch: bool,
+    max_batch: int = 8,
+    processes: int = 1,
+    *,
+    everything: bool = False,
 ) -> str:
+    """``everything``: remote control on and, in one process, the web and Foxglove
+    servers on free ports (no clients), so that the peaks hold all the daemon opens."""
     tables = "".join(
         f'\n[[devices]]\nid = "pair{i:02d}"\nport = "{link}"\n' for i, link in enumerate(links)
     )
+    control = "control = true\n" if everything else ""
+    outputs = "[outputs]\nweb = 0\nfoxglove = 0\n" if everything and processes == 1 else ""
     return (
         f'log_level = "warning"\nprocesses = {processes}\n'
         f"[inference]\nbatch = {str(batch).lower()}\n"
         f"max_batch = {max_batch}\n"
-        f'[mqtt]\nbroker = "{broker.url}"\n{tables}'
+        f'[mqtt]\nbroker = "{broker.url}"\n{control}{outputs}{tables}'
     )
 
 
@@ -264,11 +313,13 @@ def run_one(
     warmup: float,
     max_batch: int = 8,
     processes: int = 1,
+    everything: bool = False,
 ) -> Row:
     folder = Path(tempfile.mkdtemp(prefix="scotti-bench-"))
     links = [folder / f"tty{i:02d}" for i in range(pairs)]
     config = folder / "devices.toml"
-    config.write_text(config_text(links, broker, batch, max_batch, processes))
+    text = config_text(links, broker, batch, max_batch, processes, everything=everything)
+    config.write_text(text)
     ctx = multiprocessing.get_context("spawn")
     ready, stop = ctx.Event(), ctx.Event()
     boards = ctx.Process(
@@ -285,8 +336,9 @@ def run_one(
     daemon = subprocess.Popen(cmd, env=env)
     try:
         others = (boards.pid or 0, os.getpid(), *_broker_pid(broker))
+        peaks = Peaks()
         samples, (cpu, rss, bench_cpu) = asyncio.run(
-            _measure(broker, daemon.pid, pairs, seconds, warmup, others)
+            _measure(broker, daemon.pid, pairs, seconds, warmup, others, peaks)
         )
     finally:
         daemon.terminate()
@@ -305,6 +357,8 @@ def run_one(
         rss=rss,
         bench_cpu=bench_cpu,
         load=os.getloadavg()[0],
+        peaks=peaks,
+        everything=everything,
     )
 
 
@@ -320,9 +374,10 @@ async def _measure(
     seconds: float,
     warmup: float,
     others: tuple[int, ...],
+    peaks: Peaks,
 ) -> tuple[list[dict[str, float]], tuple[float, float, float]]:
     measuring = threading.Event()
-    sampler = asyncio.to_thread(sample_process, pid, seconds, measuring, others)
+    sampler = asyncio.to_thread(sample_process, pid, seconds, measuring, others, peaks)
     reader = collect(broker, seconds, warmup, pairs=pairs, measuring=measuring)
     samples, usage = await asyncio.gather(reader, sampler)
     return samples, usage
@@ -345,6 +400,18 @@ def table_row(r: Row) -> str:
         f"| {s['p50']:.1f} / {s['p99']:.1f} | {r.cpu:.0f} | {r.rss:.0f} | {r.bench_cpu:.0f} "
         f"| {r.load:.1f} |"
     )
+
+
+PEAKS_HEADER = (
+    "| pairs | processes | on | peak RSS MiB (all processes) | peak threads (all processes) "
+    "| peak open descriptors (largest process) |"
+)
+
+
+def peaks_row(r: Row) -> str:
+    p = r.peaks
+    on = "MQTT only" if not r.everything else "control" if r.processes > 1 else "control, outputs"
+    return f"| {r.pairs} | {r.processes} | {on} | {p.rss_mib:.0f} | {p.threads} | {p.fds} |"
 
 
 def run(args: argparse.Namespace, model: Path) -> int:
@@ -373,9 +440,15 @@ def run(args: argparse.Namespace, model: Path) -> int:
                         args.warmup,
                         args.max_batch,
                         processes,
+                        args.everything,
                     )
                     rows.append(row)
                     print(table_row(row), flush=True)
+    print("\nFrom the daemon's start to the end of each run (docs/deploy.md, the unit's limits):")
+    print(PEAKS_HEADER)
+    print("|" + "---|" * 6)
+    for row in rows:
+        print(peaks_row(row))
     return 0 if all(r.published for r in rows) else 1
 
 
@@ -395,6 +468,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--processes", type=int, nargs="+", default=[1], metavar="N",
         help="the daemon's worker processes, one run each (default 1: all pairs in one)",
+    )  # fmt: skip
+    p.add_argument(
+        "--everything", action="store_true",
+        help="also remote control and (with one process) the web and Foxglove servers, "
+        "idle: the peaks a unit's limits must allow (docs/deploy.md)",
     )  # fmt: skip
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
     p.add_argument(
