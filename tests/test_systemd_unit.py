@@ -10,6 +10,7 @@ its sandbox. Skipped where systemd-analyze is absent; the udev rule likewise wit
 
 from __future__ import annotations
 
+import itertools
 import re
 import shutil
 import subprocess
@@ -110,3 +111,56 @@ def test_udev_rule_verifies() -> None:
     rule = REPO / "systemd" / "99-scotti-receiver.rules"
     out = subprocess.run([udevadm, "verify", str(rule)], capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+DEPLOY = REPO / "docs" / "deploy.md"
+LIMITS = ("LimitNOFILE", "MemoryMax", "TasksMax")
+_SIZE = {"K": 2**10, "M": 2**20, "G": 2**30}
+
+
+def _unit_value(key: str) -> str:
+    found = re.findall(rf"^{key}=(\S+)$", UNIT.read_text(), re.M)
+    assert len(found) == 1, f"{key}= set {len(found)} times in the unit"
+    return str(found[0])
+
+
+def _bytes(value: str) -> int:
+    return int(value[:-1]) * _SIZE[value[-1]] if value[-1] in _SIZE else int(value)
+
+
+def _table(heading: str) -> list[list[str]]:
+    """The body rows of the first Markdown table from the line that holds ``heading``."""
+    text = DEPLOY.read_text()
+    lines = text[text.index(heading) :].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    block = list(itertools.takewhile(lambda line: line.startswith("|"), lines[start:]))
+    return [[c.strip() for c in line.strip("|").split("|")] for line in block[2:]]
+
+
+def test_the_unit_bounds_descriptors_memory_and_tasks_as_the_docs_say() -> None:
+    stated = {row[0].strip("`"): row[1] for row in _table("## The unit's limits")}
+    assert set(stated) == set(LIMITS)
+    for key in LIMITS:
+        assert _unit_value(key) == stated[key], key  # the docs give the unit's values
+
+
+def test_the_limits_leave_room_over_the_measured_peaks() -> None:
+    """Twice the largest peak the benchmark measured (the docs' table) at least."""
+    peaks = _table("| pairs | processes | on |")
+    assert [row[0] for row in peaks].count("32") == 4, peaks
+    rss_mib = max(float(row[3]) for row in peaks)
+    threads = max(int(row[4]) for row in peaks)
+    fds = max(int(row[5]) for row in peaks)
+    assert _bytes(_unit_value("MemoryMax")) >= 2 * rss_mib * 2**20
+    assert int(_unit_value("TasksMax")) >= 2 * threads
+    assert int(_unit_value("LimitNOFILE")) >= 2 * fds
+
+
+@needs_analyze
+def test_the_unit_file_rates_2_or_better_as_it_stands() -> None:
+    """The sandbox's rating of the unit file itself (no install needed): the resource
+    keys must not cost any of it."""
+    out = analyze("security", "--offline=true", "--no-pager", str(UNIT))
+    level = re.search(r"Overall exposure level for scotti-daemon.service: ([\d.]+)", out.stdout)
+    assert level is not None, out.stdout + out.stderr
+    assert float(level.group(1)) <= 2.0
