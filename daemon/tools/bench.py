@@ -200,8 +200,10 @@ def sample_process(
     proc = psutil.Process(pid)
     rest = [psutil.Process(p) for p in others]
     peaks = peaks if peaks is not None else Peaks()
-    ready = warmup if isinstance(warmup, threading.Event) else threading.Event()
-    until = time.monotonic() + (READY_TIMEOUT_S + seconds if ready is warmup else float(warmup))
+    if isinstance(warmup, threading.Event):
+        ready, until = warmup, time.monotonic() + READY_TIMEOUT_S + seconds
+    else:
+        ready, until = threading.Event(), time.monotonic() + warmup
     while not ready.wait(0.2) and time.monotonic() < until:
         peaks.update([proc, *_children(proc)])
     tree = [proc, *_children(proc)]  # workers are up once poses flow
