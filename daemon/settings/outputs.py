@@ -17,7 +17,8 @@ DEFAULT_MAX_CONNECTIONS = 64
 
 
 class OutputSettings(BaseModel):
-    """Every output is off unless asked for; none of them slows the MQTT path."""
+    """Every output is off unless asked for; each works off the event loop (the network
+    ones in a process of their own, docs/outputs.md)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -27,14 +28,14 @@ class OutputSettings(BaseModel):
     web: Port | None = None  # the browser live view on http://HOST:PORT/
     host: str = "127.0.0.1"  # where the Foxglove and web servers listen (0.0.0.0: everywhere)
     # Each of the Foxglove and web servers takes at most this many connections at a time.
-    max_connections: int = Field(DEFAULT_MAX_CONNECTIONS, ge=1, le=100_000)
+    max_connections: int = Field(default=DEFAULT_MAX_CONNECTIONS, ge=1, le=100_000)
     # Host names let in beside IP literals, localhost names and ``host`` ("*": any).
     allowed_hosts: tuple[str, ...] = ()
     # Origins (browser pages) let in beside none and the server's own ("*": any).
     allowed_origins: tuple[str, ...] = ("https://app.foxglove.dev",)
     # A file whose first line is the token both servers then require (docs/outputs.md).
     token_file: Path | None = None
-    token: SecretStr | None = Field(None, exclude=True)  # read from ``token_file``
+    token: SecretStr | None = Field(default=None, exclude=True)  # read from ``token_file``
 
     @property
     def any(self) -> bool:
