@@ -34,10 +34,16 @@ from scotti.firmware_protocol.session_records import Record as Record
 from scotti.firmware_protocol.session_records import SessionHeader as SessionHeader
 from scotti.firmware_protocol.session_records import Source as Source
 from scotti.firmware_protocol.session_records import SourceFrameRecord as SourceFrameRecord
+from scotti.firmware_protocol.session_unpack import MAX_RECORD_LEN as MAX_RECORD_LEN
+from scotti.firmware_protocol.session_unpack import (
+    OverLimitError,
+    UndecodableError,
+    check_shape,
+    unpack_record,
+)
 
 MAGIC: Final = b"SCOTSESS"  # first 8 bytes of every session file
 LEN_BYTES: Final = 4  # record length prefix, u32 little endian
-MAX_RECORD_LEN: Final = 16 << 20  # a longer length prefix means corruption, not data
 
 _BAD_RECORD: Final[dict[str, Any]] = {}  # stands for a whole record that did not decode
 
@@ -46,11 +52,24 @@ def _pack(record: dict[str, Any], packer: msgpack.Packer | None = None) -> bytes
     """The record's body in msgpack; ``packer`` (one made with ``use_bin_type``) saves
     making one per record and packs the same bytes."""
     try:
-        if packer is None:
-            return msgpack.packb(record, use_bin_type=True)
-        return packer.pack(record)
+        body = msgpack.packb(record, use_bin_type=True) if packer is None else packer.pack(record)
     except (TypeError, ValueError, OverflowError) as exc:
         msg = f"cannot store a {record.get('kind')} record in a session file: {exc}"
+        raise SessionError(msg) from None
+    if len(body) > MAX_RECORD_LEN:  # readers would refuse the file
+        kind, size = record.get("kind"), len(body)
+        msg = f"cannot store a {kind} record of {size} bytes (at most {MAX_RECORD_LEN})"
+        raise SessionError(msg)
+    return body
+
+
+def _check_storable(record: dict[str, Any]) -> None:
+    """A header whose scene, subject or provenance no reader would take: ``SessionError``
+    (the other records are flat maps of known size)."""
+    try:
+        check_shape(_pack(record))
+    except OverLimitError as exc:
+        msg = f"cannot store a {record.get('kind')} record in a session file: {exc.what}"
         raise SessionError(msg) from None
 
 
@@ -108,7 +127,9 @@ class SessionWriter(_ClosedOnExit):
             raise SessionError(msg) from None
         try:
             self._file.write(MAGIC)
-            self._write(header.to_record())
+            record = header.to_record()
+            _check_storable(record)
+            self._write(record)
         except BaseException:
             self._file.close()
             self._file = None
@@ -217,6 +238,7 @@ class SessionReader(_ClosedOnExit):
             msg = f"cannot open session file {self.path}: {exc.strerror}"
             raise SessionError(msg) from None
         try:
+            self._size = os.fstat(self._file.fileno()).st_size
             self.header = self._read_header()
         except BaseException:
             self._file.close()
@@ -238,32 +260,52 @@ class SessionReader(_ClosedOnExit):
         if record.get("kind") != "header":
             msg = f"{self.path} has no header record (first record is {record.get('kind')!r})"
             raise SessionError(msg)
-        return SessionHeader.from_record(record)
+        try:
+            return SessionHeader.from_record(record)
+        except SessionError as exc:  # every error of a reader names its file
+            raise SessionError(f"{self.path}: {exc}") from None
 
     def _next_map(self) -> dict[str, Any] | None:
-        """The next whole record, ``_BAD_RECORD`` if it does not decode, None at the end."""
+        """The next whole record, ``_BAD_RECORD`` if it does not decode, None at the end.
+
+        Nothing is allocated for a record before its length is checked against the
+        largest record and the bytes the file holds, and it is unpacked within
+        limits (``unpack_record``): a record over them is a ``SessionError``.
+        """
+        offset = self.bytes_read
         prefix = self._file.read(LEN_BYTES)
         if len(prefix) < LEN_BYTES:
             self.truncated = bool(prefix)
             return None
         length = int.from_bytes(prefix, "little")
         if length == 0 or length > MAX_RECORD_LEN:
-            msg = f"{self.path} is corrupt: record of {length} bytes at offset {self.bytes_read}"
+            msg = f"{self.path} is corrupt: record of {length} bytes at offset {offset}"
             raise SessionError(msg)
+        end = offset + LEN_BYTES + length
+        if end > self._size and not self._holds(end):
+            self.truncated = True  # cut inside this record, or its length is damaged
+            return None
         body = self._file.read(length)
-        if len(body) < length:
+        if len(body) < length:  # the file shrank under us
             self.truncated = True
             return None
         self.bytes_read += LEN_BYTES + length
         try:
-            record = msgpack.unpackb(body, raw=False)
-        except (ValueError, TypeError, msgpack.UnpackException):
+            return unpack_record(body)
+        except OverLimitError as exc:
+            at = offset + LEN_BYTES + exc.at
+            msg = f"{self.path} is corrupt at byte {at}: {exc.what} in the record at {offset}"
+            raise SessionError(msg) from None
+        except UndecodableError:
             self.bad_records += 1
             return _BAD_RECORD
-        if not isinstance(record, dict):
-            self.bad_records += 1
-            return _BAD_RECORD
-        return record
+
+    def _holds(self, end: int) -> bool:
+        """Whether the file is at least ``end`` bytes long (one still being written grows)."""
+        if end <= self._size:
+            return True
+        self._size = os.fstat(self._file.fileno()).st_size
+        return end <= self._size
 
     def __iter__(self) -> Iterator[PacketRecord | LabelRecord]:
         for record in self.records():
