@@ -320,3 +320,96 @@ def test_unplug_and_replug_log_no_error(
     errors = [r for r in caplog.records if r.levelno >= logging.ERROR]
     assert errors == [], [r.getMessage() for r in errors]
     assert any("opened" in r.getMessage() for r in caplog.records)  # the logs were captured
+
+
+# --- replay streams its file ----------------------------------------------------------
+
+# Run in a child: drain a replay at max speed and say how far the process's peak RSS
+# rose above what it held before the source was made (MiB).
+_DRAIN = """
+import asyncio, hashlib, resource, sys
+from scotti.daemon.input.sources import ReplaySource
+
+async def drain(path):
+    chunks, digest = 0, hashlib.sha256()
+    async for item in ReplaySource(path, speed="max").stream():
+        if isinstance(item, tuple):
+            chunks += 1
+            digest.update(item[1])
+    return chunks, digest.hexdigest()
+
+with open("/proc/self/statm") as f:
+    held = int(f.read().split()[1]) * resource.getpagesize() // 1024
+chunks, digest = asyncio.run(drain(sys.argv[1]))
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+print(chunks, digest, (peak - held) // 1024)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="needs Linux /proc")
+def test_replay_holds_a_batch_of_its_file_not_the_file(tmp_path: Path) -> None:
+    """128 MiB of packets replayed: the process's peak grows by less than half of that
+    (held whole, the file's records alone add 128 MiB and more; streamed, about 35:
+    the read-ahead and what the allocator keeps after the check's pass)."""
+    import hashlib
+    import subprocess
+    import sys
+
+    from scotti.firmware_protocol.session import PacketRecord, SessionHeader, SessionWriter
+
+    path, records, size = tmp_path / "big.scotti", 32_768, 4096
+    digest = hashlib.sha256()
+    with SessionWriter(path, SessionHeader(source="recorded"), flush_each=False) as writer:
+        for start in range(0, records, 1024):
+            batch = [
+                PacketRecord(i * 1_000_000, i.to_bytes(4, "little") * (size // 4))
+                for i in range(start, start + 1024)
+            ]
+            writer.write_many(batch)
+            for record in batch:
+                digest.update(record.data)
+    done = subprocess.run(
+        [sys.executable, "-c", _DRAIN, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
+    chunks, got, rise_mib = done.stdout.split()
+    assert (int(chunks), got) == (records, digest.hexdigest())  # every byte, in order
+    assert int(rise_mib) < 64, f"peak RSS rose {rise_mib} MiB replaying a 128 MiB file"
+
+
+def test_a_replay_stopped_early_closes_its_file_and_thread(tmp_path: Path) -> None:
+    import threading
+
+    session = write_synthetic_session(tmp_path / "r.scotti", frames=400)
+
+    async def body() -> None:
+        source = ReplaySource(session.path, speed="max")
+        async with contextlib.aclosing(source.stream()) as items:
+            async for item in items:
+                if not isinstance(item, SourceEvent):
+                    break
+
+    run(body)
+    deadline = time.monotonic() + 10
+    while any(t.name.startswith("replay-read") for t in threading.enumerate()):
+        assert time.monotonic() < deadline, "the replay's reading thread is still alive"
+        time.sleep(0.01)
+
+
+def test_a_replay_with_a_bomb_after_its_packets_is_refused_at_start(tmp_path: Path) -> None:
+    """The whole file is checked before anything plays: a msgpack bomb at its end
+    is one line, with the byte, when the source is made."""
+    session = write_synthetic_session(tmp_path / "r.scotti", frames=4)
+    offset = session.path.stat().st_size
+    bomb = b"\x81\xa1k" + b"\x91" * 100_000 + b"\x90"  # nested arrays, past the 64 KiB gate
+    with session.path.open("ab") as f:
+        f.write(len(bomb).to_bytes(4, "little") + bomb)
+    with pytest.raises(SourceError) as caught:
+        ReplaySource(session.path)
+    message = str(caught.value)
+    assert message.startswith(f"replay: {session.path} is corrupt at byte {offset + 4 + 3 + 31}")
+    assert "nested deeper than 32" in message
+    assert "\n" not in message

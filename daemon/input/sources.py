@@ -19,6 +19,7 @@ import logging
 import threading
 import time
 from collections.abc import AsyncGenerator, AsyncIterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, Literal, Protocol, TypeAlias
@@ -30,12 +31,17 @@ from scotti.daemon.input.speed import Speed
 from scotti.daemon.waiting import Backoff
 
 if TYPE_CHECKING:
-    from scotti.firmware_protocol.session import Session
+    from scotti.firmware_protocol.session import PacketRecord
 
 log = logging.getLogger(__name__)
 
 READ_SIZE: Final = 4096  # bytes asked for per read; a 16 Hz pair of frames is ~3 KB
 _YIELD_EVERY: Final = 64  # replay at max speed gives the loop a turn every this many records
+# Replay reads its file a batch at a time, one batch ahead: this many bytes of packet
+# data or records, whichever comes first (about 20 s of a pair at 16 Hz; a record
+# costs ~100 bytes of Python besides its data).
+READ_AHEAD_BYTES: Final = 1 << 20
+READ_AHEAD_RECORDS: Final = 4096
 
 
 class SourceError(DaemonError):
@@ -183,9 +189,18 @@ async def _close(writer: asyncio.StreamWriter) -> None:
             await writer.wait_closed()
 
 
-def load_replay(path: Path) -> Session:
-    """Every whole record of a session file to replay; ``SourceError`` (one line) when
-    there is nothing to replay.
+@dataclass(frozen=True)
+class ReplayPlan:
+    """What a pass over a session file to replay found."""
+
+    packets: int  # whole packet records
+    first_t_ns: int  # the first one's host time: the replay's time zero
+
+
+def check_replay(path: Path) -> ReplayPlan:
+    """One pass over a session file to replay, in bounded memory; ``SourceError``
+    (one line) when it is not a session, has a record over the reader's limits
+    (a corrupt file, a msgpack bomb) or holds nothing to replay.
 
     A file cut short inside its last record (a recorder killed, a disk full) is
     replayed up to its last whole record, with one WARNING saying so: its records
@@ -193,25 +208,70 @@ def load_replay(path: Path) -> Session:
     read are skipped, also with one WARNING.
     """
     from scotti.firmware_protocol.errors import SessionError
-    from scotti.firmware_protocol.session import read_session
+    from scotti.firmware_protocol.session import PacketRecord, SessionReader
 
+    packets, first_t_ns = 0, 0
     try:
-        session = read_session(path)
+        with SessionReader(path) as reader:
+            for record in reader:
+                if isinstance(record, PacketRecord):
+                    if not packets:
+                        first_t_ns = record.t_ns
+                    packets += 1
     except SessionError as exc:
         raise SourceError(f"replay: {exc}") from None
-    if not session.packets:
-        cut = ", cut short" if session.truncated else ""
+    if not packets:
+        cut = ", cut short" if reader.truncated else ""
         msg = f"replay: {path} holds no packet records{cut}: nothing to replay"
         raise SourceError(msg)
-    if session.truncated:
+    if reader.truncated:
         log.warning(
             "replay: %s ends inside a record (cut short): replaying its %d whole packet records",
             path,
-            len(session.packets),
+            packets,
         )
-    if session.bad_records:
-        log.warning("replay: %s: %d records cannot be read, skipped", path, session.bad_records)
-    return session
+    if reader.bad_records:
+        log.warning("replay: %s: %d records cannot be read, skipped", path, reader.bad_records)
+    return ReplayPlan(packets, first_t_ns)
+
+
+class _Batches:
+    """A session file's packet records, a batch at a time, read in a thread of its
+    own: the replay holds at most the batch it plays and the one read ahead."""
+
+    def __init__(self, path: Path) -> None:
+        from scotti.firmware_protocol.session import SessionReader
+
+        self._reader = SessionReader(path)
+        self._records = iter(self._reader)
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="replay-read")
+        self._ahead: Future[list[PacketRecord]] | None = None
+
+    def _read(self) -> list[PacketRecord]:
+        from scotti.firmware_protocol.session import PacketRecord
+
+        batch: list[PacketRecord] = []
+        size = 0
+        for record in self._records:
+            if isinstance(record, PacketRecord):
+                batch.append(record)
+                size += len(record.data)
+                if size >= READ_AHEAD_BYTES or len(batch) >= READ_AHEAD_RECORDS:
+                    break
+        return batch
+
+    async def next(self) -> list[PacketRecord]:
+        """The next batch (empty at the end), with the one after it set reading."""
+        if self._ahead is None:
+            self._ahead = self._thread.submit(self._read)
+        batch = await asyncio.wrap_future(self._ahead)
+        self._ahead = self._thread.submit(self._read) if batch else None
+        return batch
+
+    def close(self) -> None:
+        """Close the file once the thread is done with it (one thread: in order)."""
+        self._thread.submit(self._reader.close)
+        self._thread.shutdown(wait=False)
 
 
 class ReplaySource:
@@ -220,8 +280,9 @@ class ReplaySource:
     Not live: the pipeline may make it wait rather than drop frames, so a replay
     is deterministic (the same file gives the same predictions). The chunks carry
     the host time at which they are handed on, so latencies stay meaningful.
-    The file is read when the source is made: one that holds nothing to replay
-    stops the daemon at start (``SourceError``), like any other bad setting.
+    The file is checked whole when the source is made (one that holds nothing to
+    replay, or a corrupt record, stops the daemon at start: ``SourceError``, like
+    any other bad setting) and then streamed: read a batch ahead, never held.
     """
 
     live = False
@@ -230,24 +291,41 @@ class ReplaySource:
         self.path = Path(path)
         self.speed = speed
         self.name = f"replay {self.path.name}"
-        self.session = load_replay(self.path)
+        self.plan = check_replay(self.path)
 
     def __aiter__(self) -> AsyncIterator[SourceItem]:
         return self.stream()
 
     async def stream(self) -> AsyncGenerator[SourceItem, None]:
+        from scotti.firmware_protocol.errors import SessionError
+
         yield SourceEvent("connected", f"replaying {self.path.name}")
-        packets = self.session.packets
         base_ns = time.monotonic_ns()
-        t0 = packets[0].t_ns if packets else 0
-        for i, record in enumerate(packets):
-            if self.speed == "max":
-                if i % _YIELD_EVERY == 0:
-                    await asyncio.sleep(0)
-            else:
-                due = base_ns + (record.t_ns - t0) / self.speed
-                delay = (due - time.monotonic_ns()) / 1e9
-                if delay > 0:
-                    await asyncio.sleep(delay)
-            yield time.monotonic_ns(), record.data
+        t0 = self.plan.first_t_ns
+        i = 0
+        try:
+            batches = _Batches(self.path)
+        except SessionError as exc:  # gone or changed since the check
+            log.error("replay: %s", exc)
+            yield SourceEvent("disconnected", f"replay: {exc}")
+            return
+        try:
+            while batch := await batches.next():
+                for record in batch:
+                    if self.speed == "max":
+                        if i % _YIELD_EVERY == 0:
+                            await asyncio.sleep(0)
+                    else:
+                        due = base_ns + (record.t_ns - t0) / self.speed
+                        delay = (due - time.monotonic_ns()) / 1e9
+                        if delay > 0:
+                            await asyncio.sleep(delay)
+                    i += 1
+                    yield time.monotonic_ns(), record.data
+        except SessionError as exc:  # the file changed under the replay
+            log.error("replay: %s", exc)
+            yield SourceEvent("disconnected", f"replay: {exc}")
+            return
+        finally:
+            batches.close()
         yield SourceEvent("disconnected", "end of replay")

@@ -59,7 +59,7 @@ class SourceSettings(BaseModel):
 
     def _replay_problem(self) -> str | None:
         """Why ``replay`` cannot be replayed, found from its head alone (the whole file
-        is read when the replay starts: ``sources.load_replay``); None when it may be."""
+        is checked when the replay starts: ``sources.check_replay``); None when it may be."""
         if self.replay is None:
             return None
         if not is_file(self.replay):
