@@ -79,3 +79,38 @@ def test_a_seq_that_comes_round_again_is_a_new_frame_not_a_finding() -> None:
         return FrameRows(Foot.LEFT, seq, 0, 32, 22, 12, 0, np.zeros((32, 22), np.uint16))
 
     fuzz_inputs.check_assembler([(whole(s), 0) for s in (4, 20_004, 40_004, 4)])
+
+
+def test_the_session_target_s_bombs_land_as_records_and_are_refused(tmp_path: Path) -> None:
+    # Imported here: a test above names its own line numbers.
+    from scotti.firmware_protocol.errors import SessionError
+    from scotti.firmware_protocol.session import read_session
+
+    seed = fuzz_inputs.session_seed(tmp_path)
+    rnd = random.Random(41)
+    refused = read = 0
+    for _ in range(200):
+        data = fuzz_inputs.session_with_bomb(rnd, seed)
+        fuzz_inputs.check_session(data, tmp_path)
+        try:
+            read_session(tmp_path / "fuzzed.scotti")
+            read += 1
+        except SessionError as exc:
+            refused += "is corrupt at byte" in str(exc)  # over a limit, at its byte
+    assert refused > 20  # the bombs reach the reader as records, which stops at them
+    assert read > 20  # and the ones within the limits (a few levels deep) read
+
+
+@pytest.mark.parametrize("draw", [0, 1])
+def test_full_size_bombs_are_read_in_bounded_memory(tmp_path: Path, draw: int) -> None:
+    """16 MiB bombs: the reader took 1.2 GB and 15 s; the check allows 256 MiB."""
+    from scotti.firmware_protocol.errors import SessionError
+    from scotti.firmware_protocol.session import read_session
+
+    seed = fuzz_inputs.session_seed(tmp_path)
+    rnd = random.Random(draw)
+    bomb = fuzz_inputs.full_size_bomb(rnd)
+    fuzz_inputs.check_session(seed + len(bomb).to_bytes(4, "little") + bomb, tmp_path)
+    words = r"corrupt at byte \d+: (an array of \d+ entries|more than \d+ values)"
+    with pytest.raises(SessionError, match=words):
+        read_session(tmp_path / "fuzzed.scotti")

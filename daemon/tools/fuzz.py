@@ -9,7 +9,9 @@ Targets (each input must give a result or the target's own error, nothing else):
   odd geometry) into ``FrameAssembler`` and on into the daemon's ``Pairing``;
   frames come out whole-shaped, never the same one twice between restarts.
 - ``session``: bytes (random, or a valid session file cut, bit-flipped or
-  spliced) read by ``read_session``; a ``Session`` or a ``SessionError``.
+  spliced, or with a msgpack bomb record: deep nesting, lengths claimed past
+  the end, many tiny containers) read by ``read_session``; a ``Session`` or a
+  ``SessionError``, in bounded memory.
 - ``config``: TOML files (the daemon's real keys with hostile values, or a
   valid file mutated) through ``load_settings``; ``Settings`` or one
   ``ConfigError`` line.

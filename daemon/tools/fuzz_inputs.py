@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import random
+import resource
 from pathlib import Path
 from typing import Any, Final
 
@@ -22,7 +23,13 @@ from scotti.firmware_protocol.errors import DecodeError, PacketValueError, Sessi
 from scotti.firmware_protocol.framing import StreamDecoder, encode_packet
 from scotti.firmware_protocol.packets import BoardStatus, Foot, FrameRows, Packet
 from scotti.firmware_protocol.pairing import Pairing
-from scotti.firmware_protocol.session import MAGIC, SessionHeader, SessionWriter, read_session
+from scotti.firmware_protocol.session import (
+    MAGIC,
+    MAX_RECORD_LEN,
+    SessionHeader,
+    SessionWriter,
+    read_session,
+)
 from scotti.firmware_protocol.wrap import seq_delta
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, SAMPLE_BITS
 
@@ -189,20 +196,88 @@ def session_seed(workdir: Path) -> bytes:
 
 
 def make_session_bytes(rnd: random.Random, seed: bytes) -> bytes:
-    if rnd.random() < 0.15:
+    draw = rnd.random()
+    if draw < 0.15:
         return MAGIC + rnd.randbytes(rnd.randint(0, 512))
+    if draw < 0.35:
+        return session_with_bomb(rnd, seed)
     return _bytes(rnd, seed, 2048)
 
 
+_VALUE_OF_KIND: Final = b"\x81\xa4kind"  # a map of one entry, key "kind": the value follows
+
+
+def msgpack_bomb(rnd: random.Random) -> bytes:
+    """A record body that makes much from little: containers nested deep, a length
+    claimed far past the body, or many tiny containers (around the reader's value
+    limit, session_unpack.LIMITS); one in fifty is the largest record of them (16 MiB,
+    which the reader once took 1.2 GB to unpack)."""
+    if rnd.random() < 0.02:
+        return full_size_bomb(rnd)
+    kind = rnd.randrange(3)
+    if kind == 0:
+        depth = rnd.choice((rnd.randint(2, 40), rnd.randint(1000, 5000), 100_000))
+        opener = rnd.choice((b"\x91", b"\x81\xa0", b"\xdc\x00\x01"))  # [x], {"": x}, [x]
+        return _VALUE_OF_KIND + opener * depth + b"\x90"
+    if kind == 1:
+        head = rnd.choice((b"\xdd", b"\xdf", b"\xdb", b"\xc6", b"\xdc", b"\xde", b"\xda", b"\xc5"))
+        width = 4 if head in (b"\xdd", b"\xdf", b"\xdb", b"\xc6") else 2
+        claim = rnd.choice(
+            (2 ** (8 * width) - 1, 2 ** (8 * width - 1), rnd.randrange(2 ** (8 * width)))
+        )
+        return (
+            _VALUE_OF_KIND + head + claim.to_bytes(width, "big") + rnd.randbytes(rnd.randint(0, 64))
+        )
+    inner = rnd.choice((1, 15, 255, 65535))
+    outer = rnd.randint(1, max(1, (rnd.choice((20_000, 140_000)) // inner)))
+    empty = rnd.choice((b"\x90", b"\x80"))
+    return (
+        _VALUE_OF_KIND
+        + b"\xdd"
+        + outer.to_bytes(4, "big")
+        + (b"\xdd" + inner.to_bytes(4, "big") + empty * inner) * outer
+    )
+
+
+def full_size_bomb(rnd: random.Random) -> bytes:
+    """A bomb as large as a record may be: many empty arrays in one, or in many."""
+    n = MAX_RECORD_LEN - 64
+    if rnd.random() < 0.5:  # one array of empty arrays
+        return _VALUE_OF_KIND + b"\xdd" + n.to_bytes(4, "big") + b"\x90" * n
+    # 255 arrays of 65535 empty arrays: no container over the length limit
+    return _VALUE_OF_KIND + b"\xdc\x00\xff" + (b"\xdc\xff\xff" + b"\x90" * 65535) * 255
+
+
+def session_with_bomb(rnd: random.Random, seed: bytes) -> bytes:
+    """The seed session with a bomb record at a record boundary (the header's place
+    too), its length prefix true or, now and then, a lie."""
+    bounds, at = [], len(MAGIC)
+    while at + 4 <= len(seed):
+        bounds.append(at)
+        at += 4 + int.from_bytes(seed[at : at + 4], "little")
+    at = rnd.choice(bounds)
+    body = msgpack_bomb(rnd)
+    length = len(body) if rnd.random() < 0.9 else rnd.randrange(2**32)
+    return seed[:at] + length.to_bytes(4, "little") + body + seed[at:]
+
+
+# Reading one input may raise the process's peak RSS by this much at most: a bomb the
+# reader unpacked would take gigabytes (ru_maxrss only grows: a finding is reported once).
+_PEAK_RISE_KIB: Final = 256 << 10
+
+
 def check_session(data: bytes, workdir: Path) -> None:
-    """A Session or a SessionError, nothing else."""
+    """A Session or a SessionError, nothing else, in bounded memory."""
     path = workdir / "fuzzed.scotti"
     path.write_bytes(data)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     try:
         session = read_session(path)
     except SessionError:
-        return
-    for record in session.packets:
+        session = None
+    rise = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+    assert rise < _PEAK_RISE_KIB, f"reading {len(data)} bytes raised the peak RSS {rise} KiB"
+    for record in session.packets if session is not None else ():
         assert isinstance(record.data, bytes)
 
 
