@@ -162,7 +162,7 @@ class Control:
             keepalive=settings.keepalive_s,
             timeout=5,
             tls_context=settings.tls_context(),
-            logger=logging.getLogger("scotti.daemon.mqtt"),
+            logger=logging.getLogger("scotti.daemon.mqtt.paho"),
             queue_type=_bounded_queue(self.stats),
             max_queued_incoming_messages=settings.control_queue,
         )

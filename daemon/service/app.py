@@ -121,7 +121,7 @@ class Daemon:
         for device in self.devices:
             device.outputs = self._outputs.of(device.id)
         loop = asyncio.get_running_loop()
-        loop_errors.install(loop, logging.getLogger("scotti.daemon.mqtt"))
+        loop_errors.install(loop, logging.getLogger("scotti.daemon.mqtt.paho"))
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self._on_signal, sig)
             self._signals.append(sig)

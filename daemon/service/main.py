@@ -158,7 +158,9 @@ def configure_logging(level: str, prefix: str = "") -> None:
         fmt = "%(asctime)s " + fmt
     logging.basicConfig(level=level.upper(), format=fmt, stream=sys.stderr, force=True)
     if level != "debug":
-        logging.getLogger("scotti.daemon.mqtt").setLevel(logging.WARNING)
+        # paho's own records (every packet at debug); not its parent "scotti.daemon.mqtt",
+        # which would silence the publisher's and the remote control's INFO lines too.
+        logging.getLogger("scotti.daemon.mqtt.paho").setLevel(logging.WARNING)
 
 
 def _fail(kind: str, message: str) -> int:
