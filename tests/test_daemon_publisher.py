@@ -5,17 +5,17 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Awaitable, Callable
-from typing import Literal
 
 import msgpack
 import pytest
 from pydantic import BaseModel
 from scotti.daemon.mqtt.publisher import FrameBatch, Publisher
-from scotti.daemon.mqtt.schemas import DeviceSeq, Info, Progress, Status
+from scotti.daemon.mqtt.schemas import Info, Progress, Status
 from scotti.daemon.settings import MqttSettings
 from scotti.daemon.tools.local_broker import Mosquitto
 
 from tests.support.broker import Received, collect
+from tests.support.publishing import batch, info, status
 
 pytestmark = pytest.mark.mosquitto
 
@@ -27,50 +27,6 @@ def settings(broker: Mosquitto, **kw: object) -> MqttSettings:
         reconnect_max_s=0.5,
         **kw,  # type: ignore[arg-type]
     )
-
-
-def info() -> Info:
-    return Info(
-        device_id="dev1",
-        versions={"scotti": "0"},
-        model={},
-        keypoints=[],
-        actions=[],
-        pose_frame="test",
-        frame_rate_hz=16.0,
-        window=40,
-        format="json",
-        topics={},
-        settings={},
-        host_wall_ns=0,
-    )
-
-
-def status(state: Literal["online", "degraded", "offline"]) -> Status:
-    return Status(
-        state=state, reasons=[], source="connected", feet={}, warming=(0, 40), host_wall_ns=1
-    )
-
-
-def batch(seq: int) -> FrameBatch:
-    def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
-        p = Progress(
-            seq=seq,
-            device_seq=DeviceSeq(left=seq, right=seq),
-            device_time_us=0,
-            host_wall_ns=0,
-            host_mono_ns=0,
-            predicted_for_mono_ns=0,
-            latency_ms=latency_ms,
-            flags=[],
-            action="squat",
-            progress=0.5,
-            repetition=1,
-        )
-        return [("progress", p)]
-
-    now = time.monotonic_ns()
-    return FrameBatch(seq=seq, last_byte_mono_ns=now, made_mono_ns=now, render=render)
 
 
 def running(

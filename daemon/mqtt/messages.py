@@ -260,6 +260,15 @@ def health(
                 "broker_outages": stats.outages,
                 "broker_unreachable_s": round(publisher.unreachable_s, 3),
                 "broker_last_error": stats.last_error,
+                # A broker that takes messages without acknowledging them: QoS 1 ones in
+                # flight now, and connections dropped for it (mqtt.ack_timeout_s).
+                "unacknowledged": publisher.unacknowledged,
+                "broker_not_acknowledging": stats.not_acknowledging,
+                # QoS 1 publishes the broker refused (MQTT v5 reason code, e.g. its ACL).
+                "refused": stats.refused,
+                "last_refused": stats.last_refused,
+                # Another client's status on this device's topic, replaced with ours.
+                "status_restored": stats.status_restored,
             },
             # Under ``pipeline`` (free-form in the schema), not a top-level field: health's
             # schema forbids unknown fields, so a consumer validating against version 1

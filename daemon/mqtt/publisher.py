@@ -1,4 +1,4 @@
-"""MQTT publishing: one reusable aiomqtt client in a reconnect loop.
+"""MQTT publishing: one connection at a time (``connection.Connection``), in a reconnect loop.
 
 The pipeline hands over one ``FrameBatch`` per prediction through a bounded
 queue that drops the oldest (the reader never waits for the broker). The
@@ -16,7 +16,22 @@ one WARNING line with the reason, then retries with backoff until it is back
 away; never an ERROR, never a traceback. A status is said in the log only
 once the broker has acknowledged it (``on_status_published``).
 
-Pattern: aiomqtt docs/reconnection.md (one ``Client``, ``async with`` in a loop).
+A broker that takes the connection but does not acknowledge a QoS 1 publish
+(or take a QoS 0 one) within ``ack_timeout_s`` is treated as gone: the
+connection is dropped (its last will says offline) and made again with
+backoff; health counts it (``publish.broker_not_acknowledging``) with the
+messages in flight (``publish.unacknowledged``). Waiting costs nothing: the
+publisher sleeps until an acknowledgement, a loss or the timeout.
+
+The daemon watches its own retained ``status``: a different one published by
+another client is replaced with the truth (at most once a second, counted,
+logged once per burst). Under MQTT v5 a QoS 1 publish the broker refuses
+(PUBACK reason code >= 0x80, e.g. an ACL) is counted and reported in health
+(``publish.refused``), not counted as published; per-frame messages go at
+QoS 0, which has no acknowledgement to refuse them with.
+
+Pattern: aiomqtt docs/reconnection.md (one reconnect loop around the client;
+here a fresh paho client per connection, see ``connection``).
 """
 
 from __future__ import annotations
@@ -27,13 +42,15 @@ import logging
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import Any, Final, Literal
+from typing import Any, Final, Literal, TypeVar
 
 import aiomqtt
 import paho.mqtt.client as paho
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
+from paho.mqtt.reasoncodes import ReasonCode
 from pydantic import BaseModel
+from scotti.daemon.mqtt.connection import BrokerLostError, Connection
 from scotti.daemon.mqtt.latency_slot import LatencySlot
 from scotti.daemon.mqtt.schemas import CONTENT_TYPES, Health, Info, Status, encode
 from scotti.daemon.service.counters import LatencyRing
@@ -41,13 +58,16 @@ from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.waiting import Backoff, wait_event
 
 log = logging.getLogger(__name__)
+MQTT_LOGGER: Final = "scotti.daemon.mqtt.paho"  # paho logs here (service/main.py, loop_errors.py)
+T = TypeVar("T")
 
 BACKOFF_START_S: Final = 0.25
 RETAINED_QOS: Final = 1  # status/info/health: must arrive, late is fine
-NUDGE_AFTER_S: Final = 0.5  # a publish not written by then: write paho's queue directly
 MAX_PENDING_STATUSES: Final = 16  # status changes kept while the broker is slow or away
 FRAME_QOS: Final = 0  # pose/action/progress: a newer one is 62 ms away
 DROP_LOG_EVERY_S: Final = 10.0  # a full queue is logged at most this often (and counted)
+RESTORE_EVERY_S: Final = 1.0  # a status of another client's is replaced at most this often
+SAY_EVERY_S: Final = 10.0  # a refusal or a replaced status is logged at most this often
 
 
 @dataclass(frozen=True)
@@ -75,6 +95,10 @@ class PublisherStats:
     unreachable_s: float = 0.0  # seconds without the broker, over the outages that ended
     last_seq: int | None = None
     latency_ms: LatencyRing = field(default_factory=LatencyRing)  # last byte -> publish
+    not_acknowledging: int = 0  # connections dropped: a publish unanswered too long
+    refused: int = 0  # QoS 1 publishes the broker refused (PUBACK reason code >= 0x80)
+    last_refused: str = ""  # the topic and reason of the latest refusal
+    status_restored: int = 0  # times another client's status on our topic was replaced
 
     @property
     def dropped(self) -> int:
@@ -125,25 +149,15 @@ class Publisher:
         self._retained_props = _properties(self._fmt, None) if v5 else None
         health_expiry = max(1, round(3 * settings.health_interval_s))
         self._health_props = _properties(self._fmt, health_expiry) if v5 else None
-        self._client = aiomqtt.Client(
-            settings.host,
-            settings.port,
-            username=settings.username,
-            password=settings.password.get_secret_value() if settings.password else None,
-            identifier=settings.client_id or f"scotti-daemon-{settings.device_id}",
-            protocol=aiomqtt.ProtocolVersion.V5 if v5 else aiomqtt.ProtocolVersion.V311,
-            will=aiomqtt.Will(
-                settings.topic("status"),
-                encode(will, self._fmt),
-                qos=RETAINED_QOS,
-                retain=True,
-                properties=self._retained_props,
-            ),
-            keepalive=settings.keepalive_s,
-            timeout=5,
-            tls_context=settings.tls_context(),
-            logger=logging.getLogger("scotti.daemon.mqtt"),
-        )
+        self._will = (settings.topic("status"), encode(will, self._fmt), self._retained_props)
+        self._conn: Connection | None = None  # the current connection, while there is one
+        self._tls = settings.tls_context()  # the files read once, at start
+        self._status_sent: bytes | None = None  # the status the broker last acknowledged
+        self._echoes: collections.deque[bytes] = collections.deque(maxlen=MAX_PENDING_STATUSES)
+        self._restore = False  # another client's status seen: publish ours again
+        self._status_watched = False  # our status topic delivers to us (this connection)
+        self._restored_at = -RESTORE_EVERY_S
+        self._said_at: dict[str, float] = {}  # what was logged when, for once-per-burst lines
 
     # --- called from the pipeline's side (event loop thread, never blocks) ---
     @property
@@ -167,8 +181,8 @@ class Publisher:
             return
         self._drop_logged_at = now
         why = (
-            "the broker is unreachable"
-            if self.state == "disconnected"
+            "the broker is unreachable or not acknowledging"
+            if self.state != "connected"
             else "the broker or this host is slower than the insoles"
         )
         log.warning(
@@ -224,26 +238,43 @@ class Publisher:
         """Publish until ``stop``; then drain the queue, call ``on_drained``, disconnect."""
         backoff = Backoff(BACKOFF_START_S, cap_s=self.settings.reconnect_max_s, jitter=0.0)
         while True:
+            conn = Connection(
+                self.settings,
+                self._will,
+                self._status_seen,
+                logging.getLogger(MQTT_LOGGER),
+                self._tls,
+            )
+            self._conn = conn
             try:
-                async with self._client:
-                    # "connected" once the broker has taken a message, not at CONNACK: a
-                    # connection that stalls at once stays part of the same outage (one
-                    # WARNING), and the backoff starts afresh only after a working one.
-                    await self._publish(self.settings.topic("info"), self._info, True)
-                    self.stats.connects += 1
-                    backoff.reset()
-                    self._set_state("connected", self.settings.broker)
-                    self._health_dirty = True
-                    if self._status is not None:  # the current one, still after older frames
-                        mark = self._statuses[-1][0] if self._statuses else 0
-                        self._statuses = collections.deque(
-                            [(mark, self._status)], maxlen=MAX_PENDING_STATUSES
-                        )
-                    await self._pump(stop)
+                await conn.open()
+                # "connected" once the broker has taken a message, not at CONNACK: a
+                # connection that stalls at once stays part of the same outage (one
+                # WARNING), and the backoff starts afresh only after a working one.
+                await self._publish(self.settings.topic("info"), self._info)
+                self.stats.connects += 1
+                backoff.reset()
+                self._set_state("connected", self.settings.broker)
+                self._health_dirty = True
+                if self._status is not None:  # the current one, still after older frames
+                    mark = self._statuses[-1][0] if self._statuses else 0
+                    self._statuses = collections.deque(
+                        [(mark, self._status)], maxlen=MAX_PENDING_STATUSES
+                    )
+                await self._flush_retained()
+                # Watched from now on: what the broker holds is what was just published,
+                # so anything different that comes is another client's.
+                self._echoes.clear()
+                await self._watch_status(conn)
+                await self._pump(stop)
+                await conn.close()
                 self._set_state("stopped", "")
                 return
-            except aiomqtt.MqttError as exc:
-                self._set_state("disconnected", explain(exc))
+            except BrokerLostError as exc:
+                self._set_state("disconnected", str(exc))
+            finally:
+                conn.abort()
+                self._conn = None
             if stop.is_set():
                 self._set_state("stopped", "")
                 return
@@ -268,14 +299,15 @@ class Publisher:
         taken = self._submitted - len(self._queue)  # batches published or dropped
         while self._statuses and self._statuses[0][0] <= taken:
             status = self._statuses[0][1]
-            await self._publish(self.settings.topic("status"), status, True)  # QoS 1: PUBACK
+            if await self._publish(self.settings.topic("status"), status):
+                self.on_status_published(status)
             self._statuses.popleft()
-            self.on_status_published(status)
+            self._restore = False  # what the broker holds now is ours
+        if self._restore:
+            await self._restore_status()
         if self._health_dirty and self._health is not None:
             self._health_dirty = False
-            await self._publish(
-                self.settings.topic("health"), self._health, True, self._health_props
-            )
+            await self._publish(self.settings.topic("health"), self._health, self._health_props)
 
     async def _publish_batch(self, batch: FrameBatch) -> None:
         now = time.monotonic_ns()
@@ -284,107 +316,169 @@ class Publisher:
             return
         origin = batch.last_byte_mono_ns or batch.made_mono_ns
         # Each payload is encoded once, its latency_ms left open and written in just
-        # before the bytes go to the client (``LatencySlot``): the payload's age when
-        # it leaves, encoding included. All of a prediction's messages are handed to
-        # paho at once and go out in one write: one at a time, each would wait for its
-        # own turn of the loop, and on a loaded host those turns, not the broker,
-        # bound how many predictions go out.
+        # before the bytes go to paho (``LatencySlot``): the payload's age when it
+        # leaves, encoding included. All of a prediction's messages are handed over
+        # at once and the last one's write awaited: paho writes its queue in order,
+        # and one await per prediction, not one per message, keeps the event loop's
+        # share small at 16 pairs.
         messages = [
             (self.settings.topic(name), LatencySlot.encode(payload, self._fmt))
             for name, payload in batch.render(0.0)
         ]
         try:
-            # All but the last go straight into paho's queue; awaiting the last one's
-            # write (aiomqtt) awaits theirs too: paho writes its queue in order. One
-            # await per prediction, not a task, an event and a timeout per message
-            # (a tenth of the event loop's time at 16 pairs, py-spy).
-            for topic, slot in messages[:-1]:
-                self._queue_frame(topic, slot, origin)
-            if messages:
-                await self._unless_lost(self._publish_frame(*messages[-1], origin))
-        except aiomqtt.MqttError:
+            written = None
+            for topic, slot in messages:
+                latency_ms = (time.monotonic_ns() - origin) / 1e6
+                written = self._connection.publish(
+                    topic, slot.fill(latency_ms), FRAME_QOS, False, self._frame_props
+                )
+            if written is not None:
+                await self._wait(written)
+        except BrokerLostError:
             self.stats.dropped_error += 1
             raise
         self.stats.published += 1
         self.stats.last_seq = batch.seq
-        # health's end_to_end: up to the write to the socket (aiomqtt returns from a
-        # QoS 0 publish once paho has written it).
+        # health's end_to_end: up to the write to the socket.
         self.stats.latency_ms.add((time.monotonic_ns() - origin) / 1e6)
 
-    def _queue_frame(self, topic: str, slot: LatencySlot, origin_ns: int) -> None:
-        """Hand one per-frame message to paho without waiting for its write (QoS 0)."""
-        latency_ms = (time.monotonic_ns() - origin_ns) / 1e6
-        paho_client: paho.Client = self._client._client  # aiomqtt 2.x keeps paho here
-        info = paho_client.publish(
-            topic, slot.fill(latency_ms), qos=FRAME_QOS, retain=False, properties=self._frame_props
-        )
-        if info.rc != paho.MQTT_ERR_SUCCESS:  # not connected: as aiomqtt's publish says it
-            raise aiomqtt.MqttCodeError(info.rc, "Could not publish message")
-
-    async def _publish_frame(self, topic: str, slot: LatencySlot, origin_ns: int) -> None:
-        latency_ms = (time.monotonic_ns() - origin_ns) / 1e6
-        await self._client.publish(
-            topic, slot.fill(latency_ms), qos=FRAME_QOS, retain=False, properties=self._frame_props
-        )
-
     async def _publish(
-        self, topic: str, payload: BaseModel, retained: bool, props: Properties | None = None
-    ) -> None:
-        publish = self._client.publish(
-            topic,
-            encode(payload, self._fmt),
-            qos=RETAINED_QOS if retained else FRAME_QOS,
-            retain=retained,
-            properties=props if props is not None else self._retained_props,
-        )
-        if retained:
-            await self._unless_lost(publish)
-        else:
-            await publish
+        self, topic: str, payload: BaseModel, props: Properties | None = None
+    ) -> bool:
+        """One retained message at QoS 1, acknowledged; False when the broker refused it."""
+        return await self._publish_data(topic, encode(payload, self._fmt), props)
 
-    async def _unless_lost(self, publish: Awaitable[Any]) -> None:
-        """Await publishes, or fail as soon as the connection is lost.
+    async def _publish_data(self, topic: str, data: bytes, props: Properties | None = None) -> bool:
+        props = props if props is not None else self._retained_props
+        conn = self._connection
+        reason = await self._wait(conn.publish(topic, data, RETAINED_QOS, True, props))
+        if reason is not None and reason.is_failure:
+            self._refused(topic, reason)
+            return False
+        if topic == self.settings.topic("status"):
+            self._status_sent = data
+            if not conn.v5:  # 3.1.1 has no "no local": our own publish comes back
+                self._echoes.append(data)
+        return True
 
-        aiomqtt waits for a PUBACK (QoS 1) or for the write (QoS 0) until its timeout
-        (5 s) even when the broker is already gone; its disconnect future (private,
-        aiomqtt 2.x) says so at once.
-        """
-        lost = getattr(self._client, "_disconnected", None)
-        if not isinstance(lost, asyncio.Future):
-            await publish
-            return
+    @property
+    def _connection(self) -> Connection:
+        if self._conn is None:
+            msg = "not connected"
+            raise BrokerLostError(msg)
+        return self._conn
+
+    async def _wait(self, publish: Awaitable[T]) -> T:
+        """Await a publish (or a subscribe); ``BrokerLostError`` as soon as the connection
+        ends, or when the broker has not acknowledged it within ``ack_timeout_s``."""
+        conn = self._connection
         task = asyncio.ensure_future(publish)
+        waiting: set[asyncio.Future[Any]] = {task, conn.lost}
         done, _ = await asyncio.wait(
-            {task, lost}, timeout=NUDGE_AFTER_S, return_when=asyncio.FIRST_COMPLETED
+            waiting,
+            timeout=self.settings.ack_timeout_s,
+            return_when=asyncio.FIRST_COMPLETED,
         )
-        if not done:
-            self._nudge()
-            await asyncio.wait({task, lost}, return_when=asyncio.FIRST_COMPLETED)
-        if task.done():
-            task.result()
-            return
+        if task in done and not task.cancelled():  # cancelled: the connection ended
+            return task.result()
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
-        if not lost.cancelled():
-            lost.exception()  # retrieved: it is reported below, not by asyncio at exit
-        msg = "connection lost"
-        raise aiomqtt.MqttError(msg)
+        if conn.lost.done():
+            raise BrokerLostError(conn.lost.result())
+        self.stats.not_acknowledging += 1
+        msg = (
+            f"not acknowledging: no answer to a publish within "
+            f"{self.settings.ack_timeout_s:g} s ({conn.unacknowledged} unacknowledged)"
+        )
+        raise BrokerLostError(msg)
 
-    def _nudge(self) -> None:
-        """Write paho's queued packets now.
+    @property
+    def unacknowledged(self) -> int:
+        """QoS 1 messages handed to the broker and not yet acknowledged, now."""
+        return self._conn.unacknowledged if self._conn is not None else 0
 
-        Seen in the fault soak: reconnects that took 6 s instead of 0.3, the first
-        publish waiting out aiomqtt's 5 s timeout. The likely cause (not proven):
-        aiomqtt asks the loop to watch the socket for writability through
-        ``call_soon_threadsafe``, and around a reconnect that request can be lost
-        (it races the old socket's), leaving the packets in paho's queue.
-        """
-        paho_client = getattr(self._client, "_client", None)
-        if paho_client is not None:
-            try:
-                paho_client.loop_write()
-            except Exception:  # the connection is gone after all: the publish will say so
-                log.debug("loop_write after a stalled publish", exc_info=True)
+    def _refused(self, topic: str, reason: ReasonCode) -> None:
+        self.stats.refused += 1
+        self.stats.last_refused = f"{topic}: {reason} (0x{reason.value:02x})"
+        self._say(
+            "refused",
+            "broker %s refused a publish on %s: %s (0x%02x, %d refused so far); check its ACL",
+            self.settings.broker,
+            topic,
+            reason,
+            reason.value,
+            self.stats.refused,
+        )
+
+    # --- our own retained status, watched -------------------------------------------------
+    async def _watch_status(self, conn: Connection) -> None:
+        """Subscribe to our own status. The broker then hands back the retained one just
+        published: if it does not (mosquitto grants the subscription and filters what
+        its ACL does not let us read), the watch is blind and the log says so."""
+        topic = self.settings.topic("status")
+        self._status_watched = False
+        code = await self._wait(conn.subscribe(topic))
+        if code.is_failure:
+            self._say_unwatched(str(code))
+        elif self._status_sent is not None:
+
+            def check() -> None:
+                if not self._status_watched and self._conn is conn and not conn.lost.done():
+                    self._say_unwatched("the retained status did not come back")
+
+            asyncio.get_running_loop().call_later(self.settings.ack_timeout_s, check)
+
+    def _say_unwatched(self, why: str) -> None:
+        self._say(
+            "unwatched",
+            "cannot read %s on broker %s (%s): a status another client publishes there is "
+            "not replaced; let the daemon read its own status topic (its ACL)",
+            self.settings.topic("status"),
+            self.settings.broker,
+            why,
+        )
+
+    def _status_seen(self, message: paho.MQTTMessage) -> None:
+        """A message on our status topic (paho's callback, in the loop's thread)."""
+        self._status_watched = True
+        payload = bytes(message.payload)
+        if self._echoes and payload == self._echoes[0]:
+            self._echoes.popleft()  # our own, back from the broker (MQTT 3.1.1)
+            return
+        if self._status_sent is None or payload == self._status_sent:
+            return
+        self._restore = True
+        self._wake.set()
+
+    async def _restore_status(self) -> None:
+        """Publish our status again over another client's (at most once a second)."""
+        wait_s = self._restored_at + RESTORE_EVERY_S - time.monotonic()
+        if wait_s > 0:
+            asyncio.get_running_loop().call_later(wait_s, self._wake.set)
+            return
+        truth = self._status_sent
+        if truth is None:
+            return
+        self._restore = False
+        self._restored_at = time.monotonic()
+        self.stats.status_restored += 1
+        self._say(
+            "restored",
+            "status on %s was changed by another client (same device id twice, or forged); "
+            "published ours again (%d times so far)",
+            self.settings.topic("status"),
+            self.stats.status_restored,
+        )
+        await self._publish_data(self.settings.topic("status"), truth)
+
+    def _say(self, what: str, fmt: str, *args: object) -> None:
+        """A WARNING, at most once every SAY_EVERY_S for the same ``what``; debug between."""
+        now = time.monotonic()
+        if now - self._said_at.get(what, -SAY_EVERY_S) >= SAY_EVERY_S:
+            self._said_at[what] = now
+            log.warning(fmt, *args)
+        else:
+            log.debug(fmt, *args)
 
     def _set_state(self, state: BrokerState, detail: str) -> None:
         if state == "disconnected":

@@ -55,6 +55,10 @@ class MqttSettings(BaseModel):
     queue_size: Annotated[int, Field(ge=1, le=10_000)] = 32  # predictions waiting to publish
     health_interval_s: Annotated[float, Field(gt=0, le=3600)] = 5.0
     reconnect_max_s: Annotated[float, Field(gt=0, le=300)] = 5.0  # backoff ceiling
+    # A publish not acknowledged (QoS 1) or not taken (QoS 0) by the broker within this:
+    # the connection is dropped and made again (a broker that takes the connection and
+    # then never answers is as good as gone).
+    ack_timeout_s: Annotated[float, Field(gt=0, le=300)] = 5.0
     # While the broker stays away the log says so again this often (a WARNING each time).
     outage_warning_s: Annotated[float, Field(gt=0, le=3600)] = 15.0
     pressure: bool = False  # also publish downsampled pressure frames (the demo's view)

@@ -1,0 +1,286 @@
+"""One MQTT connection: a paho client driven by the asyncio loop, public API only.
+
+paho is written for a caller's own event loop: ``socket()`` to watch,
+``loop_read`` / ``loop_write`` / ``loop_misc`` to call, ``want_write`` to say
+whether bytes wait. Here the loop watches the socket for reading always and
+for writing exactly while ``want_write()`` is true, checked again after every
+call into paho (level-triggered). Nothing depends on the order of paho's
+register/unregister callbacks, which aiomqtt forwards through
+``call_soon_threadsafe``: around a reconnect those calls reach the loop after
+the socket they name was closed, and the registration is lost (packets then
+sit in paho's queue until a timeout; tests/test_daemon_publisher_reconnect.py
+shows it) or kept on a socket with nothing to write (the loop then wakes for
+it without end).
+
+Each connection is a fresh paho client, used only from the loop's thread once
+its blocking connect (in a worker thread) has returned: a connection that
+ended takes its unacknowledged messages with it, so a broker that never
+acknowledges cannot make paho's resend queue grow; the publisher republishes
+the retained state on every connect anyway.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import ssl
+from collections.abc import Callable
+from typing import Any, Final
+
+import paho.mqtt.client as paho
+from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode
+from paho.mqtt.properties import Properties
+from paho.mqtt.reasoncodes import ReasonCode
+from paho.mqtt.subscribeoptions import SubscribeOptions
+from scotti.daemon.errors import DaemonError
+from scotti.daemon.settings.mqtt import MqttSettings
+
+MISC_EVERY_S: Final = 1.0  # paho's keepalive bookkeeping (PINGREQ, a silent broker)
+CONNACK_TIMEOUT_S: Final = 5.0  # from the TCP (and TLS) connect to the broker's CONNACK
+CLOSE_TIMEOUT_S: Final = 2.0  # a graceful DISCONNECT, then the socket is closed anyway
+
+
+class BrokerLostError(DaemonError):
+    """The connection could not be made or has ended; the message says why, in one line."""
+
+
+class Connection:
+    """Connect, publish (each publish a future: written at QoS 0, acknowledged at
+    QoS 1), subscribe, close. ``lost`` resolves, with the reason, when it ends."""
+
+    def __init__(
+        self,
+        settings: MqttSettings,
+        will: tuple[str, bytes, Properties | None],
+        on_message: Callable[[paho.MQTTMessage], None],
+        logger: logging.Logger,
+        tls: ssl.SSLContext | None = None,
+    ) -> None:
+        """``tls``: the context for ``mqtts://`` (``settings.tls_context()``, made once)."""
+        self.settings = settings
+        self.v5 = settings.protocol == "5"
+        self._loop = asyncio.get_running_loop()
+        self._on_message = on_message
+        self._fd: int | None = None  # the socket the loop watches, while it does
+        self._writing = False  # ... for writability too
+        self._misc: asyncio.Task[None] | None = None
+        self._connack: asyncio.Future[ReasonCode] = self._loop.create_future()
+        self.lost: asyncio.Future[str] = self._loop.create_future()
+        # mid -> its publish: (future, when handed to paho); QoS 0 ones until written.
+        self._pending: dict[int, tuple[asyncio.Future[ReasonCode | None], float, int]] = {}
+        self._subscribes: dict[int, asyncio.Future[list[ReasonCode]]] = {}
+
+        client = paho.Client(
+            callback_api_version=CallbackAPIVersion.VERSION2,
+            client_id=settings.client_id or f"scotti-daemon-{settings.device_id}",
+            protocol=paho.MQTTv5 if self.v5 else paho.MQTTv311,
+            reconnect_on_failure=False,
+        )
+        client.enable_logger(logger)
+        if settings.username is not None:
+            password = settings.password.get_secret_value() if settings.password else None
+            client.username_pw_set(settings.username, password)
+        if tls is not None:
+            client.tls_set_context(tls)
+        topic, payload, props = will
+        client.will_set(topic, payload, qos=1, retain=True, properties=props)
+        client.on_connect = self._connected
+        client.on_disconnect = self._disconnected
+        client.on_publish = self._published
+        client.on_subscribe = self._subscribed
+        client.on_message = lambda _c, _u, message: self._on_message(message)
+        client.on_socket_close = lambda _c, _u, _s: self._detach()
+        self._client = client
+
+    # --- life --------------------------------------------------------------------------
+    async def open(self) -> None:
+        """Connect and wait for the CONNACK; ``BrokerLostError`` if refused or unanswered."""
+        try:
+            # Blocking (name lookup, TCP and TLS handshakes): in a worker thread. paho
+            # writes the CONNECT there too; nothing else touches the client until then.
+            await self._loop.run_in_executor(None, self._blocking_connect)
+        except (OSError, ssl.SSLError, ValueError) as exc:
+            raise BrokerLostError(str(exc) or type(exc).__name__) from None
+        sock = self._client.socket()
+        if sock is None:  # closed already (paho logged why)
+            msg = "connection lost"
+            raise BrokerLostError(msg)
+        self._fd = sock.fileno()
+        self._loop.add_reader(self._fd, self._readable)
+        self._sync_writer()
+        self._misc = self._loop.create_task(self._misc_loop(), name="mqtt-keepalive")
+        waiting: set[asyncio.Future[Any]] = {self._connack, self.lost}
+        try:
+            done, _ = await asyncio.wait(
+                waiting,
+                timeout=CONNACK_TIMEOUT_S,
+                return_when=asyncio.FIRST_COMPLETED,
+            )
+        except asyncio.CancelledError:
+            self.abort()
+            raise
+        if self._connack in done:
+            code = self._connack.result()
+            if not code.is_failure:
+                return
+            self.abort()
+            msg = f"[code:{code.value}] {code}"
+            raise BrokerLostError(msg)
+        self.abort()
+        msg = self.lost.result() if self.lost in done else "no answer from the broker (timed out)"
+        raise BrokerLostError(msg)
+
+    def _blocking_connect(self) -> None:
+        # MQTT v5: a clean start each time (nothing of an old session is wanted: the
+        # retained state is republished); 3.1.1: the client's clean session.
+        start = True if self.v5 else paho.MQTT_CLEAN_START_FIRST_ONLY
+        self._client.connect(
+            self.settings.host, self.settings.port, self.settings.keepalive_s, clean_start=start
+        )
+
+    async def close(self) -> None:
+        """A graceful DISCONNECT (the broker drops the last will), then the socket."""
+        if not self.lost.done() and self._fd is not None:
+            self._client.disconnect()
+            self._sync_writer()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(self.lost), CLOSE_TIMEOUT_S)
+        self.abort()
+
+    def abort(self) -> None:
+        """Drop the connection without DISCONNECT: the broker publishes the last will."""
+        sock = self._client.socket()
+        self._detach()
+        if sock is not None:
+            sock.close()
+        self._end("connection closed")
+
+    def _end(self, reason: str) -> None:
+        if not self.lost.done():
+            self.lost.set_result(reason)
+        for future, _at, _qos in self._pending.values():
+            future.cancel()
+        self._pending.clear()
+        for sub in self._subscribes.values():
+            sub.cancel()
+        self._subscribes.clear()
+        if self._misc is not None:
+            self._misc.cancel()
+
+    # --- the loop's side: read, write exactly while paho wants to, keepalive ---------------
+    def _readable(self) -> None:
+        sock = self._client.socket()
+        while True:
+            rc = self._client.loop_read()
+            # TLS: a read may leave decrypted bytes in the SSL object, which the
+            # selector does not see; read them now.
+            if rc != MQTTErrorCode.MQTT_ERR_SUCCESS or not isinstance(sock, ssl.SSLSocket):
+                break
+            if sock.fileno() < 0 or not sock.pending():
+                break
+        self._after(rc)
+
+    def _writable(self) -> None:
+        self._after(self._client.loop_write())
+
+    async def _misc_loop(self) -> None:
+        while True:
+            await asyncio.sleep(MISC_EVERY_S)
+            self._after(self._client.loop_misc())
+
+    def _after(self, rc: MQTTErrorCode) -> None:
+        if rc != MQTTErrorCode.MQTT_ERR_SUCCESS:
+            self._detach()
+            self._end(_lost_reason(rc))
+            return
+        self._sync_writer()
+
+    def _sync_writer(self) -> None:
+        want = self._fd is not None and self._client.want_write()
+        if want == self._writing or self._fd is None:
+            return
+        if want:
+            self._loop.add_writer(self._fd, self._writable)
+        else:
+            self._loop.remove_writer(self._fd)
+        self._writing = want
+
+    def _detach(self) -> None:
+        """Stop watching the socket (paho is about to close it, or has)."""
+        if self._fd is None:
+            return
+        self._loop.remove_reader(self._fd)
+        self._loop.remove_writer(self._fd)
+        self._fd, self._writing = None, False
+
+    # --- publishing ------------------------------------------------------------------------
+    def publish(
+        self, topic: str, payload: bytes, qos: int, retain: bool, props: Properties | None
+    ) -> asyncio.Future[ReasonCode | None]:
+        """Hand one message to paho; the future is done once it is written (QoS 0, None)
+        or acknowledged (QoS 1: the PUBACK's reason code, a refusal included)."""
+        if self.lost.done():
+            raise BrokerLostError(self.lost.result())
+        info = self._client.publish(topic, payload, qos=qos, retain=retain, properties=props)
+        self._sync_writer()
+        if info.rc != MQTTErrorCode.MQTT_ERR_SUCCESS:
+            raise BrokerLostError(_lost_reason(info.rc))
+        future: asyncio.Future[ReasonCode | None] = self._loop.create_future()
+        if qos == 0 and info.is_published():  # written at once, the usual case
+            future.set_result(None)
+        else:
+            self._pending[info.mid] = (future, self._loop.time(), qos)
+        return future
+
+    @property
+    def unacknowledged(self) -> int:
+        """QoS 1 publishes handed over and not yet acknowledged."""
+        return sum(1 for _f, _at, qos in self._pending.values() if qos > 0)
+
+    async def subscribe(self, topic: str) -> ReasonCode:
+        """Subscribe at QoS 1: under v5 without our own publishes (no local) and with
+        the retain flag as published. The SUBACK's reason code (a failure: refused)."""
+        if self.v5:
+            options = SubscribeOptions(qos=1, noLocal=True, retainAsPublished=True)
+            rc, mid = self._client.subscribe(topic, options=options)
+        else:
+            rc, mid = self._client.subscribe(topic, qos=1)
+        self._sync_writer()
+        if rc != MQTTErrorCode.MQTT_ERR_SUCCESS or mid is None:
+            raise BrokerLostError(_lost_reason(rc))
+        future: asyncio.Future[list[ReasonCode]] = self._loop.create_future()
+        self._subscribes[mid] = future
+        (code,) = await future
+        return code
+
+    # --- paho's callbacks (the loop's thread, from loop_read/loop_write/loop_misc) ---------
+    def _connected(self, _c: Any, _u: Any, _flags: Any, reason: ReasonCode, _p: Any) -> None:
+        if not self._connack.done():
+            self._connack.set_result(reason)
+
+    def _disconnected(self, *_args: Any) -> None:
+        self._detach()
+        self._end("connection lost")
+
+    def _published(self, _c: Any, _u: Any, mid: int, reason: ReasonCode, _p: Any) -> None:
+        pending = self._pending.pop(mid, None)
+        if pending is not None and not pending[0].done():
+            pending[0].set_result(reason if pending[2] > 0 else None)
+
+    def _subscribed(self, _c: Any, _u: Any, mid: int, codes: list[ReasonCode], _p: Any) -> None:
+        future = self._subscribes.pop(mid, None)
+        if future is not None and not future.done():
+            future.set_result(codes)
+
+    def oldest_unacknowledged_s(self) -> float:
+        """Seconds the oldest publish not yet written or acknowledged has waited."""
+        if not self._pending:
+            return 0.0
+        return self._loop.time() - min(at for _f, at, _q in self._pending.values())
+
+
+def _lost_reason(rc: MQTTErrorCode) -> str:
+    if rc in (MQTTErrorCode.MQTT_ERR_NO_CONN, MQTTErrorCode.MQTT_ERR_CONN_LOST):
+        return "connection lost"
+    return paho.error_string(rc)
