@@ -118,7 +118,11 @@ class StreamingWindow:
 
         A frame of the wrong shape raises ModelInputError and leaves the window as it was.
         """
-        return self._accept(frame, self._runtime.step(frame, self._cache.past()))
+        return self.accept(frame, self._runtime.step(frame, self.past()))
+
+    def past(self) -> npt.NDArray[np.float32]:
+        """(T-1, E): the embeddings of the previous frames, what the next step reads."""
+        return self._cache.past()
 
     def reset(self) -> None:
         """Forget every frame (after a long gap): the window warms up again."""
@@ -127,11 +131,11 @@ class StreamingWindow:
         self._seen = 0
         self.reasons = ()
 
-    def _accept(
+    def accept(
         self, frame: npt.ArrayLike, result: StepResult, check: FrameCheck | None = None
     ) -> StepResult | None:
-        """Take one step's result for ``frame`` into the cache and the input checks
-        (``check``: the frame's, made with other frames' in one pass)."""
+        """Take one step's result for ``frame`` (run on ``past()``) into the cache and the
+        input checks (``check``: the frame's, made with other frames' in one pass)."""
         self._cache.push(result.embedding)
         verdict = self._checks.push(frame) if check is None else self._checks.push_check(check)
         self._seen += 1
@@ -169,7 +173,7 @@ def push_many(
         msg = f"frame must be {runtime.frame_shape}, got {wrong[0]}"
         raise ModelInputError(msg)
     stacked = np.stack(arrays)  # (B, H, 2W)
-    past = np.stack([w._cache.past() for w in windows])  # (B, T-1, E)
+    past = np.stack([w.past() for w in windows])  # (B, T-1, E)
     results = runtime.step_batch(stacked, past)
     checks = check_frames(stacked)  # one numpy pass for all: per frame, the calls cost most
-    return [w._accept(f, r, c) for w, f, r, c in zip(windows, arrays, results, checks, strict=True)]
+    return [w.accept(f, r, c) for w, f, r, c in zip(windows, arrays, results, checks, strict=True)]

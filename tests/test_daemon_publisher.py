@@ -9,7 +9,8 @@ from collections.abc import Awaitable, Callable
 import msgpack
 import pytest
 from pydantic import BaseModel
-from scotti.daemon.mqtt.publisher import FrameBatch, Publisher
+from scotti.daemon.frames.pipeline import Prediction
+from scotti.daemon.mqtt.publisher import Publisher
 from scotti.daemon.mqtt.schemas import Info, Progress, Status
 from scotti.daemon.settings import MqttSettings
 from scotti.daemon.tools.local_broker import Mosquitto
@@ -153,23 +154,21 @@ def test_latency_ms_counts_the_encoding_up_to_the_hand_off(mosquitto: Mosquitto)
     # bytes are handed to the client, so those 200 ms are in it.
     slow_ms = 200
 
-    def slow_batch(seq: int) -> FrameBatch:
-        fast = batch(seq)
-
-        def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
+    class SlowPublisher(Publisher):
+        def frame_messages(self, prediction: Prediction) -> list[tuple[str, BaseModel]]:
             time.sleep(slow_ms / 1e3)
-            return fast.render(latency_ms)
-
-        return FrameBatch(fast.seq, fast.last_byte_mono_ns, fast.made_mono_ns, render)
+            return super().frame_messages(prediction)
 
     with collect(mosquitto, "scotti/dev1/progress") as got:
 
         async def body(pub: Publisher) -> None:
             await until(lambda: pub.state == "connected")
-            pub.submit(slow_batch(1))
+            pub.submit(batch(1))
             await until(lambda: pub.stats.published == 1)
 
-        pub = running(lambda: Publisher(settings(mosquitto), info(), will=status("offline")), body)
+        pub = running(
+            lambda: SlowPublisher(settings(mosquitto), info(), will=status("offline")), body
+        )
         got.wait_for(lambda m: len(m) == 1, 5)
     sent = Progress.model_validate_json(got.snapshot()[0].payload).latency_ms
     assert sent >= slow_ms

@@ -35,7 +35,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from scotti.daemon.inference.window import Window, WindowOutput, push_batch
+from scotti.daemon.inference.window import Window, WindowOutput
 from scotti.firmware_protocol.pairing import PairedFrame
 
 log = logging.getLogger(__name__)
@@ -80,6 +80,11 @@ class InferenceLane:
         self._changed = asyncio.Event()
 
     @property
+    def loop(self) -> asyncio.AbstractEventLoop | None:
+        """The loop results are delivered on (None until ``start``)."""
+        return self._loop
+
+    @property
     def in_flight(self) -> int:
         """Jobs waiting or running (read on the loop thread)."""
         return self._in_flight
@@ -114,7 +119,7 @@ class InferenceLane:
 
     # --- called by the engine ------------------------------------------------------
 
-    def _take(self) -> tuple[InferenceJob, bool] | None:
+    def take(self) -> tuple[InferenceJob, bool] | None:
         """(oldest job, restart first?) or None; the caller holds the engine's condition."""
         if not self._queue:
             return None
@@ -123,7 +128,12 @@ class InferenceLane:
         self._restart_pending = False
         return job, restart
 
-    def _deliver(self, result: InferenceResult) -> None:
+    def discard_waiting(self) -> None:
+        """Drop the frames not yet taken; the caller holds the engine's condition."""
+        self._queue.clear()
+
+    def deliver(self, result: InferenceResult) -> None:
+        """On the lane's loop: one result to the lane's owner."""
         self._in_flight -= 1
         self._changed.set()
         self._on_result(result)
@@ -176,7 +186,7 @@ class InferenceEngine:
         with self.cond:
             if lane in self._lanes:
                 self._lanes.remove(lane)
-            lane._queue.clear()
+            lane.discard_waiting()
             last = not self._lanes
         if self.owned and last:
             await self.stop()
@@ -217,7 +227,7 @@ class InferenceEngine:
         self._turn = (self._turn + 1) % n
         taken = []
         for lane in self._lanes[self._turn :] + self._lanes[: self._turn]:
-            item = lane._take()
+            item = lane.take()
             if item is not None:
                 taken.append((lane, *item))
         return taken
@@ -226,7 +236,7 @@ class InferenceEngine:
         start = time.perf_counter()
         try:
             outputs: list[WindowOutput | None] = list(
-                push_batch(
+                Window.push_batch(
                     [lane.window for lane, _, _ in taken], [j.frame.counts for _, j, _ in taken]
                 )
             )
@@ -243,9 +253,9 @@ class InferenceEngine:
         # share its loop, and each call_soon_threadsafe writes to the loop's self-pipe.
         by_loop: dict[asyncio.AbstractEventLoop, list[tuple[InferenceLane, InferenceResult]]] = {}
         for (lane, job, restart), output, error in zip(taken, outputs, errors, strict=True):
-            if lane._loop is not None:
+            if lane.loop is not None:
                 result = InferenceResult(job, output, ms, restart, error, len(taken))
-                by_loop.setdefault(lane._loop, []).append((lane, result))
+                by_loop.setdefault(lane.loop, []).append((lane, result))
         for loop, results in by_loop.items():
             with contextlib.suppress(RuntimeError):  # a closed loop: nobody listens any more
                 loop.call_soon_threadsafe(_deliver_all, results)
@@ -255,7 +265,7 @@ def _deliver_all(results: list[tuple[InferenceLane, InferenceResult]]) -> None:
     """On a loop: each result to its lane, in the order the engine ran them."""
     for lane, result in results:
         try:
-            lane._deliver(result)
+            lane.deliver(result)
         except Exception:  # one device's consumer failing must not cost the others theirs
             log.exception("delivering an inference result failed")
 

@@ -57,15 +57,15 @@ class Window:
             self.restarts += 1
         self._streaming.reset()
 
-
-def push_batch(
-    windows: Sequence[Window], counts: Sequence[npt.NDArray[np.uint16]]
-) -> list[WindowOutput]:
-    """One paired frame into each window, in one call of the shared model (see
-    ``models.streaming.push_many``); a bad frame raises and leaves every window as it was."""
-    streams = [w._streaming for w in windows]
-    results = push_many(streams, [c.astype(np.float32) for c in counts])
-    return [
-        WindowOutput(r, s.frames_in_window, s.needed, s.reasons if r is not None else ())
-        for r, s in zip(results, streams, strict=True)
-    ]
+    @staticmethod
+    def push_batch(
+        windows: Sequence[Window], counts: Sequence[npt.NDArray[np.uint16]]
+    ) -> list[WindowOutput]:
+        """One paired frame into each window, in one call of the shared model (see
+        ``models.streaming.push_many``); a bad frame raises and leaves every window as it was."""
+        streams = [w._streaming for w in windows]  # Window's own state: this is its method
+        results = push_many(streams, [c.astype(np.float32) for c in counts])
+        return [
+            WindowOutput(r, s.frames_in_window, s.needed, s.reasons if r is not None else ())
+            for r, s in zip(results, streams, strict=True)
+        ]

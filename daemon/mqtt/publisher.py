@@ -1,14 +1,15 @@
 """MQTT publishing: one connection at a time (``connection.Connection``), in a reconnect loop.
 
-The pipeline hands over one ``FrameBatch`` per prediction through a bounded
-queue that drops the oldest (the reader never waits for the broker). The
-loop here connects (also when the broker is down at boot: it keeps
-retrying with backoff), republishes the retained ``status`` and ``info`` on
-every connect, then publishes batches as they come. Each status change is
-published in order, and never before the predictions submitted ahead of it (a
-consumer that reads "receiver disconnected" gets no older pose after it);
-after a reconnect only the current status goes out. Health is "latest wins"
-and may overtake predictions.
+The pipeline hands over each ``Prediction`` as it is, through a bounded
+queue that drops the oldest (the reader never waits for the broker); its
+messages are encoded here, as it is published. The loop here connects (also
+when the broker is down at boot: it keeps retrying with backoff),
+republishes the retained ``status`` and ``info`` on every connect, then
+publishes predictions as they come. Each status change is published in
+order, and never before the predictions submitted ahead of it (a consumer
+that reads "receiver disconnected" gets no older pose after it); after a
+reconnect only the current status goes out. Health is "latest wins" and may
+overtake predictions.
 
 A broker that goes away, restarts or refuses (bad password, unknown CA) is
 one WARNING line with the reason, then retries with backoff until it is back
@@ -42,7 +43,7 @@ import logging
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import Any, Final, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Final, Literal, TypeVar
 
 import aiomqtt
 import paho.mqtt.client as paho
@@ -50,12 +51,16 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 from pydantic import BaseModel
+from scotti.daemon.mqtt import messages
 from scotti.daemon.mqtt.connection import BrokerLostError, Connection
 from scotti.daemon.mqtt.latency_slot import LatencySlot
 from scotti.daemon.mqtt.schemas import CONTENT_TYPES, Health, Info, Status, encode
 from scotti.daemon.service.counters import LatencyRing
 from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.waiting import Backoff, wait_event
+
+if TYPE_CHECKING:
+    from scotti.daemon.frames.pipeline import Prediction
 
 log = logging.getLogger(__name__)
 MQTT_LOGGER: Final = "scotti.daemon.mqtt.paho"  # paho logs here (service/main.py, loop_errors.py)
@@ -68,19 +73,6 @@ FRAME_QOS: Final = 0  # pose/action/progress: a newer one is 62 ms away
 DROP_LOG_EVERY_S: Final = 10.0  # a full queue is logged at most this often (and counted)
 RESTORE_EVERY_S: Final = 1.0  # a status of another client's is replaced at most this often
 SAY_EVERY_S: Final = 10.0  # a refusal or a replaced status is logged at most this often
-
-
-@dataclass(frozen=True)
-class FrameBatch:
-    """What one prediction publishes; rendered at publish time (a prediction dropped
-    from the queue costs no encoding)."""
-
-    seq: int
-    last_byte_mono_ns: int  # 0 when unknown: latency is then measured from inference
-    made_mono_ns: int  # when the prediction was made
-    # latency_ms -> (topic, payload); called once, with 0.0: the publisher writes the
-    # true latency into the encoded bytes as they leave (``LatencySlot``).
-    render: Callable[[float], list[tuple[str, BaseModel]]]
 
 
 @dataclass
@@ -134,16 +126,17 @@ class Publisher:
         self._info = info
         self._status: Status | None = None
         self._health: Health | None = None
-        # Status changes not yet published: (batches submitted before it, status), in order.
+        # Status changes not yet published: (predictions submitted before it, status), in order.
         self._statuses: collections.deque[tuple[int, Status]] = collections.deque(
             maxlen=MAX_PENDING_STATUSES
         )
         self._health_dirty = False
-        self._queue: collections.deque[FrameBatch] = collections.deque()
-        self._submitted = 0  # batches ever submitted
+        self._queue: collections.deque[Prediction] = collections.deque()
+        self._pressure_downsample = settings.pressure_downsample if settings.pressure else 0
+        self._submitted = 0  # predictions ever submitted
         self._drop_logged_at = -DROP_LOG_EVERY_S  # the first drop is logged at once
         self._wake = asyncio.Event()
-        self._room = asyncio.Event()  # set whenever a batch leaves the queue
+        self._room = asyncio.Event()  # set whenever a prediction leaves the queue
         v5 = settings.protocol == "5"  # MQTT 3.1.1 has no properties: none are sent
         self._frame_props = _properties(self._fmt, settings.message_expiry_s) if v5 else None
         self._retained_props = _properties(self._fmt, None) if v5 else None
@@ -164,12 +157,14 @@ class Publisher:
     def queue_depth(self) -> int:
         return len(self._queue)
 
-    def submit(self, batch: FrameBatch) -> None:
+    def submit(self, prediction: Prediction) -> None:
+        """Queue one prediction's messages; encoded only when published (a prediction
+        dropped from the queue costs no encoding)."""
         if len(self._queue) >= self.settings.queue_size:
             self._queue.popleft()
             self.stats.dropped_full += 1
             self._log_drop()
-        self._queue.append(batch)
+        self._queue.append(prediction)
         self._submitted += 1
         self._wake.set()
 
@@ -193,7 +188,7 @@ class Publisher:
         )
 
     async def wait_room(self, margin: int) -> None:
-        """Wait until the queue has room for ``margin`` more batches (a replay waits
+        """Wait until the queue has room for ``margin`` more predictions (a replay waits
         here instead of having its predictions pushed out of a full queue)."""
         limit = max(0, self.settings.queue_size - margin)
         while len(self._queue) > limit:
@@ -285,9 +280,9 @@ class Publisher:
             self._wake.clear()
             await self._flush_retained()
             while self._queue:
-                batch = self._queue.popleft()
+                prediction = self._queue.popleft()
                 self._room.set()
-                await self._publish_batch(batch)
+                await self._publish_prediction(prediction)
                 await self._flush_retained()  # status changes overtake a long backlog
             if stop.is_set():
                 self.on_drained()  # the last health and status, after the last frame
@@ -296,7 +291,7 @@ class Publisher:
             await _wait_any(self._wake, stop)
 
     async def _flush_retained(self) -> None:
-        taken = self._submitted - len(self._queue)  # batches published or dropped
+        taken = self._submitted - len(self._queue)  # predictions published or dropped
         while self._statuses and self._statuses[0][0] <= taken:
             status = self._statuses[0][1]
             if await self._publish(self.settings.topic("status"), status):
@@ -309,25 +304,33 @@ class Publisher:
             self._health_dirty = False
             await self._publish(self.settings.topic("health"), self._health, self._health_props)
 
-    async def _publish_batch(self, batch: FrameBatch) -> None:
+    def frame_messages(self, prediction: Prediction) -> list[tuple[str, BaseModel]]:
+        """(topic name, payload) of one prediction: pose, action, progress, and pressure
+        when it is on; latency_ms left at 0, written in as the bytes leave."""
+        return messages.frame_payloads(prediction, 0.0, self._pressure_downsample)
+
+    async def _publish_prediction(self, prediction: Prediction) -> None:
         now = time.monotonic_ns()
-        if self.drop_stale and now - batch.made_mono_ns > self.settings.message_expiry_s * 1e9:
+        made = prediction.host_mono_ns
+        if self.drop_stale and now - made > self.settings.message_expiry_s * 1e9:
             self.stats.dropped_stale += 1
             return
-        origin = batch.last_byte_mono_ns or batch.made_mono_ns
+        # The last byte of the newest frame; 0 when unknown: latency is then measured
+        # from inference.
+        origin = prediction.last_byte_mono_ns or made
         # Each payload is encoded once, its latency_ms left open and written in just
         # before the bytes go to paho (``LatencySlot``): the payload's age when it
         # leaves, encoding included. All of a prediction's messages are handed over
         # at once and the last one's write awaited: paho writes its queue in order,
         # and one await per prediction, not one per message, keeps the event loop's
         # share small at 16 pairs.
-        messages = [
+        encoded = [
             (self.settings.topic(name), LatencySlot.encode(payload, self._fmt))
-            for name, payload in batch.render(0.0)
+            for name, payload in self.frame_messages(prediction)
         ]
         try:
             written = None
-            for topic, slot in messages:
+            for topic, slot in encoded:
                 latency_ms = (time.monotonic_ns() - origin) / 1e6
                 written = self._connection.publish(
                     topic, slot.fill(latency_ms), FRAME_QOS, False, self._frame_props
@@ -338,7 +341,7 @@ class Publisher:
             self.stats.dropped_error += 1
             raise
         self.stats.published += 1
-        self.stats.last_seq = batch.seq
+        self.stats.last_seq = prediction.seq
         # health's end_to_end: up to the write to the socket.
         self.stats.latency_ms.add((time.monotonic_ns() - origin) / 1e6)
 

@@ -19,14 +19,13 @@ import time
 from collections.abc import AsyncGenerator, Callable
 from typing import Any, Literal
 
-from pydantic import BaseModel
 from scotti.daemon.frames.pipeline import Pipeline, PipelineState, Prediction
 from scotti.daemon.inference.engine import InferenceEngine
 from scotti.daemon.input.recording import Recorder
 from scotti.daemon.input.sources import Source, SourceItem
 from scotti.daemon.mqtt import messages
 from scotti.daemon.mqtt.control import Control
-from scotti.daemon.mqtt.publisher import BrokerState, FrameBatch, Publisher
+from scotti.daemon.mqtt.publisher import BrokerState, Publisher
 from scotti.daemon.mqtt.schemas import Info, Status
 from scotti.daemon.outputs import DeviceOutputs, recording_metadata
 from scotti.daemon.service.counters import Counters
@@ -143,20 +142,9 @@ class Device:
 
     # --- callbacks from the pipeline and the publisher ------------------------------
     def _on_prediction(self, prediction: Prediction) -> None:
+        """The one result object, as it is, to each consumer (none of them changes it)."""
         assert self.publisher is not None
-        pressure = self.mqtt.pressure_downsample if self.mqtt.pressure else 0
-
-        def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
-            return messages.frame_payloads(prediction, latency_ms, pressure)
-
-        self.publisher.submit(
-            FrameBatch(
-                seq=prediction.seq,
-                last_byte_mono_ns=prediction.last_byte_mono_ns,
-                made_mono_ns=prediction.host_mono_ns,
-                render=render,
-            )
-        )
+        self.publisher.submit(prediction)  # encoded when it is published
         self.outputs.prediction(prediction)  # queued only: written on the outputs' thread
         if self.control is not None:
             self.control.prediction(prediction)  # an MCAP file record/start opened

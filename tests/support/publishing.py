@@ -16,12 +16,16 @@ import sys
 import time
 from typing import Literal
 
-from pydantic import BaseModel
+import numpy as np
+from scotti.daemon.frames.pipeline import Prediction
 from scotti.daemon.mqtt import messages
-from scotti.daemon.mqtt.publisher import FrameBatch, Publisher
-from scotti.daemon.mqtt.schemas import DeviceSeq, Info, Progress, Status
+from scotti.daemon.mqtt.publisher import Publisher
+from scotti.daemon.mqtt.schemas import Info, Status
 from scotti.daemon.service.counters import Counters
 from scotti.daemon.settings import MqttSettings
+from scotti.models.contract import ACTIONS, FRAME_COLS, FRAME_ROWS, NUM_ACTIONS, NUM_KEYPOINTS
+
+SQUAT = ACTIONS.index("squat")
 
 
 def info() -> Info:
@@ -47,25 +51,29 @@ def status(state: Literal["online", "degraded", "offline"]) -> Status:
     )
 
 
-def batch(seq: int) -> FrameBatch:
-    def render(latency_ms: float) -> list[tuple[str, BaseModel]]:
-        p = Progress(
-            seq=seq,
-            device_seq=DeviceSeq(left=seq, right=seq),
-            device_time_us=0,
-            host_wall_ns=0,
-            host_mono_ns=0,
-            predicted_for_mono_ns=0,
-            latency_ms=latency_ms,
-            flags=[],
-            action="squat",
-            progress=0.5,
-            repetition=1,
-        )
-        return [("progress", p)]
-
+def batch(seq: int) -> Prediction:
+    """A prediction as the pipeline makes it (squat, halfway, one repetition), made now."""
     now = time.monotonic_ns()
-    return FrameBatch(seq=seq, last_byte_mono_ns=now, made_mono_ns=now, render=render)
+    probs = np.zeros(NUM_ACTIONS, dtype=np.float32)
+    probs[SQUAT] = 1.0
+    return Prediction(
+        seq=seq,
+        left_seq=seq,
+        right_seq=seq,
+        device_clock_us=0,
+        host_wall_ns=0,
+        host_mono_ns=now,
+        predicted_for_mono_ns=now,
+        last_byte_mono_ns=now,
+        pose=np.zeros((NUM_KEYPOINTS, 3), dtype=np.float32),
+        action_probs=probs,
+        action=SQUAT,
+        progress=0.5,
+        repetition=1,
+        flags=(),
+        inference_ms=0.0,
+        counts=np.zeros((FRAME_ROWS, 2 * FRAME_COLS), dtype=np.uint16),
+    )
 
 
 async def _run(url: str, seconds: float, options: dict[str, str]) -> None:
