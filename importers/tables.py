@@ -22,6 +22,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -363,15 +364,19 @@ class _CsvReader:
 def _c_parse(data: bytes, delimiter: str) -> np.ndarray | None:
     """numpy's C reader on whole lines; None when it refuses them."""
     try:
-        return np.loadtxt(
-            io.BytesIO(data),
-            delimiter=delimiter,
-            comments=None,
-            quotechar=None,
-            encoding="latin-1",  # any byte decodes; what is not a number fails in numpy
-            ndmin=2,
-            dtype=np.float64,
-        )
+        with warnings.catch_warnings():
+            # Lines that hold no values: numpy warns and gives nothing; the line-by-line
+            # check after it names the line, which is the error the user sees.
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+            return np.loadtxt(
+                io.BytesIO(data),
+                delimiter=delimiter,
+                comments=None,
+                quotechar=None,
+                encoding="latin-1",  # any byte decodes; what is not a number fails in numpy
+                ndmin=2,
+                dtype=np.float64,
+            )
     except ValueError:
         return None
 

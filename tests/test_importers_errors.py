@@ -174,3 +174,14 @@ def test_missing_file_and_existing_output(
     assert run_import(tmp_path, "--pressure", str(path)) == 2
     assert "exists; --force replaces it" in one_line(capsys)
     assert run_import(tmp_path, "--pressure", str(path), "--force") == 0
+
+
+def test_a_header_and_an_empty_row_is_one_line_and_no_warning(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Found by the import fuzz: numpy's reader warned "input contained no data" on stderr
+    # before the error line (under pytest's warnings-as-errors: an exception).
+    path = tmp_path / "e.csv"
+    path.write_bytes(b"t,L0,L1,L2,L3\n,")
+    assert main(["import", str(path), "-o", str(tmp_path / "e.scotti"), "--grid", "2x2"]) == 2
+    assert "e.csv line 2: 1 columns, expected 5" in one_line(capsys)
