@@ -86,12 +86,12 @@ class Connection:
         topic, payload, props = will
         client.will_set(topic, payload, qos=1, retain=True, properties=props)
         client.on_connect = self._connected
-        client.on_disconnect = self._disconnected
+        client.on_disconnect = self._on_disconnect
         client.on_publish = self._published
         client.on_subscribe = self._subscribed
         client.on_message = lambda _c, _u, message: self._on_message(message)
         client.on_socket_close = lambda _c, _u, _s: self._detach()
-        self._client = client
+        self._paho = client
 
     # --- life --------------------------------------------------------------------------
     async def open(self) -> None:
@@ -102,7 +102,7 @@ class Connection:
             await self._loop.run_in_executor(None, self._blocking_connect)
         except (OSError, ssl.SSLError, ValueError) as exc:
             raise BrokerLostError(str(exc) or type(exc).__name__) from None
-        sock = self._client.socket()
+        sock = self._paho.socket()
         if sock is None:  # closed already (paho logged why)
             msg = "connection lost"
             raise BrokerLostError(msg)
@@ -135,14 +135,14 @@ class Connection:
         # MQTT v5: a clean start each time (nothing of an old session is wanted: the
         # retained state is republished); 3.1.1: the client's clean session.
         start = True if self.v5 else paho.MQTT_CLEAN_START_FIRST_ONLY
-        self._client.connect(
+        self._paho.connect(
             self.settings.host, self.settings.port, self.settings.keepalive_s, clean_start=start
         )
 
     async def close(self) -> None:
         """A graceful DISCONNECT (the broker drops the last will), then the socket."""
         if not self.lost.done() and self._fd is not None:
-            self._client.disconnect()
+            self._paho.disconnect()
             self._sync_writer()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(self.lost), CLOSE_TIMEOUT_S)
@@ -150,7 +150,7 @@ class Connection:
 
     def abort(self) -> None:
         """Drop the connection without DISCONNECT: the broker publishes the last will."""
-        sock = self._client.socket()
+        sock = self._paho.socket()
         self._detach()
         if sock is not None:
             sock.close()
@@ -170,9 +170,9 @@ class Connection:
 
     # --- the loop's side: read, write exactly while paho wants to, keepalive ---------------
     def _readable(self) -> None:
-        sock = self._client.socket()
+        sock = self._paho.socket()
         while True:
-            rc = self._client.loop_read()
+            rc = self._paho.loop_read()
             # TLS: a read may leave decrypted bytes in the SSL object, which the
             # selector does not see; read them now.
             if rc != MQTTErrorCode.MQTT_ERR_SUCCESS or not isinstance(sock, ssl.SSLSocket):
@@ -182,12 +182,12 @@ class Connection:
         self._after(rc)
 
     def _writable(self) -> None:
-        self._after(self._client.loop_write())
+        self._after(self._paho.loop_write())
 
     async def _misc_loop(self) -> None:
         while True:
             await asyncio.sleep(MISC_EVERY_S)
-            self._after(self._client.loop_misc())
+            self._after(self._paho.loop_misc())
 
     def _after(self, rc: MQTTErrorCode) -> None:
         if rc != MQTTErrorCode.MQTT_ERR_SUCCESS:
@@ -197,7 +197,7 @@ class Connection:
         self._sync_writer()
 
     def _sync_writer(self) -> None:
-        want = self._fd is not None and self._client.want_write()
+        want = self._fd is not None and self._paho.want_write()
         if want == self._writing or self._fd is None:
             return
         if want:
@@ -222,7 +222,7 @@ class Connection:
         or acknowledged (QoS 1: the PUBACK's reason code, a refusal included)."""
         if self.lost.done():
             raise BrokerLostError(self.lost.result())
-        info = self._client.publish(topic, payload, qos=qos, retain=retain, properties=props)
+        info = self._paho.publish(topic, payload, qos=qos, retain=retain, properties=props)
         self._sync_writer()
         if info.rc != MQTTErrorCode.MQTT_ERR_SUCCESS:
             raise BrokerLostError(_lost_reason(info.rc))
@@ -243,9 +243,9 @@ class Connection:
         the retain flag as published. The SUBACK's reason code (a failure: refused)."""
         if self.v5:
             options = SubscribeOptions(qos=1, noLocal=True, retainAsPublished=True)
-            rc, mid = self._client.subscribe(topic, options=options)
+            rc, mid = self._paho.subscribe(topic, options=options)
         else:
-            rc, mid = self._client.subscribe(topic, qos=1)
+            rc, mid = self._paho.subscribe(topic, qos=1)
         self._sync_writer()
         if rc != MQTTErrorCode.MQTT_ERR_SUCCESS or mid is None:
             raise BrokerLostError(_lost_reason(rc))
@@ -259,7 +259,7 @@ class Connection:
         if not self._connack.done():
             self._connack.set_result(reason)
 
-    def _disconnected(self, *_args: Any) -> None:
+    def _on_disconnect(self, *_args: Any) -> None:
         self._detach()
         self._end("connection lost")
 
