@@ -348,3 +348,23 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def test_the_servers_process_yields_the_cpu_to_everything_else(preds: list[Prediction]) -> None:
+    """The front process runs in the idle scheduling class (nice 19 where there is none),
+    so a thousand readers wait for the CPU, not the daemon's MQTT path; and it still
+    serves."""
+    from scotti.daemon.outputs.yield_cpu import scheduling_of
+
+    with served() as s:
+        pid = s.output.front.proc.pid
+        reader = Reader(s.port)
+        assert reader.head().endswith(b"200 OK")
+        assert reader.event()["type"] == "hello"
+        s.until(lambda f: 0 in f.watched, "the reader in")
+        s.send(preds[0])
+        assert reader.event()["seq"] == preds[0].seq
+        expected = "SCHED_IDLE" if hasattr(os, "SCHED_IDLE") else "nice 19"
+        assert scheduling_of(pid) == expected
+        assert scheduling_of(os.getpid()) != expected  # the daemon's own process is left as is
+        reader.close()

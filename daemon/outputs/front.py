@@ -34,7 +34,6 @@ import errno
 import html
 import json
 import logging
-import os
 import resource
 import socket
 import struct
@@ -44,6 +43,7 @@ from collections.abc import Callable
 from typing import Any, Final
 
 from scotti.daemon.outputs import guard
+from scotti.daemon.outputs.yield_cpu import yield_cpu_to_others
 
 log = logging.getLogger("scotti.daemon.outputs.front")
 
@@ -55,7 +55,6 @@ END_WAIT_S: Final = 1.0  # at the stop: for the readers to take what is buffered
 DESCRIPTORS_SPARE: Final = 32  # kept free beyond the connections (listener, channel, ...)
 OUT_OF_DESCRIPTORS: Final = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 HTML: Final = "text/html; charset=utf-8"
-NICENESS: Final = 19  # below everything else on the host, the daemon included
 
 # The daemon's messages: a kind byte, a device index (u16), the payload.
 FRAME: Final = b"F"
@@ -509,8 +508,7 @@ def main() -> int:
     config = json.loads(sys.stdin.buffer.read())
     # The daemon's reading and publishing come first: when the CPU is short (a thousand
     # readers on a small host), this process waits, not the MQTT path.
-    with contextlib.suppress(OSError):
-        os.nice(NICENESS)
+    yield_cpu_to_others()
     asyncio.run(serve(config))
     return 0
 

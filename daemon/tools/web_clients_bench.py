@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from scotti.daemon.outputs.yield_cpu import yield_cpu_to_others
 from scotti.daemon.service.counters import latency_summary
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.daemon.tools.bench import _play_boards, collect, config_text
@@ -59,10 +60,11 @@ def free_port() -> int:
 
 def _read_feeds(port: int, clients: int, ready: Any, stop: Any, result: Any, nice: bool) -> None:
     """The helper process: ``clients`` readers of ``/events``, reading and discarding.
-    They stand for browsers on other machines: at ``nice`` 19 with ``--nice-readers``,
-    so that on a small host they do not take the daemon's CPU as those would not."""
+    They stand for browsers on other machines: with ``--nice-readers`` in the idle
+    scheduling class (nice 19 where there is none), so that on a small host they do
+    not take the daemon's CPU as those would not."""
     if nice:
-        os.nice(19)
+        yield_cpu_to_others()
     request = f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode()
     selector = selectors.DefaultSelector()
     socks = []
@@ -187,7 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
     p.add_argument(
         "--nice-readers", action="store_true",
-        help="run the readers at nice 19 (browsers stand-in that does not share the host's CPU)",
+        help="run the readers in the idle scheduling class (stand-ins for browsers "
+        "on other machines, which would not share the host's CPU)",
     )  # fmt: skip
     args = p.parse_args(argv)
     try:
@@ -197,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(
         f"web_clients_bench: 1 pair at 16 Hz, {args.seconds:.0f} s measured per run, "
-        f"{os.cpu_count()} CPUs, readers at nice {19 if args.nice_readers else 0}, "
+        f"{os.cpu_count()} CPUs, readers {'idle class' if args.nice_readers else 'at nice 0'}, "
         f"load average {os.getloadavg()[0]:.1f} at start",
         flush=True,
     )
