@@ -28,6 +28,12 @@ def chunked_outputs(
     """Outputs for every window of every chunk, each frame through the CNN once."""
     lengths = [f.shape[0] for f in chunk_frames]
     emb = model.embed_frames(torch.cat(list(chunk_frames)))  # (sum L, E)
+    if model.cfg.arch == "streaming":  # a chunk is a stream: its later windows get history
+        runs = torch.split(emb, lengths)
+        if len(set(lengths)) == 1:
+            return model.forward_windows_pooled(torch.stack(runs), stride)[0]
+        outs = [model.forward_windows_pooled(r[None], stride)[0] for r in runs]
+        return ScottiOutputs(*(torch.cat(parts) for parts in zip(*outs, strict=True)))
     windows = [unfold_windows(e, window, stride) for e in torch.split(emb, lengths)]
     return model.forward_embeddings(torch.cat(windows))  # (B, T, E) -> heads
 

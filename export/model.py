@@ -21,8 +21,11 @@ from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
+from scotti.export import model_streaming as ms
 from scotti.models import contract
 from torch import nn
+
+ARCHES = ("paper", "streaming")
 
 
 class ModelConfigError(ValueError):
@@ -43,6 +46,9 @@ class ScottiConfig:
     ff_dim: int = 0  # feed-forward width; 0 means 4 * E
     dropout: float = 0.1
     head_hidden: int = 256  # hidden width of each MLP head
+    # "paper": learned absolute positions, full attention (a step reruns T+1 tokens);
+    # "streaming": relative positions, causal, a key/value cache (export/model_streaming.py)
+    arch: str = "paper"
 
     def __post_init__(self) -> None:
         # JSON round trips turn tuples into lists; keep the frozen value hashable.
@@ -58,6 +64,8 @@ class ScottiConfig:
             problems.append(f"conv_channels must be two positive integers: {self.conv_channels}")
         if not isinstance(self.ff_dim, int) or self.ff_dim < 0:
             problems.append(f"ff_dim must be >= 0 (0 means 4 * embed_dim), got {self.ff_dim!r}")
+        if self.arch not in ARCHES:
+            problems.append(f"arch must be one of {', '.join(ARCHES)}, got {self.arch!r}")
         if not 0.0 <= float(self.dropout) < 1.0:
             problems.append(f"dropout must be in [0, 1), got {self.dropout!r}")
         if not problems and self.embed_dim % self.heads:
@@ -79,6 +87,8 @@ class ScottiConfig:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["conv_channels"] = list(self.conv_channels)
+        if self.arch == "paper":  # the paper form's configs read as they always have
+            del d["arch"]
         return d
 
     @classmethod
@@ -199,17 +209,22 @@ class Scotti(nn.Module):
         e, t = cfg.embed_dim, cfg.window
         self.cnn = FrameCNN(cfg)
         self.class_token = nn.Parameter(torch.zeros(1, 1, e))
-        self.positions = nn.Parameter(torch.zeros(1, t + 1, e))
         self.dropout = nn.Dropout(cfg.dropout)
-        self.encoder = nn.ModuleList(EncoderLayer(cfg) for _ in range(cfg.layers))
-        self.ln_final = nn.LayerNorm(e)
+        self.streaming: ms.StreamingEncoder | None = None
+        if cfg.arch == "streaming":
+            self.streaming = ms.StreamingEncoder(cfg)
+        else:
+            self.positions = nn.Parameter(torch.zeros(1, t + 1, e))
+            self.encoder = nn.ModuleList(EncoderLayer(cfg) for _ in range(cfg.layers))
+            self.ln_final = nn.LayerNorm(e)
         self.pool_weights = nn.Parameter(recency_prior(t))
         self.pose_head = mlp_head(cfg, contract.NUM_KEYPOINTS * 3)
         self.action_head = mlp_head(cfg, contract.NUM_ACTIONS)
         self.progress_head = mlp_head(cfg, 1)
         self.apply(_init_weights)
         nn.init.normal_(self.class_token, std=0.02)
-        nn.init.normal_(self.positions, std=0.02)
+        if self.streaming is None:
+            nn.init.normal_(self.positions, std=0.02)
 
     def embed_frames(self, frames: torch.Tensor) -> torch.Tensor:
         """Raw counts (N, H, 2W) -> frame embeddings (N, E); each frame on its own."""
@@ -224,6 +239,8 @@ class Scotti(nn.Module):
         """``forward_embeddings`` plus the pooled vector (B, E) the heads read: the
         exported graphs publish it, so the runtime can tell an unfamiliar window."""
         b = emb.shape[0]
+        if self.streaming is not None:  # a stream started at the window's first frame
+            return self.forward_windows_pooled(emb, 1)
         cls = self.class_token.expand(b, -1, -1)  # (B, 1, E)
         x = torch.cat([cls, emb], dim=1) + self.positions  # (B, T+1, E)
         x = self.dropout(x)
@@ -232,10 +249,45 @@ class Scotti(nn.Module):
         x = self.ln_final(x)
         w = self.pool_weights.softmax(dim=0)  # (T+1,), sums to 1
         pooled = torch.einsum("bte,t->be", x, w)  # (B, E), weighted mean over tokens
-        pose = self.pose_head(pooled).view(b, contract.NUM_KEYPOINTS, 3)  # (B, 19, 3)
+        return self.heads(pooled), pooled
+
+    def heads(self, pooled: torch.Tensor) -> ScottiOutputs:
+        """The three heads on the pooled vector (B, E)."""
+        pose = self.pose_head(pooled).view(-1, contract.NUM_KEYPOINTS, 3)  # (B, 19, 3)
         action_logits = self.action_head(pooled)  # (B, NUM_ACTIONS)
         progress = torch.sigmoid(self.progress_head(pooled)).squeeze(-1)  # (B,)
-        return ScottiOutputs(pose, action_logits, progress), pooled
+        return ScottiOutputs(pose, action_logits, progress)
+
+    def forward_windows_pooled(
+        self, emb: torch.Tensor, stride: int
+    ) -> tuple[ScottiOutputs, torch.Tensor]:
+        """Streaming form: a run of consecutive frames (B, N, E), N >= T -> the heads for
+        every window in it (at starts 0, stride, ...; B * K rows, run by run), each
+        frame with the history the run gives it, as a stream started at its first frame.
+        """
+        enc = self._encoder()
+        t = self.cfg.window
+        outputs = ms.window_positions(emb.shape[1], t, stride, emb.device)  # (K,)
+        frames, tokens = enc.sequence(self.dropout(emb), outputs, self.class_token)
+        windows = ms.gather_windows(frames, outputs, t)  # (B, K, T, E)
+        e = emb.shape[-1]
+        pooled = ms.pool(self.pool_weights, tokens.reshape(-1, e), windows.reshape(-1, t, e))
+        return self.heads(pooled), pooled
+
+    def step_pooled(
+        self, emb: torch.Tensor, past: torch.Tensor, valid: torch.Tensor
+    ) -> tuple[ScottiOutputs, torch.Tensor, torch.Tensor]:
+        """Streaming form, one new frame's embedding (B, E) over the cache (B, T-1, S, E)
+        with its valid slots (B, T-1) -> heads, the new cache row (B, S, E), pooled."""
+        present, token, frames = self._encoder().step(emb, past, valid, self.class_token)
+        pooled = ms.pool(self.pool_weights, token, frames)
+        return self.heads(pooled), present, pooled
+
+    def _encoder(self) -> ms.StreamingEncoder:
+        if self.streaming is None:
+            msg = "this model is the paper form; streaming steps need arch='streaming'"
+            raise ModelConfigError(msg)
+        return self.streaming
 
     def forward(self, frames: torch.Tensor) -> ScottiOutputs:
         """Raw counts (B, T, H, 2W) -> pose, action logits and progress for time t."""

@@ -26,6 +26,7 @@ import onnx
 import torch
 from scotti.export.card import card_markdown, file_entry, jsonable, tool_versions
 from scotti.export.errors import ExportError
+from scotti.export.kv_export import KV_GRAPH, KvStepGraph, kv_metadata, prove_kv, step_example
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.ood_calibration import Calibration, calibrate, gather
 from scotti.export.parity import (
@@ -44,6 +45,7 @@ from scotti.export.quantize import quantize_int8
 from scotti.export.subnormals import zero_subnormal_weights
 from scotti.models import contract
 from scotti.models.input_checks import input_check_thresholds
+from scotti.models.kv_streaming import KV_STEP_INPUTS, KV_STEP_OUTPUTS
 from scotti.models.ood import OodStats
 from scotti.models.progress_calibration import ProgressCalibration
 from torch import nn
@@ -277,6 +279,8 @@ def write_metadata(
         values[contract.META_OOD] = ood.to_json()
     if progress is not None:
         values[contract.META_PROGRESS_CALIBRATION] = progress.to_json()
+    if cfg.arch != "paper":  # what kind of step graph and cache (models/kv_streaming.py)
+        values.update(kv_metadata(cfg))
     del proto.metadata_props[:]
     for key, value in values.items():
         entry = proto.metadata_props.add()
@@ -321,6 +325,11 @@ def export_model(
     """
     paths = GraphPaths.for_output(out)
     model, cfg = ckpt.model.eval(), ckpt.model.cfg
+    kv = cfg.arch == "streaming"
+    if kv and int8:
+        msg = "--int8 is not built for the streaming-native form yet (docs/streaming-native.md)"
+        raise ExportError(msg)
+    step_kind = KV_GRAPH if kv else "step"
     # Subnormal weights would slow every call of a runtime that keeps them (subnormals.py).
     zeroed = zero_subnormal_weights(model)
     sets = gather(ckpt.training_data, calibration) if calibration is not None else None
@@ -333,18 +342,25 @@ def export_model(
         frame = torch.rand(2, *cfg.frame_shape, generator=gen) * top  # (B, H, 2W)
         past = torch.randn(2, cfg.window - 1, cfg.embed_dim, generator=gen)  # (B, T-1, E)
         frames = torch.rand(2, cfg.window, *cfg.frame_shape, generator=gen) * top  # (B, T, H, 2W)
-        export_graph(StepGraph(model), (frame, past), staged.step, STEP_INPUTS, STEP_OUTPUTS)
+        if kv:
+            step_io = (KV_STEP_INPUTS, KV_STEP_OUTPUTS)
+            export_graph(KvStepGraph(model), step_example(cfg), staged.step, *step_io)
+        else:
+            export_graph(StepGraph(model), (frame, past), staged.step, STEP_INPUTS, STEP_OUTPUTS)
         export_graph(WindowGraph(model), (frames,), staged.window, WINDOW_INPUTS, WINDOW_OUTPUTS)
         card = {**base_card(ckpt, name, "fp32"), "subnormal_weights_zeroed": zeroed}
-        write_metadata(staged.step, "step", cfg, card)
+        write_metadata(staged.step, step_kind, cfg, card)
         write_metadata(staged.window, "window", cfg, card)
-        parity = prove(model, staged.step, staged.window, threads, tol)
+        if kv:
+            parity = prove_kv(model, str(staged.step), str(staged.window), threads, tol)
+        else:
+            parity = prove(model, staged.step, staged.window, threads, tol)
         ood, progress = None, None
         if calibration is not None and sets is not None:
             ood = calibrate(staged.window, sets, calibration, threads)
             progress = fit_progress(staged.window, sets.held_out, calibration, threads)
             card = {**card, "ood": ood_card(ood), "progress_calibration": progress_card(progress)}
-            write_metadata(staged.step, "step", cfg, card, ood, progress)
+            write_metadata(staged.step, step_kind, cfg, card, ood, progress)
             write_metadata(staged.window, "window", cfg, card, ood, progress)
         else:
             card = {**card, "ood": {"calibrated": False}}

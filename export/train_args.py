@@ -8,6 +8,7 @@ from typing import Any
 
 from scotti.export.devices import DEVICES, PRECISIONS
 from scotti.export.finetune import FREEZE_GROUPS
+from scotti.export.model import ARCHES
 from scotti.export.run_dir import RUN_FILES
 from scotti.export.train import TrainOptions
 from scotti.export.validation import VAL_FRACTION
@@ -46,6 +47,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         + "|".join(CONFIG_PRESETS)
         + ", a JSON object or a .json file"
         + " (default small; with --init, the checkpoint's)",
+    )
+    parser.add_argument(
+        "--arch",
+        choices=ARCHES,
+        default=None,
+        help="paper: the paper's encoder (absolute positions, full attention); streaming: "
+        "relative positions, causal, a key/value cache, ~2 tokens a step instead of T+1 "
+        "(docs/streaming-native.md). Default: the --config's (paper)",
     )
     parser.add_argument(
         "--init",

@@ -13,6 +13,7 @@ with N processes (export/distributed.py).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
@@ -192,6 +193,11 @@ def train(
         cfg = ScottiConfig.from_dict(init["config"])
     else:
         cfg = parse_config(args.config or "small")
+        if args.arch is not None:
+            cfg = dataclasses.replace(cfg, arch=args.arch)
+    if args.arch is not None and args.arch != cfg.arch:
+        msg = f"--arch {args.arch}: the checkpoint's model is the {cfg.arch} form"
+        raise TrainCliError(msg)
 
     data = _load_data(args, ckpt, cfg, opts, ctx)
     training_data = data.training_data()

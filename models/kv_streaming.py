@@ -1,0 +1,287 @@
+"""Streaming inference for the streaming-native model: a per-layer key/value cache.
+
+The paper form's step reruns the transformer over all T+1 tokens each frame
+(models/streaming.py caches only the CNN's embeddings). The streaming-native form
+(``arch: "streaming"``, export/model_streaming.py) has relative positions and causal
+attention, so each frame's keys and values at every layer never change once
+computed: its step graph takes the new frame, the cached rows of the previous T-1
+frames and which of them hold a frame, and returns the heads and the new frame's
+row. A step costs the CNN on one frame and 2 tokens through the layers.
+
+Its step graph says so in its metadata (``scotti.graph`` = ``step_kv``, so a
+runtime that only knows the paper form's contract refuses it in one line); its
+window graph has the paper form's I/O and loads in ``ScottiRuntime``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scotti.models import contract as c
+from scotti.models.errors import ModelContractError, ModelError, ModelInputError
+from scotti.models.graph_checks import check_metadata, ood_stats, open_session, sha256_of
+from scotti.models.input_checks import FrameCheck, FrameChecks, check_frames
+from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON, OodStats
+from scotti.models.progress_calibration import ProgressCalibration
+from scotti.models.runtime import StepBatch, StepResult, softmax
+
+F32 = npt.NDArray[np.float32]
+
+KV_GRAPH: Final = "step_kv"  # scotti.graph of the streaming-native step graph
+META_STEP_KIND: Final = "scotti.step_kind"
+STEP_KIND_KV: Final = "kv_cache"  # what the paper form's step graph would be: embeddings
+META_KV_SLOTS: Final = "scotti.kv_slots"  # S = 2 * layers + 1 vectors of E per frame
+META_RECEPTIVE_FIELD: Final = "scotti.receptive_field"  # frames one prediction reads
+KV_INPUT_PAST: Final = "past_kv"  # float32 (B, T-1, S, E), oldest frame first
+KV_INPUT_VALID: Final = "past_valid"  # float32 (B, T-1), 1 where the slot holds a frame
+KV_OUTPUT_PRESENT: Final = "present_kv"  # float32 (B, S, E), the new frame's row
+KV_STEP_INPUTS: Final = (c.STEP_INPUT_FRAME, KV_INPUT_PAST, KV_INPUT_VALID)
+KV_STEP_OUTPUTS: Final = (
+    c.OUTPUT_POSE,
+    c.OUTPUT_ACTION_LOGITS,
+    c.OUTPUT_PROGRESS,
+    KV_OUTPUT_PRESENT,
+    c.OUTPUT_POOLED,
+)
+
+
+class KvCache:
+    """The rows of the last ``size`` frames, oldest first, as a contiguous view.
+
+    The ring buffer of models/streaming.py's EmbeddingCache, each row (S, E), plus
+    a valid flag per slot (0 until a frame has filled it), written twice the same way.
+    """
+
+    def __init__(self, size: int, slots: int, dim: int) -> None:
+        if size < 1 or slots < 1 or dim < 1:
+            msg = f"a key/value cache needs size, slots and dim >= 1, got {size}, {slots}, {dim}"
+            raise ModelInputError(msg)
+        self._size = size
+        self._row = (slots, dim)
+        self._buffer = np.zeros((2 * size, slots, dim), dtype=np.float32)
+        self._valid = np.zeros(2 * size, dtype=np.float32)
+        self._head = 0
+
+    @property
+    def size(self) -> int:
+        return self._size
+
+    def past(self) -> F32:
+        """(size, S, E) view, oldest first; valid until the next push."""
+        view = self._buffer[self._head : self._head + self._size]
+        view.flags.writeable = False
+        return view
+
+    def valid(self) -> F32:
+        """(size,) view: 1 where the slot holds a frame."""
+        view = self._valid[self._head : self._head + self._size]
+        view.flags.writeable = False
+        return view
+
+    def push(self, row: npt.ArrayLike) -> None:
+        r = np.asarray(row, dtype=np.float32)
+        if r.shape != self._row:
+            msg = f"cache row must be {self._row}, got {r.shape}"
+            raise ModelInputError(msg)
+        for at in (self._head, self._head + self._size):
+            self._buffer[at] = r
+            self._valid[at] = 1.0
+        self._head = (self._head + 1) % self._size
+
+    def reset(self) -> None:
+        self._buffer.fill(0.0)
+        self._valid.fill(0.0)
+        self._head = 0
+
+
+class KvStepRuntime:
+    """The streaming-native step graph in an onnxruntime CPU session."""
+
+    def __init__(self, path: str | Path, threads: int = 1) -> None:
+        self._path = Path(path)
+        if threads < 1:
+            msg = f"threads must be at least 1, got {threads}"
+            raise ModelError(msg)
+        self._sha256 = sha256_of(self._path)
+        self._session = open_session(self._path, threads)
+        meta = dict(self._session.get_modelmeta().custom_metadata_map)
+        try:
+            graph = meta.get(c.META_GRAPH)
+            if graph != KV_GRAPH or meta.get(META_STEP_KIND) != STEP_KIND_KV:
+                msg = f"graph kind is {graph!r}, a key/value streaming step graph is {KV_GRAPH!r}"
+                raise ModelContractError(msg)
+            # The paper form's checks on everything else (version, T, frame, names).
+            _, self._window, self._embed_dim, _ = check_metadata({**meta, c.META_GRAPH: "step"})
+            self._slots = int(meta.get(META_KV_SLOTS, "0"))
+            self._check_io()
+            self._ood = ood_stats(meta, self._embed_dim, True)
+            text = meta.get(c.META_PROGRESS_CALIBRATION)
+            self._calibration = ProgressCalibration.from_json(text) if text else None
+        except (ModelContractError, ValueError) as exc:
+            msg = f"{self._path.name}: {exc}"
+            raise ModelContractError(msg) from None
+        self._frame_shape = (c.FRAME_ROWS, 2 * c.FRAME_COLS)
+
+    def _check_io(self) -> None:
+        inputs = tuple(i.name for i in self._session.get_inputs())
+        outputs = tuple(o.name for o in self._session.get_outputs())
+        if inputs != KV_STEP_INPUTS or outputs != KV_STEP_OUTPUTS or self._slots < 3:
+            msg = f"I/O {inputs} -> {outputs} ({self._slots} slots) is not a key/value step graph"
+            raise ModelContractError(msg)
+        past = self._session.get_inputs()[1].shape
+        if list(past[1:]) != [self._window - 1, self._slots, self._embed_dim]:
+            msg = f"past_kv is {past}, expected (B, {self._window - 1}, {self._slots}, E)"
+            raise ModelContractError(msg)
+
+    @property
+    def path(self) -> Path:
+        return self._path
+
+    @property
+    def sha256(self) -> str:
+        return self._sha256
+
+    @property
+    def window(self) -> int:
+        return self._window
+
+    @property
+    def embed_dim(self) -> int:
+        return self._embed_dim
+
+    @property
+    def slots(self) -> int:
+        """S: vectors of E cached per frame (key and value per layer, final state)."""
+        return self._slots
+
+    @property
+    def frame_shape(self) -> tuple[int, int]:
+        return self._frame_shape
+
+    @property
+    def ood(self) -> OodStats | None:
+        return self._ood
+
+    def run_steps(
+        self, frames: npt.ArrayLike, past: npt.ArrayLike, valid: npt.ArrayLike
+    ) -> StepBatch:
+        """B new frames (B, H, 2W), their caches (B, T-1, S, E) and valid slots (B, T-1)
+        -> one row per frame; ``embedding`` holds the new frames' cache rows (B, S, E)."""
+        f = np.ascontiguousarray(frames, dtype=np.float32)
+        p = np.ascontiguousarray(past, dtype=np.float32)
+        v = np.ascontiguousarray(valid, dtype=np.float32)
+        if f.ndim != 3 or f.shape[1:] != self._frame_shape or len(f) < 1:
+            msg = f"frames must be (B, {', '.join(map(str, self._frame_shape))}), got {f.shape}"
+            raise ModelInputError(msg)
+        want = (len(f), self._window - 1, self._slots, self._embed_dim)
+        if p.shape != want or v.shape != want[:2]:
+            msg = f"past must be {want} and valid {want[:2]}, got {p.shape} and {v.shape}"
+            raise ModelInputError(msg)
+        feeds = {c.STEP_INPUT_FRAME: f, KV_INPUT_PAST: p, KV_INPUT_VALID: v}
+        pose, logits, progress, present, pooled = self._session.run(list(KV_STEP_OUTPUTS), feeds)
+        ood = self._ood
+        score = ood.score(pooled) if ood is not None else None
+        cal = self._calibration
+        if cal is not None:
+            progress = cal.apply(progress, np.argmax(logits, axis=-1))
+        threshold = ood.threshold if ood is not None else None
+        return StepBatch(pose, logits, softmax(logits), progress, present, pooled, score, threshold)
+
+    def __repr__(self) -> str:
+        return f"KvStepRuntime({str(self._path)!r}, T={self._window}, S={self._slots})"
+
+
+class KvStreamingWindow:
+    """Frames in, one prediction per frame once T frames have been seen (as StreamingWindow)."""
+
+    def __init__(self, runtime: KvStepRuntime) -> None:
+        self._runtime = runtime
+        self._cache = KvCache(runtime.window - 1, runtime.slots, runtime.embed_dim)
+        self._checks = FrameChecks(runtime.window)
+        self._seen = 0
+        self.reasons: tuple[str, ...] = ()
+
+    @property
+    def runtime(self) -> KvStepRuntime:
+        return self._runtime
+
+    @property
+    def needed(self) -> int:
+        return self._runtime.window
+
+    @property
+    def frames_seen(self) -> int:
+        return self._seen
+
+    @property
+    def warming(self) -> bool:
+        return self._seen < self.needed
+
+    def past(self) -> F32:
+        return self._cache.past()
+
+    def valid(self) -> F32:
+        return self._cache.valid()
+
+    def push(self, frame: npt.ArrayLike) -> StepResult | None:
+        """One frame (H, 2W) of raw counts; a prediction once the window is full."""
+        f = np.asarray(frame, dtype=np.float32)
+        if f.shape != self._runtime.frame_shape:
+            msg = f"frame must be {self._runtime.frame_shape}, got {f.shape}"
+            raise ModelInputError(msg)
+        batch = self._runtime.run_steps(f[None], self.past()[None], self.valid()[None])
+        return self.accept(f, batch.row(0))
+
+    def reset(self) -> None:
+        self._cache.reset()
+        self._checks.reset()
+        self._seen = 0
+        self.reasons = ()
+
+    def accept(
+        self, frame: npt.ArrayLike, result: StepResult, check: FrameCheck | None = None
+    ) -> StepResult | None:
+        """Take one step's result (its ``embedding`` is the frame's cache row)."""
+        self._cache.push(result.embedding)
+        verdict = self._checks.push(frame) if check is None else self._checks.push_check(check)
+        self._seen += 1
+        if self.warming:
+            return None
+        self.reasons = verdict.reasons
+        if UNFAMILIAR in result.flags:
+            self.reasons += (UNFAMILIAR_REASON,)
+        if not verdict.flags:
+            return result
+        return dataclasses.replace(result, flags=(*verdict.flags, *result.flags))
+
+
+def push_many(
+    windows: Sequence[KvStreamingWindow], frames: Sequence[npt.ArrayLike]
+) -> list[StepResult | None]:
+    """One frame into each of several windows on one runtime, in ONE step-graph call."""
+    if len(windows) != len(frames):
+        msg = f"{len(windows)} windows but {len(frames)} frames"
+        raise ModelInputError(msg)
+    if not windows:
+        return []
+    runtime = windows[0].runtime
+    if any(w.runtime is not runtime for w in windows):
+        msg = "push_many needs windows on one runtime"
+        raise ModelError(msg)
+    arrays = [np.asarray(f, dtype=np.float32) for f in frames]
+    wrong = [a.shape for a in arrays if a.shape != runtime.frame_shape]
+    if wrong:
+        msg = f"frame must be {runtime.frame_shape}, got {wrong[0]}"
+        raise ModelInputError(msg)
+    stacked = np.stack(arrays)
+    past = np.stack([w.past() for w in windows])  # (B, T-1, S, E)
+    valid = np.stack([w.valid() for w in windows])  # (B, T-1)
+    batch = runtime.run_steps(stacked, past, valid)
+    checks = check_frames(stacked)
+    rows = [batch.row(i) for i in range(len(windows))]
+    return [w.accept(f, r, k) for w, f, r, k in zip(windows, arrays, rows, checks, strict=True)]
