@@ -9,6 +9,7 @@ is dropped and counted, so a frame is never emitted twice.
 
 from __future__ import annotations
 
+import sys
 from collections import deque
 from dataclasses import asdict, dataclass, field
 from typing import Final
@@ -82,44 +83,149 @@ class AssemblerCounters:
         return asdict(self)
 
 
+def _foot_frame(
+    foot: Foot,
+    seq: int,
+    board_clock_us: int,
+    counts: np.ndarray,
+    rows_missing: np.ndarray,
+    complete: bool,
+    last_byte_ns: int,
+    sample_bits: int,
+) -> FootFrame:
+    """``FootFrame(...)`` without the frozen dataclass's one ``object.__setattr__`` per
+    field: two foot frames per moment."""
+    frame = object.__new__(FootFrame)
+    vars(frame).update(
+        foot=foot,
+        seq=seq,
+        board_clock_us=board_clock_us,
+        counts=counts,
+        rows_missing=rows_missing,
+        complete=complete,
+        last_byte_ns=last_byte_ns,
+        sample_bits=sample_bits,
+    )
+    return frame
+
+
+# rows -> all False, read-only: the ``rows_missing`` of every whole frame assembled here
+_NONE_MISSING: dict[int, np.ndarray] = {}
+_NONE_MISSING_IDS: set[int] = set()  # theirs (they live as long as the module)
+
+
+def _none_missing(rows: int) -> np.ndarray:
+    missing = _NONE_MISSING.get(rows)
+    if missing is None:
+        missing = _NONE_MISSING[rows] = np.zeros(rows, dtype=bool)
+        missing.flags.writeable = False
+        _NONE_MISSING_IDS.add(id(missing))
+    return missing
+
+
+def no_rows_missing(frame: FootFrame) -> bool:
+    """``not frame.rows_missing.any()``; no numpy call for a whole frame assembled here."""
+    missing = frame.rows_missing
+    return id(missing) in _NONE_MISSING_IDS or not missing.any()
+
+
+# Blocks in row order are kept as they came and joined once, as little-endian u16 bytes.
+_JOIN_IN_ORDER: Final = sys.byteorder == "little"
+_WIRE_SAMPLE: Final = np.dtype("<u2")
+
+
 class _Partial:
-    """A frame in progress."""
+    """A frame in progress.
+
+    While its blocks come in row order (as the radio sends them) they are only kept
+    (``pieces``) and joined when the last is in: one copy, no per-row bookkeeping.
+    The first block out of order lays what came so far into ``counts``/``missing``.
+    """
+
+    __slots__ = (
+        "board_clock_us",
+        "counts",
+        "geometry",
+        "last_byte_ns",
+        "missing",
+        "next_row",
+        "pieces",
+        "seq",
+    )
 
     def __init__(self, block: FrameRows) -> None:
         self.seq = block.seq
         self.board_clock_us = block.board_clock_us
         self.geometry = block.geometry
-        self.counts = np.zeros((block.rows, block.cols), dtype=np.uint16)
-        self.missing = np.ones(block.rows, dtype=bool)
         self.last_byte_ns = 0
+        self.pieces: list[np.ndarray] = []  # samples of rows 0..next_row-1, in order
+        self.next_row = 0
+        self.counts: np.ndarray | None = None  # (rows, cols), once a block came out of order
+        self.missing: np.ndarray | None = None  # (rows,) True for a row not received yet
+
+    @property
+    def complete(self) -> bool:
+        if self.missing is None:
+            return self.next_row == self.geometry[0]
+        return not self.missing.any()
 
     def add(self, block: FrameRows, t_ns: int) -> int:
         """Copy the block's rows in; returns how many of them were already there."""
+        if t_ns > self.last_byte_ns:
+            self.last_byte_ns = t_ns
+        samples = block.samples
+        if self.counts is None or self.missing is None:
+            if block.row_start == self.next_row and _JOIN_IN_ORDER:
+                self.pieces.append(samples)
+                self.next_row += len(samples)
+                return 0
+            counts, missing = self._lay_out()
+        else:
+            counts, missing = self.counts, self.missing
         rows = slice(block.row_start, block.row_start + block.row_count)
-        self.last_byte_ns = max(self.last_byte_ns, t_ns)
-        fresh = self.missing[rows]
-        if fresh.all():  # the common case: rows not seen yet, copied whole
-            self.counts[rows] = block.samples
-            self.missing[rows] = False
+        fresh = missing[rows]
+        if fresh.all():  # rows not seen yet, copied whole
+            counts[rows] = samples
+            missing[rows] = False
             return 0
         fresh = fresh.copy()
-        self.counts[rows][fresh] = block.samples[fresh]
-        self.missing[rows] = False
+        counts[rows][fresh] = samples[fresh]
+        missing[rows] = False
         return int((~fresh).sum())
 
+    def _lay_out(self) -> tuple[np.ndarray, np.ndarray]:
+        """The rows kept so far into arrays (a block came out of order, or rows are missing)."""
+        rows, cols, _ = self.geometry
+        counts = self.counts = np.zeros((rows, cols), dtype=np.uint16)
+        missing = self.missing = np.ones(rows, dtype=bool)
+        if self.pieces:
+            counts[: self.next_row] = np.concatenate(self.pieces)
+            missing[: self.next_row] = False
+            self.pieces = []
+        return counts, missing
+
     def finish(self, foot: Foot) -> FootFrame:
-        self.counts.flags.writeable = False
-        self.missing.flags.writeable = False
-        return FootFrame(
-            foot=foot,
-            seq=self.seq,
-            board_clock_us=self.board_clock_us,
-            counts=self.counts,
-            rows_missing=self.missing,
-            complete=not self.missing.any(),
-            last_byte_ns=self.last_byte_ns,
-            sample_bits=self.geometry[2],
-        )
+        rows, cols, bits = self.geometry
+        if self.counts is None or self.missing is None:
+            if self.next_row == rows:  # every block came, in order
+                try:
+                    joined = b"".join(self.pieces)
+                except TypeError:  # a block's samples are not contiguous in memory
+                    joined = np.concatenate(self.pieces).tobytes()
+                counts = np.frombuffer(joined, dtype=_WIRE_SAMPLE).reshape(rows, cols)
+                return _foot_frame(
+                    foot, self.seq, self.board_clock_us, counts, _none_missing(rows), True,
+                    self.last_byte_ns, bits,
+                )  # fmt: skip
+            counts, missing = self._lay_out()
+        else:
+            counts, missing = self.counts, self.missing
+        counts.flags.writeable = False
+        missing.flags.writeable = False
+        return _foot_frame(
+            foot, self.seq, self.board_clock_us, counts, missing, not missing.any(),
+            self.last_byte_ns, bits,
+        )  # fmt: skip
 
 
 class _FootState:
@@ -156,21 +262,29 @@ class FrameAssembler:
         self.counters.blocks += 1
         state = self._feet[block.foot]
         out: list[FootFrame] = []
-        if self._stale(state, block, out):
+        last = state.last_emitted
+        # seq_delta(block.seq, last) > 0, inline: a block of a newer frame is not stale
+        fresh = last is None or ((block.seq - last + 0x8000) & 0xFFFF) > 0x8000
+        if not fresh and self._stale(state, block, out):
             return out
-        partial = state.pending.get(block.seq)
+        pending = state.pending
+        partial = pending.get(block.seq)
         if partial is None:
-            while len(state.pending) >= self.max_in_progress:
-                self._emit(state, block.foot, self._oldest(state), out)
-            if self._stale(state, block, out):
-                return out
-            partial = state.pending[block.seq] = _Partial(block)
+            if len(pending) >= self.max_in_progress:
+                while len(pending) >= self.max_in_progress:
+                    self._emit(state, block.foot, self._oldest(state), out)
+                if self._stale(state, block, out):  # the frames emitted moved last_emitted
+                    return out
+            partial = pending[block.seq] = _Partial(block)
         elif partial.geometry != block.geometry:
             self.counters.geometry_mismatches += 1
             return out
         self.counters.duplicate_rows += partial.add(block, t_ns)
-        if not partial.missing.any():
-            for seq in sorted(state.pending, key=lambda s: seq_delta(s, block.seq)):
+        if partial.complete:
+            if len(pending) == 1:  # the usual case: it is the only frame in progress
+                self._emit(state, block.foot, block.seq, out)
+                return out
+            for seq in sorted(pending, key=lambda s: seq_delta(s, block.seq)):
                 if seq_delta(seq, block.seq) <= 0:
                     self._emit(state, block.foot, seq, out)  # older incomplete ones first
         return out

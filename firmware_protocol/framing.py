@@ -169,39 +169,63 @@ class StreamDecoder:
     def feed(self, data: bytes | bytearray | memoryview) -> list[Packet | DecodeError]:
         """Take the next bytes of the stream; return what they completed, in order.
 
-        The packets a chunk completes are COBS-decoded together (``cobs.decode_many``):
-        one vectorised pass instead of a Python loop per block.
+        The chunk is split at its delimiters in one call, and the packets it completes
+        are COBS-decoded together (``cobs.decode_many``): no Python loop per byte or block.
         """
         chunk = bytes(data)
         counters = self.counters
         counters.bytes_in += len(chunk)
-        out: list[Packet | DecodeError | bytes] = []  # bytes: a frame still to decode
-        start = 0
-        while True:
-            end = chunk.find(DELIMITER, start)
-            if end < 0:
-                self._keep(chunk[start:], out)
-                break
-            if self._skipping:
-                counters.bytes_discarded += end - start + 1
+        runs = chunk.split(b"\x00")
+        tail = runs.pop()  # after the last delimiter: the start of a packet still coming
+        out: list[Packet | DecodeError] = []
+        if runs:
+            if self._skipping:  # the end of an over-long run: dropped, counted already
+                counters.bytes_discarded += len(runs[0]) + 1
                 self._skipping = False
-            else:
-                if self._buffer:
-                    self._buffer += chunk[start:end]
-                    frame = bytes(self._buffer)
-                    self._buffer.clear()
+                runs[0] = b""
+            elif self._buffer:
+                self._buffer += runs[0]
+                runs[0] = bytes(self._buffer)
+                self._buffer.clear()
+            frames = [run for run in runs if run]  # an empty run (0x00 0x00) is idle padding
+            if frames:
+                if max(map(len, frames)) > self.max_encoded_len:
+                    self._decode_some(frames, out)
                 else:
-                    frame = chunk[start:end]
-                if len(frame) > self.max_encoded_len:
-                    out.append(self._too_long(len(frame) + 1))
-                elif frame:  # an empty run (0x00 0x00) is idle padding, not an error
-                    out.append(frame)
-            start = end + 1
-        frames = [item for item in out if isinstance(item, bytes)]
-        if not frames:
-            return out  # type: ignore[return-value]  # no bytes left in it
-        decoded = iter(zip(frames, cobs.decode_many(frames), strict=True))
-        return [self._parse(*next(decoded)) if isinstance(i, bytes) else i for i in out]
+                    self._decode(frames, out)
+        if tail:
+            self._keep(tail, out)
+        return out
+
+    def _decode(self, frames: list[bytes], out: list[Packet | DecodeError]) -> None:
+        """COBS frames (each at most ``max_encoded_len``) -> packets or errors, counted."""
+        counters = self.counters
+        limit = self.max_packet_len
+        for frame, decoded in zip(frames, cobs.decode_many(frames), strict=True):
+            try:
+                if isinstance(decoded, BadCobsError):
+                    raise decoded
+                if len(decoded) > limit:
+                    msg = f"packet of {len(decoded)} bytes exceeds {limit}"
+                    raise TooLongError(msg)
+                out.append(parse_packet(decoded))
+                counters.packets += 1
+            except DecodeError as exc:
+                setattr(counters, exc.reason, getattr(counters, exc.reason) + 1)
+                counters.bytes_discarded += len(frame) + 1
+                out.append(exc)
+
+    def _decode_some(self, frames: list[bytes], out: list[Packet | DecodeError]) -> None:
+        """``_decode``, where some runs are longer than a packet can be (dropped, counted)."""
+        batch: list[bytes] = []
+        for frame in frames:
+            if len(frame) > self.max_encoded_len:
+                self._decode(batch, out)
+                batch = []
+                out.append(self._too_long(len(frame) + 1))
+            else:
+                batch.append(frame)
+        self._decode(batch, out)
 
     def reset(self) -> None:
         """Forget a partial packet (the port was reopened); its bytes count as discarded."""
@@ -209,7 +233,7 @@ class StreamDecoder:
         self._buffer.clear()
         self._skipping = False
 
-    def _keep(self, tail: bytes, out: list[Packet | DecodeError | bytes]) -> None:
+    def _keep(self, tail: bytes, out: list[Packet | DecodeError]) -> None:
         if self._skipping:
             self.counters.bytes_discarded += len(tail)
             return
@@ -225,23 +249,6 @@ class StreamDecoder:
         self.counters.bytes_discarded += discarded
         msg = f"more than {self.max_encoded_len} bytes without a delimiter"
         return TooLongError(msg)
-
-    def _parse(self, frame: bytes, decoded: bytes | BadCobsError) -> Packet | DecodeError:
-        """One decoded frame (or its COBS error) -> the packet, or the error counted."""
-        try:
-            if isinstance(decoded, BadCobsError):
-                raise decoded
-            if len(decoded) > self.max_packet_len:
-                msg = f"packet of {len(decoded)} bytes exceeds {self.max_packet_len}"
-                raise TooLongError(msg)
-            result = parse_packet(decoded)
-        except DecodeError as exc:
-            counters = self.counters
-            setattr(counters, exc.reason, getattr(counters, exc.reason) + 1)
-            counters.bytes_discarded += len(frame) + 1
-            return exc
-        self.counters.packets += 1
-        return result
 
 
 def decode_all(data: bytes) -> tuple[list[Packet], DecoderCounters]:

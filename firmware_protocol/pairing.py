@@ -33,7 +33,7 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
-from scotti.firmware_protocol.assembly import FootFrame
+from scotti.firmware_protocol.assembly import FootFrame, no_rows_missing
 from scotti.firmware_protocol.packets import DEFAULT_COLS, DEFAULT_ROWS
 from scotti.firmware_protocol.wrap import clock_delta_us, seq_delta
 
@@ -107,7 +107,7 @@ class PairingCounters:
     pairs_out: int = 0
 
 
-@dataclass
+@dataclass(slots=True)
 class _Entry:
     counts: npt.NDArray[np.uint16]
     seq: int
@@ -169,7 +169,8 @@ class Pairing:
         out: list[PairedFrame] = []
         k = self._place(foot, frame)
         track = self._tracks[foot]
-        if k in track.recent:
+        # Every k in ``recent`` is at most ``newest_k``: a newer k needs no look.
+        if track.newest_k is not None and k <= track.newest_k and k in track.recent:
             self.counters.duplicates += 1
             return out
         if self._next_k is None:
@@ -247,10 +248,10 @@ class Pairing:
 
     def _entry(self, track: _Track, frame: FootFrame) -> _Entry:
         counts = np.asarray(frame.counts, dtype=np.uint16)
-        missing = np.asarray(frame.rows_missing, dtype=bool)
-        has_missing = bool(missing.any())
+        has_missing = not no_rows_missing(frame)
         source = WHOLE
         if has_missing:
+            missing = np.asarray(frame.rows_missing, dtype=bool)
             counts = counts.copy()
             if track.last_counts is None:
                 counts[missing], source = 0, PARTIAL
@@ -267,11 +268,16 @@ class Pairing:
     def _drain(self) -> list[PairedFrame]:
         out: list[PairedFrame] = []
         reorder = self.config.reorder_frames
-        while self._next_k is not None and self._pending:
+        pending = self._pending
+        left, right = self._tracks
+        while self._next_k is not None and pending:
             k = self._next_k
-            entry = self._pending.get(k, {})
-            newest = max(t.newest_k for t in self._tracks if t.newest_k is not None)
-            if len(entry) == 2 or newest - k >= reorder or self._other_known_silent(entry):
+            entry = pending.get(k)
+            if entry is not None and len(entry) == 2:
+                out.append(self._send(k))
+                continue
+            newest = max(t.newest_k for t in (left, right) if t.newest_k is not None)
+            if newest - k >= reorder or self._other_known_silent(entry or {}):
                 out.append(self._send(k))
             else:
                 break
@@ -292,6 +298,8 @@ class Pairing:
 
     def _send(self, k: int) -> PairedFrame:
         entry = self._pending.pop(k, {})
+        if len(entry) == 2:
+            return self._send_both(k, entry[LEFT], entry[RIGHT])
         if not entry:
             self.counters.gaps += 1
         self._next_k = k + 1
@@ -332,12 +340,53 @@ class Pairing:
             clocks.append(-1 if held is None else (held.clock + step) & _CLOCK_MASK)
         restart, self._restart_next = self._restart_next, False
         self.counters.pairs_out += 1
-        return PairedFrame(
-            counts=np.concatenate(halves, axis=1),
-            seqs=(seqs[LEFT], seqs[RIGHT]),
-            clocks=(clocks[LEFT], clocks[RIGHT]),
-            last_byte_mono_ns=last_byte,
-            flags=tuple(dict.fromkeys(flags)),
-            restart=restart,
-            feet=(feet[LEFT], feet[RIGHT]),
+        return _paired(
+            np.concatenate(halves, axis=1),
+            (seqs[LEFT], seqs[RIGHT]),
+            (clocks[LEFT], clocks[RIGHT]),
+            last_byte,
+            tuple(dict.fromkeys(flags)),
+            restart,
+            (feet[LEFT], feet[RIGHT]),
         )
+
+    def _send_both(self, k: int, left: _Entry, right: _Entry) -> PairedFrame:
+        """``_send`` of a moment with both feet's frames: the usual one, in fewer steps."""
+        self._next_k = k + 1
+        track_left, track_right = self._tracks
+        track_left.missed = track_right.missed = 0
+        track_left.sent, track_right.sent = left, right
+        restart, self._restart_next = self._restart_next, False
+        self.counters.pairs_out += 1
+        return _paired(
+            np.concatenate((left.counts, right.counts), axis=1),
+            (left.seq, right.seq),
+            (left.clock, right.clock),
+            max(0, left.last_byte_ns, right.last_byte_ns),
+            _ROWS_MISSING if left.rows_missing or right.rows_missing else (),
+            restart,
+            (left.source, right.source),
+        )
+
+
+_ROWS_MISSING: Final = ("rows_missing",)
+
+
+def _paired(
+    counts: npt.NDArray[np.uint16],
+    seqs: tuple[int, int],
+    clocks: tuple[int, int],
+    last_byte_mono_ns: int,
+    flags: tuple[str, ...],
+    restart: bool,
+    feet: tuple[str, str],
+) -> PairedFrame:
+    """``PairedFrame(...)`` without the frozen dataclass's one ``object.__setattr__`` per
+    field: one per moment."""
+    pair = object.__new__(PairedFrame)
+    object.__setattr__(pair, "__dict__", {
+        "counts": counts, "seqs": seqs, "clocks": clocks,
+        "last_byte_mono_ns": last_byte_mono_ns, "flags": flags, "restart": restart,
+        "feet": feet,
+    })  # fmt: skip
+    return pair
