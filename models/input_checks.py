@@ -27,6 +27,7 @@ the frames. Numpy only (ARCHITECTURE.md, room ``models/``).
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -82,7 +83,6 @@ def input_check_thresholds() -> dict[str, float]:
 
 
 _MASK: Final = insole_mask()  # (H, W) True where the insole has a taxel
-_OUTSIDE: Final = np.concatenate([~_MASK, ~_MASK], axis=1)  # (H, 2W), left | right
 
 
 def kpa_from_counts(
@@ -100,6 +100,16 @@ def kpa_from_counts(
     return np.where(pressed, q + transfer.threshold_kpa, 0.0)
 
 
+# The rules a frame can break, by name, in the order ``FrameCheck.implausible`` lists
+# them; bit k of ``FrameStats.rule_bits`` is rule k.
+RULES: Final = (
+    "load outside the insole outline",
+    "taxels at the rail",
+    "one taxel holds the load",
+    "more force than a landing",
+)
+
+
 @dataclass(frozen=True)
 class FrameCheck:
     """The statistics of one frame (H, 2W) the rules read, and the frame's verdict."""
@@ -114,18 +124,29 @@ class FrameCheck:
         return sum(self.force_n) >= UNLOADED_FORCE_N
 
     @property
+    def rule_bits(self) -> int:
+        """Bit k set when the frame breaks ``RULES[k]``."""
+        return (
+            (self.outside_share > OUTSIDE_SHARE_MAX)
+            | (self.rail_share > RAIL_SHARE_MAX) << 1
+            | (self.peak_share > PEAK_SHARE_MAX) << 2
+            | (sum(self.force_n) > FORCE_MAX_N) << 3
+        )
+
+    @property
     def implausible(self) -> list[str]:
         """The rules this frame breaks, by name (empty: a plausible pressure map)."""
-        broken = []
-        if self.outside_share > OUTSIDE_SHARE_MAX:
-            broken.append("load outside the insole outline")
-        if self.rail_share > RAIL_SHARE_MAX:
-            broken.append("taxels at the rail")
-        if self.peak_share > PEAK_SHARE_MAX:
-            broken.append("one taxel holds the load")
-        if sum(self.force_n) > FORCE_MAX_N:
-            broken.append("more force than a landing")
-        return broken
+        return _rule_names(self.rule_bits)
+
+
+# For each value of the rule bits, the rules it sets (a frame's, counted in and out).
+_RULES_IN: Final = tuple(
+    tuple(k for k in range(len(RULES)) if bits >> k & 1) for bits in range(1 << len(RULES))
+)
+
+
+def _rule_names(bits: int) -> list[str]:
+    return [name for k, name in enumerate(RULES) if bits >> k & 1]
 
 
 def check_frame(counts: npt.ArrayLike) -> FrameCheck:
@@ -142,13 +163,14 @@ def check_frames(frames: npt.ArrayLike) -> list[FrameCheck]:
     """``check_frame`` of N frames (N, H, 2W) at once (counts rounded to whole counts)."""
     s = frame_stats(frames)
     return [
-        FrameCheck(
-            (float(s.force_n[i, 0]), float(s.force_n[i, 1])),
-            float(s.outside_share[i]),
-            float(s.rail_share[i]),
-            float(s.peak_share[i]),
+        FrameCheck((force[0], force[1]), outside, rail, peak)
+        for force, outside, rail, peak in zip(
+            s.force_n.tolist(),
+            s.outside_share.tolist(),
+            s.rail_share.tolist(),
+            s.peak_share.tolist(),
+            strict=True,
         )
-        for i in range(len(s.outside_share))
     ]
 
 
@@ -167,34 +189,67 @@ class FrameStats:
         return np.asarray(self.force_n[:, 0] + self.force_n[:, 1] >= UNLOADED_FORCE_N)
 
     @property
+    def rule_bits(self) -> npt.NDArray[np.int64]:
+        """(N,) ``FrameCheck.rule_bits`` of each frame."""
+        bits = (self.outside_share > OUTSIDE_SHARE_MAX).astype(np.int64)
+        bits |= (self.rail_share > RAIL_SHARE_MAX).astype(np.int64) << 1
+        bits |= (self.peak_share > PEAK_SHARE_MAX).astype(np.int64) << 2
+        bits |= (self.force_n[:, 0] + self.force_n[:, 1] > FORCE_MAX_N).astype(np.int64) << 3
+        return bits
+
+    @property
     def implausible(self) -> npt.NDArray[np.bool_]:
         """(N,) whether ``FrameCheck.implausible`` names any rule for the frame."""
-        return np.asarray(
-            (self.outside_share > OUTSIDE_SHARE_MAX)
-            | (self.rail_share > RAIL_SHARE_MAX)
-            | (self.peak_share > PEAK_SHARE_MAX)
-            | (self.force_n[:, 0] + self.force_n[:, 1] > FORCE_MAX_N)
+        return np.asarray(self.rule_bits != 0)
+
+    def codes(self) -> tuple[list[int], list[bool], list[bool], list[bool]]:
+        """What ``FrameChecks.push_code`` takes, per frame as Python lists (one conversion
+        per batch, not one per frame and statistic): rule bits, loaded, left foot empty,
+        right foot empty."""
+        force = self.force_n
+        return (
+            self.rule_bits.tolist(),
+            self.loaded.tolist(),
+            (force[:, 0] < FOOT_EMPTY_N).tolist(),
+            (force[:, 1] < FOOT_EMPTY_N).tolist(),
         )
 
 
+_MASK_FLAT: Final = _MASK.ravel()  # one foot's taxels, row by row
+_OUTSIDE_TAXELS: Final = np.flatnonzero(~_MASK_FLAT)
+_OUTLINE_TAXELS: Final = int(_MASK.sum())
+
+
 def frame_stats(frames: npt.ArrayLike) -> FrameStats:
-    """The statistics of N frames (N, H, 2W) the rules read, as arrays."""
-    x = np.asarray(frames, dtype=np.float64)
+    """The statistics of N frames (N, H, 2W) the rules read, as arrays.
+
+    Unsigned integer counts (the wire's uint16) are read as they are; anything else is
+    cleaned first (NaN as 0, clipped to the counts' range, rounded for the force).
+    """
+    x = np.asarray(frames)
     if x.ndim != 3 or x.shape[1:] != (FRAME_ROWS, 2 * FRAME_COLS):
         msg = f"frames are (N, {FRAME_ROWS}, {2 * FRAME_COLS}), got {x.shape}"
         raise ValueError(msg)
-    x = np.clip(np.nan_to_num(x, nan=0.0), 0.0, MAX_COUNT)
     n = x.shape[0]
-    feet = x.reshape(n, FRAME_ROWS, 2, FRAME_COLS)  # (N, H, foot, W)
-    kpa = _KPA_OF_COUNT[np.rint(feet).astype(np.intp)]
-    force = kpa.sum(axis=(1, 3)) * _N_PER_KPA  # (N, 2)
-    total = x.sum(axis=(1, 2))
-    outside = np.where(total > 0, (x * _OUTSIDE).sum(axis=(1, 2)) / np.maximum(total, 1), 0.0)
-    at_rail = (feet >= RAIL_COUNTS) & _MASK[None, :, None, :]
-    rail = at_rail.sum(axis=(1, 3)) / _MASK.sum()  # (N, 2)
-    sums = feet.sum(axis=(1, 3))
-    peak = np.where(sums > 0, feet.max(axis=(1, 3)) / np.maximum(sums, 1), 0.0)  # (N, 2)
-    return FrameStats(force, outside, rail.max(axis=1), peak.max(axis=1))
+    if x.dtype.kind == "u":
+        if n and x.max() > MAX_COUNT:
+            x = np.minimum(x, MAX_COUNT)
+    else:
+        x = np.clip(np.nan_to_num(x.astype(np.float64), nan=0.0), 0.0, MAX_COUNT)
+    # (N, foot, H*W): each foot's taxels contiguous, so every sum runs along one axis.
+    feet = x.reshape(n, FRAME_ROWS, 2, FRAME_COLS).transpose(0, 2, 1, 3).reshape(n, 2, -1)
+    counts = feet if x.dtype.kind == "u" else np.rint(feet).astype(np.intp)
+    force = _KPA_OF_COUNT.take(counts).sum(axis=2) * _N_PER_KPA  # (N, 2)
+    sums = feet.sum(axis=2, dtype=np.float64)  # (N, 2)
+    total = sums.sum(axis=1)
+    off = feet.take(_OUTSIDE_TAXELS, axis=2).sum(axis=(1, 2), dtype=np.float64)
+    outside = np.where(total > 0, off / np.maximum(total, 1), 0.0)
+    if n and x.max() >= RAIL_COUNTS:  # rare: realistic frames stay off the rail
+        rail = ((feet >= RAIL_COUNTS) & _MASK_FLAT).sum(axis=2) / _OUTLINE_TAXELS
+    else:
+        rail = np.zeros((n, 2))
+    peak = np.where(sums > 0, feet.max(axis=2, initial=0) / np.maximum(sums, 1), 0.0)
+    return FrameStats(force, outside, rail.max(axis=1, initial=0.0), peak.max(axis=1))
 
 
 def window_flags(
@@ -236,25 +291,38 @@ class WindowVerdict:
 
 def verdict(checks: Sequence[FrameCheck], window: int = WINDOW) -> WindowVerdict:
     """The rules over the frames of a window, oldest first (``window``: a full one's length)."""
-    flags, reasons = [], []
-    newest = list(checks)[-UNLOADED_FRAMES:]
+    checks = list(checks)
+    newest = checks[-UNLOADED_FRAMES:]
     unloaded = len(newest) == UNLOADED_FRAMES and not any(c.loaded for c in newest)
+    bits = [c.rule_bits for c in checks]
+    rules = 0
+    if sum(1 for b in bits if b) >= OUT_OF_RANGE_FRAMES:
+        for b in bits:
+            rules |= b
+    full = len(checks) >= window and not unloaded
+    left = full and all(c.force_n[0] < FOOT_EMPTY_N for c in checks)
+    right = full and all(c.force_n[1] < FOOT_EMPTY_N for c in checks)
+    return _verdict_of(unloaded, rules, left, right)
+
+
+@functools.lru_cache(maxsize=256)
+def _verdict_of(unloaded: bool, rules: int, left_empty: bool, right_empty: bool) -> WindowVerdict:
+    """The flags and reason lines for what the rules found (few cases: made once each).
+
+    ``rules``: bits of the rules broken somewhere in a window that holds enough
+    implausible frames; ``left_empty``/``right_empty``: that foot was empty on every
+    frame of a full window that is not unloaded."""
+    flags, reasons = [], []
     if unloaded:
         flags.append(UNLOADED)
         reasons.append(
             f"unloaded: both insoles under {UNLOADED_FORCE_N:.0f} N "
             f"for {UNLOADED_FRAMES / FRAME_RATE_HZ:g} s (nobody on them?)"
         )
-    bad = [broken for broken in (c.implausible for c in checks) if broken]
-    what = (
-        sorted({name for broken in bad for name in broken})
-        if len(bad) >= OUT_OF_RANGE_FRAMES
-        else []
-    )
-    if len(checks) >= window and not unloaded:
-        for side, foot in enumerate(("left", "right")):
-            if all(c.force_n[side] < FOOT_EMPTY_N for c in checks):
-                what.append(f"{foot} insole empty for the whole window")
+    what = sorted(_rule_names(rules))
+    for foot, empty in (("left", left_empty), ("right", right_empty)):
+        if empty:
+            what.append(f"{foot} insole empty for the whole window")
     if what:
         # No counts in the text: status is republished whenever its reasons change.
         flags.append(OUT_OF_RANGE)
@@ -275,17 +343,21 @@ class FrameChecks:
     """The checks of the last ``size`` frames, for a streaming window.
 
     ``verdict`` walks every check of the window; run per frame and per device that
-    was a sixth of the inference thread's time (py-spy, 16 pairs). The counts the
-    rules need are kept up to date as frames come and go instead, and ``verdict``
-    runs only when one of them says a rule may hold: the same verdicts, in O(1)
-    for the windows nothing is wrong with.
+    was a sixth of the inference thread's time (py-spy, 16 pairs). What the rules
+    need is kept up to date as frames come and go instead (per frame: its rule
+    bits and which feet are empty; per window: counts of those and the newest run
+    of unloaded frames), so every frame's verdict costs O(1): the same verdicts as
+    ``verdict`` over the window, flag for flag and reason for reason.
     """
 
     def __init__(self, size: int) -> None:
+        if size < 1:
+            msg = f"a window of checks needs size >= 1, got {size}"
+            raise ValueError(msg)
         self._size = size
-        self._checks: deque[FrameCheck] = deque(maxlen=size)
-        self._bad: deque[bool] = deque(maxlen=size)  # implausible, per frame
-        self._bad_count = 0
+        self._codes: deque[tuple[int, bool, bool]] = deque()  # (rule bits, left, right empty)
+        self._bad_count = 0  # frames that break any rule
+        self._rule_count = [0] * len(RULES)  # frames that break each rule
         self._empty_count = [0, 0]  # frames with the left, the right foot under FOOT_EMPTY_N
         self._unloaded_run = 0  # newest frames in a row that are not loaded
 
@@ -294,29 +366,48 @@ class FrameChecks:
 
     def push_check(self, check: FrameCheck) -> WindowVerdict:
         """Take a frame's check made elsewhere (``check_frames`` of a batch of frames)."""
-        if len(self._checks) == self._size and self._size > 0:
-            old = self._checks[0]
-            self._bad_count -= self._bad[0]
-            for side in (0, 1):
-                self._empty_count[side] -= old.force_n[side] < FOOT_EMPTY_N
-        bad = bool(check.implausible)
-        self._checks.append(check)
-        self._bad.append(bad)
-        self._bad_count += bad
-        for side in (0, 1):
-            self._empty_count[side] += check.force_n[side] < FOOT_EMPTY_N
-        self._unloaded_run = 0 if check.loaded else self._unloaded_run + 1
-        held = len(self._checks)
-        maybe = (
-            self._unloaded_run >= UNLOADED_FRAMES
-            or self._bad_count >= OUT_OF_RANGE_FRAMES
-            or (held >= self._size and held in self._empty_count)
+        left, right = check.force_n
+        return self.push_code(
+            check.rule_bits, check.loaded, left < FOOT_EMPTY_N, right < FOOT_EMPTY_N
         )
-        return verdict(self._checks, self._size) if maybe else _CLEAR
+
+    def push_code(
+        self, rule_bits: int, loaded: bool, left_empty: bool, right_empty: bool
+    ) -> WindowVerdict:
+        """Take a frame as ``FrameStats.codes`` gives it (a batch's frames checked at once)."""
+        codes, empty = self._codes, self._empty_count
+        if len(codes) == self._size:
+            old_bits, old_left, old_right = codes.popleft()
+            if old_bits:
+                self._count_rules(old_bits, -1)
+            empty[0] -= old_left
+            empty[1] -= old_right
+        codes.append((rule_bits, left_empty, right_empty))
+        if rule_bits:
+            self._count_rules(rule_bits, 1)
+        empty[0] += left_empty
+        empty[1] += right_empty
+        self._unloaded_run = 0 if loaded else self._unloaded_run + 1
+        held = len(codes)
+        unloaded = self._unloaded_run >= UNLOADED_FRAMES and held >= UNLOADED_FRAMES
+        rules = 0
+        if self._bad_count >= OUT_OF_RANGE_FRAMES:
+            rules = sum(1 << k for k, n in enumerate(self._rule_count) if n)
+        full = held == self._size and not unloaded
+        left = full and empty[0] == held
+        right = full and empty[1] == held
+        if unloaded or rules or left or right:
+            return _verdict_of(unloaded, rules, left, right)
+        return _CLEAR
+
+    def _count_rules(self, bits: int, step: int) -> None:
+        self._bad_count += step
+        for k in _RULES_IN[bits]:
+            self._rule_count[k] += step
 
     def reset(self) -> None:
-        self._checks.clear()
-        self._bad.clear()
+        self._codes.clear()
         self._bad_count = 0
+        self._rule_count = [0] * len(RULES)
         self._empty_count = [0, 0]
         self._unloaded_run = 0

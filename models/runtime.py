@@ -11,6 +11,7 @@ fit ``contract.py`` (the checks: models/graph_checks.py).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -91,18 +92,27 @@ class StepBatch:
         """(B,) scores above the calibrated threshold (all False when not calibrated)."""
         return _above(self.unfamiliar_score, self.threshold, self.progress.shape[0])
 
-    def row(self, i: int) -> StepResult:
-        score = None if self.unfamiliar_score is None else float(self.unfamiliar_score[i])
+    def row(self, i: int, input_flags: tuple[str, ...] = ()) -> StepResult:
+        """Row i as one result; ``input_flags`` (the window's input checks) go before
+        the runtime's own ``unfamiliar``."""
+        progress, scores, unfamiliar = self._scalars
         return StepResult(
-            pose=self.pose[i],
-            action_logits=self.action_logits[i],
-            action_probs=self.action_probs[i],
-            progress=float(self.progress[i]),
-            embedding=self.embedding[i],
-            pooled=None if self.pooled is None else self.pooled[i],
-            unfamiliar_score=score,
-            flags=(UNFAMILIAR,) if self.unfamiliar[i] else (),
+            self.pose[i],
+            self.action_logits[i],
+            self.action_probs[i],
+            progress[i],
+            self.embedding[i],
+            None if self.pooled is None else self.pooled[i],
+            None if scores is None else scores[i],
+            (*input_flags, UNFAMILIAR) if unfamiliar[i] else input_flags,
         )
+
+    @functools.cached_property
+    def _scalars(self) -> tuple[list[float], list[float] | None, list[bool]]:
+        """Progress, score and unfamiliar of every row as Python values, made once for
+        all the rows (one conversion per batch, not one per row)."""
+        scores = None if self.unfamiliar_score is None else self.unfamiliar_score.tolist()
+        return self.progress.tolist(), scores, self.unfamiliar.tolist()
 
 
 def softmax(logits: npt.ArrayLike, axis: int = -1) -> F32:

@@ -13,15 +13,15 @@ Beside the embeddings it keeps the input checks of the last T frames
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from scotti.models.errors import ModelError, ModelInputError
-from scotti.models.input_checks import FrameCheck, FrameChecks, check_frames
+from scotti.models.input_checks import FrameChecks, frame_stats
 from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON
-from scotti.models.runtime import ScottiRuntime, StepResult
+from scotti.models.runtime import ScottiRuntime, StepBatch, StepResult
 
 
 class EmbeddingCache:
@@ -118,7 +118,7 @@ class StreamingWindow:
 
         A frame of the wrong shape raises ModelInputError and leaves the window as it was.
         """
-        return self.accept(frame, self._runtime.step(frame, self.past()))
+        return push_many([self], [frame])[0]
 
     def past(self) -> npt.NDArray[np.float32]:
         """(T-1, E): the embeddings of the previous frames, what the next step reads."""
@@ -131,32 +131,45 @@ class StreamingWindow:
         self._seen = 0
         self.reasons = ()
 
-    def accept(
-        self, frame: npt.ArrayLike, result: StepResult, check: FrameCheck | None = None
+    def accept_row(
+        self,
+        batch: StepBatch,
+        row: int,
+        rule_bits: int,
+        loaded: bool,
+        left_empty: bool,
+        right_empty: bool,
     ) -> StepResult | None:
-        """Take one step's result for ``frame`` (run on ``past()``) into the cache and the
-        input checks (``check``: the frame's, made with other frames' in one pass)."""
-        self._cache.push(result.embedding)
-        verdict = self._checks.push(frame) if check is None else self._checks.push_check(check)
+        """Take row ``row`` of a step run on ``past()`` into the cache, and its frame's
+        input checks (``FrameStats.codes``) into the window's; the prediction, flagged,
+        once the window is full."""
+        self._cache.push(batch.embedding[row])
+        verdict = self._checks.push_code(rule_bits, loaded, left_empty, right_empty)
         self._seen += 1
-        if self.warming:
+        if self._seen < self._runtime.window:
             return None
-        self.reasons = verdict.reasons
+        result = batch.row(row, verdict.flags)
         if UNFAMILIAR in result.flags:
-            self.reasons += (UNFAMILIAR_REASON,)
-        if not verdict.flags:
-            return result
-        return dataclasses.replace(result, flags=(*verdict.flags, *result.flags))
+            self.reasons = (*verdict.reasons, UNFAMILIAR_REASON)
+        else:
+            self.reasons = verdict.reasons
+        return result
 
 
 def push_many(
-    windows: Sequence[StreamingWindow], frames: Sequence[npt.ArrayLike]
+    windows: Sequence[StreamingWindow], frames: Sequence[npt.ArrayLike] | npt.NDArray[Any]
 ) -> list[StepResult | None]:
     """One frame into each of several windows, all of them in ONE step-graph call.
 
     The windows must share one runtime (one model). Same results as ``push`` on each
     window in turn, within float tolerance: the batch rows do not interact. A frame
     of the wrong shape raises ModelInputError and leaves every window as it was.
+    ``frames``: (B, H, 2W) or B frames (H, 2W); raw counts, best as the wire's uint16
+    (the input checks read those as they are).
+
+    Per batch, not per frame: one stacked array in, one ``StepBatch`` out, the input
+    checks of every frame in one numpy pass; per window only its cache, its checks'
+    counts and, once warm, its result.
     """
     if len(windows) != len(frames):
         msg = f"{len(windows)} windows but {len(frames)} frames"
@@ -167,13 +180,28 @@ def push_many(
     if any(w.runtime is not runtime for w in windows):
         msg = "push_many needs windows on one runtime"
         raise ModelError(msg)
-    arrays = [np.asarray(f, dtype=np.float32) for f in frames]
-    wrong = [a.shape for a in arrays if a.shape != runtime.frame_shape]
-    if wrong:
-        msg = f"frame must be {runtime.frame_shape}, got {wrong[0]}"
-        raise ModelInputError(msg)
-    stacked = np.stack(arrays)  # (B, H, 2W)
+    stacked = _stacked(frames, runtime.frame_shape)  # (B, H, 2W)
     past = np.stack([w.past() for w in windows])  # (B, T-1, E)
-    results = runtime.step_batch(stacked, past)
-    checks = check_frames(stacked)  # one numpy pass for all: per frame, the calls cost most
-    return [w.accept(f, r, c) for w, f, r, c in zip(windows, arrays, results, checks, strict=True)]
+    batch = runtime.run_steps(stacked, past)
+    bits, loaded, left, right = frame_stats(stacked).codes()
+    return [
+        w.accept_row(batch, i, bits[i], loaded[i], left[i], right[i]) for i, w in enumerate(windows)
+    ]
+
+
+def _stacked(
+    frames: Sequence[npt.ArrayLike] | npt.NDArray[Any], shape: tuple[int, int]
+) -> npt.NDArray[Any]:
+    """B frames as one (B, H, 2W) array in their own dtype; ModelInputError naming the
+    first frame of another shape."""
+    if isinstance(frames, np.ndarray):
+        if frames.ndim == 3 and frames.shape[1:] == shape:
+            return frames
+        msg = f"frame must be {shape}, got {frames.shape[1:]}"
+        raise ModelInputError(msg)
+    arrays = [np.asarray(f) for f in frames]
+    for a in arrays:
+        if a.shape != shape:
+            msg = f"frame must be {shape}, got {a.shape}"
+            raise ModelInputError(msg)
+    return np.stack(arrays)

@@ -141,3 +141,33 @@ def test_push_many_refuses_a_bad_frame_and_leaves_every_window_as_it_was(
         push_many(windows, [good, np.zeros((3, 3), np.float32)])
     assert [w.frames_seen for w in windows] == [0, 0]
     assert push_many([], []) == []
+
+
+def test_wire_counts_in_one_array_give_what_float_frames_give_one_by_one(
+    pair: tuple[ScottiRuntime, ScottiRuntime],
+) -> None:
+    """The daemon's batch (uint16 counts stacked in one array) against ``push`` of float
+    copies: same predictions, flags and reasons, also where the input checks flag."""
+    step = pair[0]
+    counts = [frames(c.WINDOW + 30, seed=20 + k).round().astype(np.uint16) for k in range(3)]
+    counts[1][c.WINDOW - 5 : c.WINDOW + 25] = 0  # nobody there: unloaded
+    counts[2][5:12, 0, 0] = c.MAX_COUNT  # load outside the outline: out_of_range
+    alone = [StreamingWindow(step) for _ in counts]
+    together = [StreamingWindow(step) for _ in counts]
+    flags = set()
+    for i in range(c.WINDOW + 30):
+        batch = np.stack([s[i] for s in counts])
+        got = push_many(together, batch)
+        for w, s, have in zip(alone, counts, got, strict=True):
+            want = w.push(s[i].astype(np.float32))
+            assert (want is None) == (have is None)
+            if want is None or have is None:
+                continue
+            np.testing.assert_allclose(have.pose, want.pose, atol=1e-5)
+            assert have.flags == want.flags
+            flags.update(have.flags)
+        assert [w.reasons for w in together] == [w.reasons for w in alone]
+    assert {"unloaded", "out_of_range"} <= flags
+    with pytest.raises(ModelInputError, match="frame must be"):
+        push_many(together, np.zeros((3, c.FRAME_ROWS, c.FRAME_COLS), np.uint16))
+    assert [w.frames_seen for w in together] == [c.WINDOW + 30] * 3

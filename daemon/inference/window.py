@@ -47,7 +47,7 @@ class Window:
     def push(self, counts: npt.NDArray[np.uint16]) -> WindowOutput:
         """One paired frame (H, 2W) of raw counts; normalisation is inside the graph."""
         streaming = self._streaming
-        result = streaming.push(counts.astype(np.float32))
+        result = streaming.push(counts)
         reasons = streaming.reasons if result is not None else ()
         return WindowOutput(result, streaming.frames_in_window, streaming.needed, reasons)
 
@@ -64,8 +64,11 @@ class Window:
         """One paired frame into each window, in one call of the shared model (see
         ``models.streaming.push_many``); a bad frame raises and leaves every window as it was."""
         streams = [w._streaming for w in windows]  # Window's own state: this is its method
-        results = push_many(streams, [c.astype(np.float32) for c in counts])
+        results = push_many(streams, counts)
+        if not streams:
+            return []
+        needed = streams[0].needed  # one runtime, one T
         return [
-            WindowOutput(r, s.frames_in_window, s.needed, s.reasons if r is not None else ())
+            WindowOutput(r, min(s.frames_seen, needed), needed, s.reasons if r is not None else ())
             for r, s in zip(results, streams, strict=True)
         ]
