@@ -61,12 +61,19 @@ class FramePath:
         """The bytes of one read (``t_ns``: host monotonic time it arrived)."""
         out: list[PairedFrame] = []
         watch = self.watch
+        # A watch that does not look at blocks or frames is not called for them (the
+        # daemon's counts status packets only): two calls fewer per block.
+        see_blocks = type(watch).block is not FrameWatch.block
+        see_frames = type(watch).frame is not FrameWatch.frame
+        push_block, push_frame = self.assembler.push, self.pairing.push
         for packet in self.decoder.feed(data):
             if isinstance(packet, FrameRows):
-                watch.block(packet)
-                for frame in self.assembler.push(packet, t_ns):
-                    watch.frame(frame)
-                    out += self.pairing.push(frame)
+                if see_blocks:
+                    watch.block(packet)
+                for frame in push_block(packet, t_ns):
+                    if see_frames:
+                        watch.frame(frame)
+                    out += push_frame(frame)
             elif isinstance(packet, BoardStatus):
                 self.board_status += 1
                 watch.status(packet)

@@ -146,6 +146,12 @@ class Pairing:
 
     # --- public --------------------------------------------------------------
 
+    def silent(self) -> tuple[bool, bool]:
+        """(left, right): held longer than ``hold_s`` (``foot_states`` in two booleans)."""
+        hold = self.config.hold_frames
+        left, right = self._tracks
+        return (left.missed > hold, right.missed > hold)
+
     def foot_states(self) -> dict[str, str]:
         """{"left": "ok"|"silent", "right": ...}: silent once held longer than ``hold_s``."""
         return {

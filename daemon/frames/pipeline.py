@@ -119,6 +119,7 @@ class Pipeline:
         self._model_error: str | None = None
         self._ood_reasons: tuple[str, ...] = ()  # while the newest prediction is withheld
         self._state: PipelineState | None = None
+        self._state_key: tuple[object, ...] = ()  # what _state was made of
         self._on_prediction: Callable[[Prediction], None] = lambda _: None
         self._on_state: Callable[[PipelineState], None] = lambda _: None
 
@@ -162,8 +163,13 @@ class Pipeline:
         counters.chunks_in += 1
         if self.recorder is not None:
             self.recorder.tap(t_ns, data)
-        for pair in self.frames.feed(data, t_ns):
-            await self._submit(pair)
+        pairs = self.frames.feed(data, t_ns)
+        if self.source.live:  # a live source is never made to wait
+            for pair in pairs:
+                self._submit_now(pair)
+        else:
+            for pair in pairs:
+                await self._submit(pair)
 
     async def _on_source_event(self, event: SourceEvent) -> None:
         counters = self.counters
@@ -192,6 +198,9 @@ class Pipeline:
     async def _submit(self, pair: PairedFrame) -> None:
         if not self.source.live:
             await self.worker.wait_below(self.worker.max_queue)  # a replay can wait
+        self._submit_now(pair)
+
+    def _submit_now(self, pair: PairedFrame) -> None:
         if pair.restart:
             self._window_empty()
         self.counters.dropped_frames += self.worker.submit(InferenceJob(self._seq, pair))
@@ -284,6 +293,20 @@ class Pipeline:
     # --- state --------------------------------------------------------------------
 
     def _update_state(self) -> None:
+        # Everything the state is made of: most reads change none of it, and then
+        # there is nothing to build or compare.
+        key = (
+            self._connected,
+            self._disconnect_reason,
+            self.frames.pairing.silent(),
+            self._warming,
+            self._model_error,
+            self._ood_reasons,
+            None if self.recorder is None else self.recorder.failed,
+        )
+        if key == self._state_key:
+            return
+        self._state_key = key
         feet = self.frames.pairing.foot_states()
         reasons = [f"{foot} insole silent" for foot, s in feet.items() if s == "silent"]
         if not self._connected:
