@@ -20,9 +20,10 @@ final states, with the recency prior), read from the cache too.
 
 What the cache holds per frame: ``2 * layers + 1`` vectors of E, in this order:
 key and value of layer 0, of layer 1, ..., then the frame's final (layer-normed)
-state (``kv_slots``). A frame's state at layer l >= 1 depends on frames up to
-``l * (T - 1)`` back, so the prediction for time t reads the last
-``receptive_field`` frames: T + (layers - 1)(T - 1).
+state (``kv_slots``). A frame's state after layer l depends on frames up to
+``l * (T - 1)`` back, and the pooling reads the T frames' final states, so the
+prediction for time t reads the last ``receptive_field`` frames: T + layers (T - 1)
+(118 frames, 7.4 s at 16 Hz, for T = 40 and 2 layers; the paper form reads T).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def kv_slots(layers: int) -> int:
 
 def receptive_field(window: int, layers: int) -> int:
     """Frames the prediction for time t depends on in steady streaming."""
-    return window + (layers - 1) * (window - 1)
+    return window + layers * (window - 1)
 
 
 def alibi_bias(heads: int, window: int) -> torch.Tensor:
