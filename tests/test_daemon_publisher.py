@@ -8,8 +8,8 @@ from collections.abc import Awaitable, Callable
 
 import msgpack
 import pytest
-from pydantic import BaseModel
 from scotti.daemon.frames.pipeline import Prediction
+from scotti.daemon.mqtt.latency_slot import LatencySlot
 from scotti.daemon.mqtt.publisher import Publisher
 from scotti.daemon.mqtt.schemas import Info, Progress, Status
 from scotti.daemon.settings import MqttSettings
@@ -155,9 +155,9 @@ def test_latency_ms_counts_the_encoding_up_to_the_hand_off(mosquitto: Mosquitto)
     slow_ms = 200
 
     class SlowPublisher(Publisher):
-        def frame_messages(self, prediction: Prediction) -> list[tuple[str, BaseModel]]:
+        def encode_frame(self, prediction: Prediction) -> list[tuple[bytes, LatencySlot]]:
             time.sleep(slow_ms / 1e3)
-            return super().frame_messages(prediction)
+            return super().encode_frame(prediction)
 
     with collect(mosquitto, "scotti/dev1/progress") as got:
 

@@ -1,22 +1,33 @@
-"""One MQTT connection: a paho client driven by the asyncio loop, public API only.
+"""One MQTT connection: a paho client driven by the asyncio loop, on paho's public API.
 
 paho is written for a caller's own event loop: ``socket()`` to watch,
 ``loop_read`` / ``loop_write`` / ``loop_misc`` to call, ``want_write`` to say
-whether bytes wait. Here the loop watches the socket for reading always and
-for writing exactly while ``want_write()`` is true, checked again after every
-call into paho (level-triggered). Nothing depends on the order of paho's
-register/unregister callbacks, which aiomqtt forwards through
-``call_soon_threadsafe``: around a reconnect those calls reach the loop after
-the socket they name was closed, and the registration is lost (packets then
-sit in paho's queue until a timeout; tests/test_daemon_publisher_reconnect.py
-shows it) or kept on a socket with nothing to write (the loop then wakes for
-it without end).
+whether bytes wait. Here the loop watches the socket for reading always;
+after every call into paho what waits is written at once (``write``), and
+the socket is watched for writing exactly while something is left
+(level-triggered). Nothing depends on the order of paho's register/unregister
+callbacks, which aiomqtt forwards through ``call_soon_threadsafe``: around a
+reconnect those calls reach the loop after the socket they name was closed,
+and the registration is lost (packets then sit in paho's queue until a
+timeout; tests/test_daemon_publisher_reconnect.py shows it) or kept on a
+socket with nothing to write (the loop then wakes for it without end).
 
 Each connection is a fresh paho client, used only from the loop's thread once
 its blocking connect (in a worker thread) has returned: a connection that
 ended takes its unacknowledged messages with it, so a broker that never
 acknowledges cannot make paho's resend queue grow; the publisher republishes
 the retained state on every connect anyway.
+
+Per-frame messages (QoS 0) do not go through ``paho.publish``, which writes
+each message with a send of its own and makes an acknowledgement object for
+each (at 32 pairs most of the publisher's cost): they come as whole PUBLISH
+packets (``packets``), are queued, and the frames queued since the last
+write leave in one send. paho's own packets (CONNECT, retained publishes,
+PUBACK, PINGREQ, DISCONNECT) go through its queue as before; paho is kept
+from writing by itself (an ``on_socket_register_write`` callback makes it
+only queue), so all bytes leave from ``write``, in the order they were queued
+(what waits is tried at once: only a full socket leaves anything queued),
+and nothing is ever written into a packet a full socket cut short.
 """
 
 from __future__ import annotations
@@ -26,7 +37,7 @@ import contextlib
 import logging
 import ssl
 from collections.abc import Callable
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import paho.mqtt.client as paho
 from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode
@@ -35,6 +46,9 @@ from paho.mqtt.reasoncodes import ReasonCode
 from paho.mqtt.subscribeoptions import SubscribeOptions
 from scotti.daemon.errors import DaemonError
 from scotti.daemon.settings.mqtt import MqttSettings
+
+if TYPE_CHECKING:
+    from paho.mqtt.client import SocketLike
 
 MISC_EVERY_S: Final = 1.0  # paho's keepalive bookkeeping (PINGREQ, a silent broker)
 CONNACK_TIMEOUT_S: Final = 5.0  # from the TCP (and TLS) connect to the broker's CONNACK
@@ -64,6 +78,10 @@ class Connection:
         self._on_message = on_message
         self._fd: int | None = None  # the socket the loop watches, while it does
         self._writing = False  # ... for writability too
+        self._sock: SocketLike | None = None  # paho's socket, while connected
+        self._frames = bytearray()  # QoS 0 packets queued, not yet written
+        self._paho_cut = False  # paho's queue was left by a full socket: it goes first
+        self._drained: asyncio.Future[None] | None = None  # while frames wait for room
         self._misc: asyncio.Task[None] | None = None
         self._connack: asyncio.Future[ReasonCode] = self._loop.create_future()
         self.lost: asyncio.Future[str] = self._loop.create_future()
@@ -91,6 +109,8 @@ class Connection:
         client.on_subscribe = self._subscribed
         client.on_message = lambda _c, _u, message: self._on_message(message)
         client.on_socket_close = lambda _c, _u, _s: self._detach()
+        # Present, paho only queues its packets; ``write`` writes them.
+        client.on_socket_register_write = lambda _c, _u, _s: None
         self._paho = client
 
     # --- life --------------------------------------------------------------------------
@@ -106,9 +126,10 @@ class Connection:
         if sock is None:  # closed already (paho logged why)
             msg = "connection lost"
             raise BrokerLostError(msg)
+        self._sock = sock
         self._fd = sock.fileno()
         self._loop.add_reader(self._fd, self._readable)
-        self._sync_writer()
+        self.write()  # the CONNECT
         self._misc = self._loop.create_task(self._misc_loop(), name="mqtt-keepalive")
         waiting: set[asyncio.Future[Any]] = {self._connack, self.lost}
         try:
@@ -143,7 +164,7 @@ class Connection:
         """A graceful DISCONNECT (the broker drops the last will), then the socket."""
         if not self.lost.done() and self._fd is not None:
             self._paho.disconnect()
-            self._sync_writer()
+            self.write()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(self.lost), CLOSE_TIMEOUT_S)
         self.abort()
@@ -165,6 +186,10 @@ class Connection:
         for sub in self._subscribes.values():
             sub.cancel()
         self._subscribes.clear()
+        self._frames.clear()
+        if self._drained is not None:
+            self._drained.cancel()
+            self._drained = None
         if self._misc is not None:
             self._misc.cancel()
 
@@ -182,7 +207,7 @@ class Connection:
         self._after(rc)
 
     def _writable(self) -> None:
-        self._after(self._paho.loop_write())
+        self.write()
 
     async def _misc_loop(self) -> None:
         while True:
@@ -191,13 +216,50 @@ class Connection:
 
     def _after(self, rc: MQTTErrorCode) -> None:
         if rc != MQTTErrorCode.MQTT_ERR_SUCCESS:
-            self._detach()
-            self._end(_lost_reason(rc))
+            self._lose(_lost_reason(rc))
             return
-        self._sync_writer()
+        self.write()
 
-    def _sync_writer(self) -> None:
-        want = self._fd is not None and self._paho.want_write()
+    def _lose(self, reason: str) -> None:
+        self._detach()
+        self._end(reason)
+
+    def write(self) -> None:
+        """Write what waits, as far as the socket takes it: first what a full socket cut
+        short, then the frames, then paho's queue; watch for writability while some is
+        left. One send for all the frames queued since the last write."""
+        sock = self._sock
+        if self._fd is None or sock is None:
+            return
+        paho = self._paho
+        while True:
+            if self._paho_cut or (not self._frames and paho.want_write()):
+                rc = paho.loop_write()
+                if rc != MQTTErrorCode.MQTT_ERR_SUCCESS:
+                    self._lose(_lost_reason(rc))
+                    return
+                self._paho_cut = paho.want_write()
+                if self._paho_cut or self._fd is None:  # full, or a DISCONNECT closed it
+                    break
+            if self._frames:
+                try:
+                    sent = sock.send(self._frames)
+                except (BlockingIOError, ssl.SSLWantWriteError, ssl.SSLWantReadError):
+                    break
+                except OSError as exc:
+                    self._lose(f"connection lost ({exc.strerror or exc})")
+                    return
+                del self._frames[:sent]
+                if self._frames:
+                    break
+                if self._drained is not None:
+                    self._drained.set_result(None)
+                    self._drained = None
+            if not paho.want_write():
+                break
+        self._watch_writable(bool(self._frames) or paho.want_write())
+
+    def _watch_writable(self, want: bool) -> None:
         if want == self._writing or self._fd is None:
             return
         if want:
@@ -212,9 +274,29 @@ class Connection:
             return
         self._loop.remove_reader(self._fd)
         self._loop.remove_writer(self._fd)
-        self._fd, self._writing = None, False
+        self._fd, self._writing, self._sock = None, False, None
 
     # --- publishing ------------------------------------------------------------------------
+    def queue_frame(self, packet: bytes) -> None:
+        """Queue one QoS 0 PUBLISH packet (``qos0.packet``); ``write`` sends it."""
+        if self.lost.done():
+            raise BrokerLostError(self.lost.result())
+        self._frames += packet
+
+    @property
+    def frames_waiting(self) -> int:
+        """Bytes of queued frames the socket has not taken yet."""
+        return len(self._frames)
+
+    def frames_written(self) -> asyncio.Future[None]:
+        """Done once the queued frames are all written (cancelled if the connection ends)."""
+        future = self._drained or self._loop.create_future()
+        if self._frames:
+            self._drained = future
+        else:
+            future.set_result(None)
+        return future
+
     def publish(
         self, topic: str, payload: bytes, qos: int, retain: bool, props: Properties | None
     ) -> asyncio.Future[ReasonCode | None]:
@@ -223,7 +305,7 @@ class Connection:
         if self.lost.done():
             raise BrokerLostError(self.lost.result())
         info = self._paho.publish(topic, payload, qos=qos, retain=retain, properties=props)
-        self._sync_writer()
+        self.write()
         if info.rc != MQTTErrorCode.MQTT_ERR_SUCCESS:
             raise BrokerLostError(_lost_reason(info.rc))
         future: asyncio.Future[ReasonCode | None] = self._loop.create_future()
@@ -246,7 +328,7 @@ class Connection:
             rc, mid = self._paho.subscribe(topic, options=options)
         else:
             rc, mid = self._paho.subscribe(topic, qos=1)
-        self._sync_writer()
+        self.write()
         if rc != MQTTErrorCode.MQTT_ERR_SUCCESS or mid is None:
             raise BrokerLostError(_lost_reason(rc))
         future: asyncio.Future[list[ReasonCode]] = self._loop.create_future()
@@ -272,12 +354,6 @@ class Connection:
         future = self._subscribes.pop(mid, None)
         if future is not None and not future.done():
             future.set_result(codes)
-
-    def oldest_unacknowledged_s(self) -> float:
-        """Seconds the oldest publish not yet written or acknowledged has waited."""
-        if not self._pending:
-            return 0.0
-        return self._loop.time() - min(at for _f, at, _q in self._pending.values())
 
 
 def _lost_reason(rc: MQTTErrorCode) -> str:

@@ -6,10 +6,11 @@ the pipeline, and apart from ``app`` so that the life cycle reads short.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, get_args
+from typing import TYPE_CHECKING, Any, Final, Literal, get_args
 
 import numpy as np
 from pydantic import BaseModel
@@ -17,7 +18,7 @@ from scotti.daemon.mqtt.schemas import (
     ACTION_NAMES,
     TOPICS,
     Action,
-    DeviceSeq,
+    FrameStamp,
     Health,
     Info,
     Latency,
@@ -47,62 +48,100 @@ if TYPE_CHECKING:
 POSE_FRAME = "metres; origin on the floor under the mid-hip, z up, x forward, y to the left"
 
 
-def frame_payloads(
+# Each per-frame payload's schema_version, from its model (the version lives there).
+_VERSIONS: Final = {
+    name: model.model_fields["schema_version"].default
+    for name, model in (("pose", Pose), ("action", Action), ("progress", Progress))
+}
+_PRESSURE_VERSION: Final = Pressure.model_fields["schema_version"].default
+_FRAME_MODELS: Final[dict[str, type[FrameStamp]]] = {
+    "pose": Pose,
+    "action": Action,
+    "progress": Progress,
+    "pressure": Pressure,
+}
+
+
+def frame_dicts(
     p: Prediction, latency_ms: float, pressure_downsample: int = 0
-) -> list[tuple[str, BaseModel]]:
-    """pose, action, progress (and, when ``pressure_downsample``, pressure), same stamp."""
+) -> list[tuple[str, dict[str, Any]]]:
+    """pose, action, progress (and, when ``pressure_downsample``, pressure), same stamp:
+    each as the plain dict its model (``schemas``) dumps, fields in the model's order.
+    The publisher encodes these as they are, without a model instance per message
+    (at 16 Hz per pair the models' construction was a visible share of the daemon);
+    ``frame_payloads`` validates them into the models, and a test keeps both encodings
+    the same bytes."""
     stamp: dict[str, Any] = {
-        "seq": p.seq,
-        "device_seq": DeviceSeq(left=p.left_seq, right=p.right_seq),
-        "device_time_us": p.device_clock_us,
-        "host_wall_ns": p.host_wall_ns,
-        "host_mono_ns": p.host_mono_ns,
-        "predicted_for_mono_ns": p.predicted_for_mono_ns,
+        "seq": int(p.seq),
+        "device_seq": {"left": int(p.left_seq), "right": int(p.right_seq)},
+        "device_time_us": int(p.device_clock_us),
+        "host_wall_ns": int(p.host_wall_ns),
+        "host_mono_ns": int(p.host_mono_ns),
+        "predicted_for_mono_ns": int(p.predicted_for_mono_ns),
         "latency_ms": round(latency_ms, 3),
         "flags": list(p.flags),
-        "unfamiliar_score": p.unfamiliar_score,
+        "unfamiliar_score": None if p.unfamiliar_score is None else float(p.unfamiliar_score),
     }
-    probs = [float(x) for x in p.action_probs]
+    probs = p.action_probs.tolist()  # Python floats, float32's values exactly
     withheld = _withheld(p.withheld)
     # ACTION_NAMES is ACTIONS typed as the schema's literal (a test keeps them equal).
     action = ACTION_NAMES[p.action] if p.action != NO_ACTION else None
-    confidence = probs[p.action] if action is not None else 0.0
-    defined = action is not None and has_progress(p.action) and np.isfinite(p.progress)
+    confidence = float(probs[p.action]) if action is not None else 0.0
+    defined = action is not None and has_progress(p.action) and math.isfinite(p.progress)
     progress = float(p.progress) if defined else None  # null while standing
-    out: list[tuple[str, BaseModel]] = [
-        ("pose", Pose(**stamp, keypoints=np.asarray(p.pose, dtype=np.float64).tolist())),
+    out: list[tuple[str, dict[str, Any]]] = [
+        (
+            "pose",
+            {
+                "schema_version": _VERSIONS["pose"],
+                **stamp,
+                "keypoints": np.asarray(p.pose, dtype=np.float64).tolist(),
+            },
+        ),
         (
             "action",
-            Action(
+            {
+                "schema_version": _VERSIONS["action"],
                 **stamp,
-                action=action,
-                confidence=confidence,
-                probabilities=dict(zip(ACTIONS, probs, strict=True)),
-                withheld=withheld,
-            ),
+                "action": action,
+                "withheld": withheld,
+                "confidence": confidence,
+                "probabilities": dict(zip(ACTIONS, probs, strict=True)),
+            },
         ),
         (
             "progress",
-            Progress(
+            {
+                "schema_version": _VERSIONS["progress"],
                 **stamp,
-                action=action,
-                progress=progress,
-                repetition=p.repetition,
-                withheld=withheld,
-            ),
+                "action": action,
+                "progress": progress,
+                "repetition": int(p.repetition),
+                "withheld": withheld,
+            },
         ),
     ]
     if pressure_downsample:
-        out.append(("pressure", pressure(stamp, p.counts, pressure_downsample)))
+        out.append(("pressure", pressure_dict(stamp, p.counts, pressure_downsample)))
     return out
+
+
+def frame_payloads(
+    p: Prediction, latency_ms: float, pressure_downsample: int = 0
+) -> list[tuple[str, BaseModel]]:
+    """``frame_dicts`` as the schemas' models (validated): for the outputs beside MQTT."""
+    return [
+        (name, _FRAME_MODELS[name].model_validate(data))
+        for name, data in frame_dicts(p, latency_ms, pressure_downsample)
+    ]
+
+
+_WITHHELD: Final[dict[str | None, WithheldFlag]] = {name: name for name in get_args(WithheldFlag)}
 
 
 def _withheld(flag: str | None) -> WithheldFlag | None:
     """The pipeline's flag as the schema's literal (a test keeps OOD_FLAGS and it equal)."""
-    for name in get_args(WithheldFlag):
-        if flag == name:
-            return name  # type: ignore[no-any-return]
-    return None
+    return _WITHHELD.get(flag)
 
 
 def downsample(counts: np.ndarray, k: int) -> np.ndarray:
@@ -116,18 +155,19 @@ def downsample(counts: np.ndarray, k: int) -> np.ndarray:
     return np.asarray(np.rint(blocks), dtype=np.uint16)
 
 
-def pressure(stamp: Mapping[str, Any], counts: np.ndarray, k: int) -> Pressure:
+def pressure_dict(stamp: Mapping[str, Any], counts: np.ndarray, k: int) -> dict[str, Any]:
     """``counts`` is the model input (H, 2W): left insole then right."""
     left = downsample(counts[:, :FRAME_COLS], k)
     right = downsample(counts[:, FRAME_COLS:], k)
-    return Pressure(
+    return {
+        "schema_version": _PRESSURE_VERSION,
         **stamp,
-        rows=left.shape[0],
-        cols=left.shape[1],
-        downsample=k,
-        left=left.astype("<u2", copy=False).tobytes(),
-        right=right.astype("<u2", copy=False).tobytes(),
-    )
+        "rows": left.shape[0],
+        "cols": left.shape[1],
+        "downsample": k,
+        "left": left.astype("<u2", copy=False).tobytes(),
+        "right": right.astype("<u2", copy=False).tobytes(),
+    }
 
 
 def status(

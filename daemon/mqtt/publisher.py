@@ -2,34 +2,30 @@
 
 The pipeline hands over each ``Prediction`` as it is, through a bounded
 queue that drops the oldest (the reader never waits for the broker); its
-messages are encoded here, as it is published. The loop here connects (also
-when the broker is down at boot: it keeps retrying with backoff),
-republishes the retained ``status`` and ``info`` on every connect, then
-publishes predictions as they come. Each status change is published in
-order, and never before the predictions submitted ahead of it (a consumer
-that reads "receiver disconnected" gets no older pose after it); after a
-reconnect only the current status goes out. Health is "latest wins" and may
-overtake predictions.
+messages are encoded here, as it is published: plain dicts
+(``messages.frame_dicts``) through pydantic's serialiser, no model instance
+per message. The loop here connects (also when the broker is down at boot:
+it keeps retrying with backoff), republishes the retained ``status`` and
+``info`` on every connect, then publishes predictions as they come: each
+wake-up takes every queued prediction (up to the next status change) and
+hands all their messages to the socket in one write, waiting only when the
+socket is full. Each status change is published in order, and never before
+the predictions submitted ahead of it (a consumer that reads "receiver
+disconnected" gets no older pose after it); after a reconnect only the
+current status goes out. Health is "latest wins" and may overtake
+predictions.
 
-A broker that goes away, restarts or refuses (bad password, unknown CA) is
-one WARNING line with the reason, then retries with backoff until it is back
-(one INFO line), said again every ``outage_warning_s`` (15 s) while it stays
-away; never an ERROR, never a traceback. A status is said in the log only
-once the broker has acknowledged it (``on_status_published``).
-
-A broker that takes the connection but does not acknowledge a QoS 1 publish
-(or take a QoS 0 one) within ``ack_timeout_s`` is treated as gone: the
-connection is dropped (its last will says offline) and made again with
-backoff; health counts it (``publish.broker_not_acknowledging``) with the
-messages in flight (``publish.unacknowledged``). Waiting costs nothing: the
-publisher sleeps until an acknowledgement, a loss or the timeout.
-
-The daemon watches its own retained ``status``: a different one published by
-another client is replaced with the truth (at most once a second, counted,
-logged once per burst). Under MQTT v5 a QoS 1 publish the broker refuses
-(PUBACK reason code >= 0x80, e.g. an ACL) is counted and reported in health
-(``publish.refused``), not counted as published; per-frame messages go at
-QoS 0, which has no acknowledgement to refuse them with.
+A broker that goes away, restarts or refuses is said in the log as
+``broker_outage`` says; a status only once the broker has acknowledged it
+(``on_status_published``). A broker that does not acknowledge a QoS 1
+publish, or take the bytes of QoS 0 ones, within ``ack_timeout_s`` is treated
+as gone (``acknowledged``); health counts it (``publish.broker_not_acknowledging``)
+with the messages in flight (``publish.unacknowledged``). Our own retained
+status is watched and another client's replaced (``status_watch``). Under
+MQTT v5 a QoS 1 publish the broker refuses (PUBACK reason code >= 0x80, e.g.
+an ACL) is counted and reported in health (``publish.refused``), not counted
+as published; per-frame messages go at QoS 0, which has no acknowledgement to
+refuse them with.
 
 Pattern: aiomqtt docs/reconnection.md (one reconnect loop around the client;
 here a fresh paho client per connection, see ``connection``).
@@ -42,20 +38,20 @@ import collections
 import logging
 import time
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Final, Literal, TypeVar
+from typing import TYPE_CHECKING, Final, Literal, TypeVar
 
-import aiomqtt
-import paho.mqtt.client as paho
-from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 from pydantic import BaseModel
-from scotti.daemon.mqtt import messages
+from scotti.daemon.mqtt import messages, packets
+from scotti.daemon.mqtt.acknowledged import NotAcknowledgingError, acknowledged
+from scotti.daemon.mqtt.broker_outage import Outage
+from scotti.daemon.mqtt.broker_outage import explain as explain  # control.py's import
 from scotti.daemon.mqtt.connection import BrokerLostError, Connection
 from scotti.daemon.mqtt.latency_slot import LatencySlot
-from scotti.daemon.mqtt.schemas import CONTENT_TYPES, Health, Info, Status, encode
-from scotti.daemon.service.counters import LatencyRing
+from scotti.daemon.mqtt.publisher_stats import PublisherStats
+from scotti.daemon.mqtt.schemas import Health, Info, Status, encode, encode_dict
+from scotti.daemon.mqtt.status_watch import StatusWatch
 from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.waiting import Backoff, wait_event
 
@@ -69,36 +65,9 @@ T = TypeVar("T")
 BACKOFF_START_S: Final = 0.25
 RETAINED_QOS: Final = 1  # status/info/health: must arrive, late is fine
 MAX_PENDING_STATUSES: Final = 16  # status changes kept while the broker is slow or away
-FRAME_QOS: Final = 0  # pose/action/progress: a newer one is 62 ms away
+FRAME_TOPICS: Final = ("pose", "action", "progress", "pressure")  # QoS 0: a newer one is 62 ms away
 DROP_LOG_EVERY_S: Final = 10.0  # a full queue is logged at most this often (and counted)
-RESTORE_EVERY_S: Final = 1.0  # a status of another client's is replaced at most this often
 SAY_EVERY_S: Final = 10.0  # a refusal or a replaced status is logged at most this often
-
-
-@dataclass
-class PublisherStats:
-    published: int = 0  # predictions fully published
-    dropped_full: int = 0  # pushed out of the queue by newer ones
-    dropped_stale: int = 0  # older than the message expiry when the broker came back
-    dropped_error: int = 0  # lost in a publish that failed
-    connects: int = 0
-    last_error: str = ""  # why the broker connection last failed, one line
-    outages: int = 0  # times the broker was found away (at start, or lost)
-    unreachable_s: float = 0.0  # seconds without the broker, over the outages that ended
-    last_seq: int | None = None
-    latency_ms: LatencyRing = field(default_factory=LatencyRing)  # last byte -> publish
-    not_acknowledging: int = 0  # connections dropped: a publish unanswered too long
-    refused: int = 0  # QoS 1 publishes the broker refused (PUBACK reason code >= 0x80)
-    last_refused: str = ""  # the topic and reason of the latest refusal
-    status_restored: int = 0  # times another client's status on our topic was replaced
-
-    @property
-    def dropped(self) -> int:
-        return self.dropped_full + self.dropped_stale + self.dropped_error
-
-    @property
-    def reconnects(self) -> int:
-        return max(0, self.connects - 1)
 
 
 BrokerState = Literal["connecting", "connected", "disconnected", "stopped"]
@@ -118,8 +87,7 @@ class Publisher:
         # Predictions older than the message expiry when the broker is back are dropped
         # (live); a replay, which waits for the broker, sends them all (False).
         self.drop_stale = True
-        self._down_since: float | None = None  # monotonic start of the current outage
-        self._warned_at = 0.0  # the last outage WARNING
+        self._outage = Outage(settings)
         self._source_waiting = False  # a replay is held in ``wait_room`` now
         self._said_source_waits = False  # ... and the log said so in this outage
         self._fmt = settings.format
@@ -135,22 +103,23 @@ class Publisher:
         self._pressure_downsample = settings.pressure_downsample if settings.pressure else 0
         self._submitted = 0  # predictions ever submitted
         self._drop_logged_at = -DROP_LOG_EVERY_S  # the first drop is logged at once
-        self._wake = asyncio.Event()
+        self._wake = asyncio.Event()  # a prediction, a status, health, a restore, or stop
         self._room = asyncio.Event()  # set whenever a prediction leaves the queue
         v5 = settings.protocol == "5"  # MQTT 3.1.1 has no properties: none are sent
-        self._frame_props = _properties(self._fmt, settings.message_expiry_s) if v5 else None
-        self._retained_props = _properties(self._fmt, None) if v5 else None
+        fmt = self._fmt
+        frame_props = packets.publish_properties(fmt, settings.message_expiry_s) if v5 else None
+        self._retained_props = packets.publish_properties(fmt, None) if v5 else None
         health_expiry = max(1, round(3 * settings.health_interval_s))
-        self._health_props = _properties(self._fmt, health_expiry) if v5 else None
-        self._will = (settings.topic("status"), encode(will, self._fmt), self._retained_props)
+        self._health_props = packets.publish_properties(fmt, health_expiry) if v5 else None
+        # Each frame topic's PUBLISH header, built once (``packets``).
+        self._frame_headers = {
+            name: packets.topic_header(settings.topic(name), frame_props) for name in FRAME_TOPICS
+        }
+        self._will = (settings.topic("status"), encode(will, fmt), self._retained_props)
         self._conn: Connection | None = None  # the current connection, while there is one
         self._tls = settings.tls_context()  # the files read once, at start
-        self._status_sent: bytes | None = None  # the status the broker last acknowledged
-        self._echoes: collections.deque[bytes] = collections.deque(maxlen=MAX_PENDING_STATUSES)
-        self._restore = False  # another client's status seen: publish ours again
-        self._status_watched = False  # our status topic delivers to us (this connection)
-        self._restored_at = -RESTORE_EVERY_S
         self._said_at: dict[str, float] = {}  # what was logged when, for once-per-burst lines
+        self._status_watch = StatusWatch(settings, self._wake.set, self._say)
 
     # --- called from the pipeline's side (event loop thread, never blocks) ---
     @property
@@ -231,12 +200,24 @@ class Publisher:
     # --- the connection loop ---------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
         """Publish until ``stop``; then drain the queue, call ``on_drained``, disconnect."""
+        stop_seen = asyncio.create_task(self._wake_on(stop), name="publisher-stop")
+        try:
+            await self._connect_loop(stop)
+        finally:
+            stop_seen.cancel()
+
+    async def _wake_on(self, stop: asyncio.Event) -> None:
+        """The pump waits on one event; ``stop`` sets it too."""
+        await stop.wait()
+        self._wake.set()
+
+    async def _connect_loop(self, stop: asyncio.Event) -> None:
         backoff = Backoff(BACKOFF_START_S, cap_s=self.settings.reconnect_max_s, jitter=0.0)
         while True:
             conn = Connection(
                 self.settings,
                 self._will,
-                self._status_seen,
+                self._status_watch.seen,
                 logging.getLogger(MQTT_LOGGER),
                 self._tls,
             )
@@ -257,10 +238,7 @@ class Publisher:
                         [(mark, self._status)], maxlen=MAX_PENDING_STATUSES
                     )
                 await self._flush_retained()
-                # Watched from now on: what the broker holds is what was just published,
-                # so anything different that comes is another client's.
-                self._echoes.clear()
-                await self._watch_status(conn)
+                await self._status_watch.watch(conn, self._wait)
                 await self._pump(stop)
                 await conn.close()
                 self._set_state("stopped", "")
@@ -280,15 +258,22 @@ class Publisher:
             self._wake.clear()
             await self._flush_retained()
             while self._queue:
-                prediction = self._queue.popleft()
-                self._room.set()
-                await self._publish_prediction(prediction)
+                await self._publish_predictions(self._next_batch())
                 await self._flush_retained()  # status changes overtake a long backlog
             if stop.is_set():
                 self.on_drained()  # the last health and status, after the last frame
                 await self._flush_retained()
                 return
-            await _wait_any(self._wake, stop)
+            await self._wake.wait()
+
+    def _next_batch(self) -> int:
+        """How many queued predictions go out together: all of them, up to the next
+        status change (which is published after exactly the predictions before it)."""
+        count = len(self._queue)
+        if self._statuses:
+            taken = self._submitted - count
+            count = min(count, max(1, self._statuses[0][0] - taken))
+        return count
 
     async def _flush_retained(self) -> None:
         taken = self._submitted - len(self._queue)  # predictions published or dropped
@@ -297,53 +282,64 @@ class Publisher:
             if await self._publish(self.settings.topic("status"), status):
                 self.on_status_published(status)
             self._statuses.popleft()
-            self._restore = False  # what the broker holds now is ours
-        if self._restore:
+            self._status_watch.taken()
+        if self._status_watch.restore_due:
             await self._restore_status()
         if self._health_dirty and self._health is not None:
             self._health_dirty = False
             await self._publish(self.settings.topic("health"), self._health, self._health_props)
 
-    def frame_messages(self, prediction: Prediction) -> list[tuple[str, BaseModel]]:
-        """(topic name, payload) of one prediction: pose, action, progress, and pressure
-        when it is on; latency_ms left at 0, written in as the bytes leave."""
-        return messages.frame_payloads(prediction, 0.0, self._pressure_downsample)
-
-    async def _publish_prediction(self, prediction: Prediction) -> None:
-        now = time.monotonic_ns()
-        made = prediction.host_mono_ns
-        if self.drop_stale and now - made > self.settings.message_expiry_s * 1e9:
-            self.stats.dropped_stale += 1
-            return
-        # The last byte of the newest frame; 0 when unknown: latency is then measured
-        # from inference.
-        origin = prediction.last_byte_mono_ns or made
-        # Each payload is encoded once, its latency_ms left open and written in just
-        # before the bytes go to paho (``LatencySlot``): the payload's age when it
-        # leaves, encoding included. All of a prediction's messages are handed over
-        # at once and the last one's write awaited: paho writes its queue in order,
-        # and one await per prediction, not one per message, keeps the event loop's
-        # share small at 16 pairs.
-        encoded = [
-            (self.settings.topic(name), LatencySlot.encode(payload, self._fmt))
-            for name, payload in self.frame_messages(prediction)
+    def encode_frame(self, prediction: Prediction) -> list[tuple[bytes, LatencySlot]]:
+        """(PUBLISH header of its topic, payload) of each of one prediction's messages:
+        pose, action, progress, and pressure when it is on; latency_ms left open,
+        written in as the bytes leave."""
+        fmt = self._fmt
+        headers = self._frame_headers
+        return [
+            (headers[name], LatencySlot.cut(encode_dict(data, fmt), fmt))
+            for name, data in messages.frame_dicts(prediction, 0.0, self._pressure_downsample)
         ]
-        try:
-            written = None
-            for topic, slot in encoded:
+
+    async def _publish_predictions(self, count: int) -> None:
+        """Take ``count`` predictions from the queue and publish them with one write to the
+        socket (``Connection.write``); wait only when the socket is full."""
+        conn = self._connection
+        expiry_ns = self.settings.message_expiry_s * 1e9
+        origins: list[tuple[int, int]] = []  # (seq, its origin) of each one queued
+        for _ in range(count):
+            prediction = self._queue.popleft()
+            if self.drop_stale and time.monotonic_ns() - prediction.host_mono_ns > expiry_ns:
+                self.stats.dropped_stale += 1
+                continue
+            # The last byte of the newest frame; 0 when unknown: latency is then measured
+            # from inference.
+            origin = prediction.last_byte_mono_ns or prediction.host_mono_ns
+            # Each payload is encoded once, its latency_ms left open and written in just
+            # before the bytes are queued for the socket (``LatencySlot``): the payload's
+            # age when it leaves, encoding included.
+            for header, slot in self.encode_frame(prediction):
                 latency_ms = (time.monotonic_ns() - origin) / 1e6
-                written = self._connection.publish(
-                    topic, slot.fill(latency_ms), FRAME_QOS, False, self._frame_props
-                )
-            if written is not None:
-                await self._wait(written)
+                conn.queue_frame(packets.packet(header, slot.fill(latency_ms)))
+            origins.append((prediction.seq, origin))
+        self._room.set()
+        if not origins:
+            return
+        conn.write()
+        try:
+            if conn.lost.done():  # the write found the connection gone
+                raise BrokerLostError(conn.lost.result())
+            if conn.frames_waiting:  # the socket is full: wait until it takes them
+                await self._wait(conn.frames_written())
         except BrokerLostError:
-            self.stats.dropped_error += 1
+            self.stats.dropped_error += len(origins)
             raise
-        self.stats.published += 1
-        self.stats.last_seq = prediction.seq
         # health's end_to_end: up to the write to the socket.
-        self.stats.latency_ms.add((time.monotonic_ns() - origin) / 1e6)
+        now = time.monotonic_ns()
+        stats = self.stats
+        stats.published += len(origins)
+        stats.last_seq = origins[-1][0]
+        for _seq, origin in origins:
+            stats.latency_ms.add((now - origin) / 1e6)
 
     async def _publish(
         self, topic: str, payload: BaseModel, props: Properties | None = None
@@ -358,10 +354,8 @@ class Publisher:
         if reason is not None and reason.is_failure:
             self._refused(topic, reason)
             return False
-        if topic == self.settings.topic("status"):
-            self._status_sent = data
-            if not conn.v5:  # 3.1.1 has no "no local": our own publish comes back
-                self._echoes.append(data)
+        if topic == self._status_watch.topic:
+            self._status_watch.published(data, conn.v5)
         return True
 
     @property
@@ -374,26 +368,11 @@ class Publisher:
     async def _wait(self, publish: Awaitable[T]) -> T:
         """Await a publish (or a subscribe); ``BrokerLostError`` as soon as the connection
         ends, or when the broker has not acknowledged it within ``ack_timeout_s``."""
-        conn = self._connection
-        task = asyncio.ensure_future(publish)
-        waiting: set[asyncio.Future[Any]] = {task, conn.lost}
-        done, _ = await asyncio.wait(
-            waiting,
-            timeout=self.settings.ack_timeout_s,
-            return_when=asyncio.FIRST_COMPLETED,
-        )
-        if task in done and not task.cancelled():  # cancelled: the connection ended
-            return task.result()
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-        if conn.lost.done():
-            raise BrokerLostError(conn.lost.result())
-        self.stats.not_acknowledging += 1
-        msg = (
-            f"not acknowledging: no answer to a publish within "
-            f"{self.settings.ack_timeout_s:g} s ({conn.unacknowledged} unacknowledged)"
-        )
-        raise BrokerLostError(msg)
+        try:
+            return await acknowledged(self._connection, publish, self.settings.ack_timeout_s)
+        except NotAcknowledgingError:
+            self.stats.not_acknowledging += 1
+            raise
 
     @property
     def unacknowledged(self) -> int:
@@ -413,66 +392,20 @@ class Publisher:
             self.stats.refused,
         )
 
-    # --- our own retained status, watched -------------------------------------------------
-    async def _watch_status(self, conn: Connection) -> None:
-        """Subscribe to our own status. The broker then hands back the retained one just
-        published: if it does not (mosquitto grants the subscription and filters what
-        its ACL does not let us read), the watch is blind and the log says so."""
-        topic = self.settings.topic("status")
-        self._status_watched = False
-        code = await self._wait(conn.subscribe(topic))
-        if code.is_failure:
-            self._say_unwatched(str(code))
-        elif self._status_sent is not None:
-
-            def check() -> None:
-                if not self._status_watched and self._conn is conn and not conn.lost.done():
-                    self._say_unwatched("the retained status did not come back")
-
-            asyncio.get_running_loop().call_later(self.settings.ack_timeout_s, check)
-
-    def _say_unwatched(self, why: str) -> None:
-        self._say(
-            "unwatched",
-            "cannot read %s on broker %s (%s): a status another client publishes there is "
-            "not replaced; let the daemon read its own status topic (its ACL)",
-            self.settings.topic("status"),
-            self.settings.broker,
-            why,
-        )
-
-    def _status_seen(self, message: paho.MQTTMessage) -> None:
-        """A message on our status topic (paho's callback, in the loop's thread)."""
-        self._status_watched = True
-        payload = bytes(message.payload)
-        if self._echoes and payload == self._echoes[0]:
-            self._echoes.popleft()  # our own, back from the broker (MQTT 3.1.1)
-            return
-        if self._status_sent is None or payload == self._status_sent:
-            return
-        self._restore = True
-        self._wake.set()
-
     async def _restore_status(self) -> None:
-        """Publish our status again over another client's (at most once a second)."""
-        wait_s = self._restored_at + RESTORE_EVERY_S - time.monotonic()
-        if wait_s > 0:
-            asyncio.get_running_loop().call_later(wait_s, self._wake.set)
-            return
-        truth = self._status_sent
+        """Publish our status again over another client's (``StatusWatch`` says when)."""
+        truth = self._status_watch.take_restore()
         if truth is None:
             return
-        self._restore = False
-        self._restored_at = time.monotonic()
         self.stats.status_restored += 1
         self._say(
             "restored",
             "status on %s was changed by another client (same device id twice, or forged); "
             "published ours again (%d times so far)",
-            self.settings.topic("status"),
+            self._status_watch.topic,
             self.stats.status_restored,
         )
-        await self._publish_data(self.settings.topic("status"), truth)
+        await self._publish_data(self._status_watch.topic, truth)
 
     def _say(self, what: str, fmt: str, *args: object) -> None:
         """A WARNING, at most once every SAY_EVERY_S for the same ``what``; debug between."""
@@ -486,10 +419,10 @@ class Publisher:
     def _set_state(self, state: BrokerState, detail: str) -> None:
         if state == "disconnected":
             self.stats.last_error = detail
-            self._warn_outage(detail)
-        elif self._down_since is not None:  # the outage is over
-            self.stats.unreachable_s += time.monotonic() - self._down_since
-            self._down_since = None
+            if self._outage.failed(detail):
+                self.stats.outages += 1
+        else:  # the outage, if one, is over
+            self.stats.unreachable_s += self._outage.end()
         if state == self.state:
             return
         self.state = state
@@ -500,84 +433,7 @@ class Publisher:
         if state == "disconnected" and self._source_waiting:
             self._say_source_waits()
 
-    def _warn_outage(self, detail: str) -> None:
-        """A WARNING when the broker is found away, then one every ``outage_warning_s``
-        while it stays away (a daemon that waits in silence for a broker nobody started
-        looks like one that works); the retries in between only at debug."""
-        now = time.monotonic()
-        broker, hint = self.settings.broker, _hint(detail, self.settings.port)
-        if self._down_since is None:
-            self._down_since = self._warned_at = now
-            self.stats.outages += 1
-            log.warning("broker %s: %s; retrying with backoff%s", broker, detail, hint)
-        elif now - self._warned_at >= self.settings.outage_warning_s:
-            self._warned_at = now
-            log.warning(
-                "broker %s: still unreachable after %.0f s (%s); retrying every %g s at most%s",
-                broker,
-                now - self._down_since,
-                detail,
-                self.settings.reconnect_max_s,
-                hint,
-            )
-        else:
-            log.debug("broker %s: %s; retrying with backoff", broker, detail)
-
     @property
     def unreachable_s(self) -> float:
         """Seconds without the broker so far, the current outage included."""
-        now_down = time.monotonic() - self._down_since if self._down_since is not None else 0.0
-        return self.stats.unreachable_s + now_down
-
-
-_LOST: Final = (paho.MQTT_ERR_NO_CONN, paho.MQTT_ERR_CONN_LOST)
-
-
-def _hint(detail: str, port: int) -> str:
-    """What to do about a refused connection: nothing listens at that address."""
-    if "refused" not in detail.lower():
-        return ""
-    return (
-        "; is a broker running? (apt install mosquitto, or "
-        f"python -m scotti.daemon.tools.local_broker --port {port})"
-    )
-
-
-def explain(exc: aiomqtt.MqttError) -> str:
-    """One line saying why the broker connection failed or ended."""
-    if isinstance(exc, aiomqtt.MqttCodeError) and exc.rc in _LOST:
-        return "connection lost"
-    text = str(exc) or type(exc).__name__
-    if text == "Operation timed out":
-        return "no answer from the broker (timed out)"
-    return text.removesuffix(".")
-
-
-class _PackedOnce(Properties):
-    """Publish properties that never change, packed once (paho packs them on every
-    publish: about 20 us each, three times per prediction)."""
-
-    def pack(self) -> bytes:
-        packed: bytes | None = getattr(self, "_packed", None)
-        if packed is None:
-            packed = super().pack()  # type: ignore[no-untyped-call]
-            object.__setattr__(self, "_packed", packed)  # paho checks the names it sets
-        return packed
-
-
-def _properties(fmt: Literal["json", "msgpack"], expiry_s: int | None) -> Properties:
-    """MQTT v5 publish properties: content type, and expiry for what goes stale."""
-    props = _PackedOnce(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
-    props.ContentType = CONTENT_TYPES[fmt]
-    if expiry_s is not None:
-        props.MessageExpiryInterval = expiry_s
-    return props
-
-
-async def _wait_any(*events: asyncio.Event) -> None:
-    waiters = [asyncio.ensure_future(e.wait()) for e in events]
-    try:
-        await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for w in waiters:
-            w.cancel()
+        return self.stats.unreachable_s + self._outage.current_s

@@ -26,6 +26,7 @@ from typing import Annotated, Any, Final, Literal, TypeVar, get_args
 
 import msgpack
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic_core import to_json
 
 SCHEMA_VERSION: Final = 1  # of the payloads unchanged since the first release
 CONTENT_TYPES: Final = {"json": "application/json", "msgpack": "application/msgpack"}
@@ -317,6 +318,16 @@ def encode(payload: BaseModel, fmt: Literal["json", "msgpack"]) -> bytes:
         return payload.model_dump_json().encode()
     data: bytes = msgpack.packb(payload.model_dump(mode="python"), use_bin_type=True)
     return data
+
+
+def encode_dict(data: dict[str, Any], fmt: Literal["json", "msgpack"]) -> bytes:
+    """A payload's plain dict (its model's dump, e.g. ``messages.frame_dicts``) encoded
+    as ``encode`` encodes the model: pydantic's own JSON serialiser, with the payloads'
+    settings (NaN as null, bytes as base64), so the bytes are the same."""
+    if fmt == "json":
+        return to_json(data, inf_nan_mode="null", bytes_mode="base64")
+    packed: bytes = msgpack.packb(data, use_bin_type=True)
+    return packed
 
 
 def decode(model: type[P], data: bytes, fmt: Literal["json", "msgpack"]) -> P:
