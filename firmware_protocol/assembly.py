@@ -15,7 +15,14 @@ from dataclasses import asdict, dataclass, field
 from typing import Final
 
 import numpy as np
-from scotti.firmware_protocol.packets import DEFAULT_SAMPLE_BITS, Foot, FrameRows
+from scotti.firmware_protocol.packets import (
+    CRC_LEN,
+    DEFAULT_SAMPLE_BITS,
+    SAMPLES_AT,
+    Foot,
+    FrameRows,
+    RawRows,
+)
 from scotti.firmware_protocol.wrap import seq_delta
 
 # A block this many frames (or more) behind the newest emitted one means the
@@ -131,7 +138,15 @@ def no_rows_missing(frame: FootFrame) -> bool:
 
 # Blocks in row order are kept as they came and joined once, as little-endian u16 bytes.
 _JOIN_IN_ORDER: Final = sys.byteorder == "little"
+_FOOT: Final = (Foot.LEFT, Foot.RIGHT)  # by wire value
 _WIRE_SAMPLE: Final = np.dtype("<u2")
+
+
+def _joined(pieces: list[bytes | memoryview]) -> bytes:
+    try:
+        return b"".join(pieces)
+    except TypeError:  # a FrameRows' samples not contiguous in memory
+        return b"".join(p.tobytes() if isinstance(p, memoryview) else p for p in pieces)
 
 
 class _Partial:
@@ -153,12 +168,13 @@ class _Partial:
         "seq",
     )
 
-    def __init__(self, block: FrameRows) -> None:
-        self.seq = block.seq
-        self.board_clock_us = block.board_clock_us
-        self.geometry = block.geometry
+    def __init__(self, seq: int, board_clock_us: int, geometry: tuple[int, int, int]) -> None:
+        self.seq = seq
+        self.board_clock_us = board_clock_us  # the first block's
+        self.geometry = geometry
         self.last_byte_ns = 0
-        self.pieces: list[np.ndarray] = []  # samples of rows 0..next_row-1, in order
+        # samples of rows 0..next_row-1, in order: the wire's bytes, or a FrameRows' memory
+        self.pieces: list[bytes | memoryview] = []
         self.next_row = 0
         self.counts: np.ndarray | None = None  # (rows, cols), once a block came out of order
         self.missing: np.ndarray | None = None  # (rows,) True for a row not received yet
@@ -176,7 +192,7 @@ class _Partial:
         samples = block.samples
         if self.counts is None or self.missing is None:
             if block.row_start == self.next_row and _JOIN_IN_ORDER:
-                self.pieces.append(samples)
+                self.pieces.append(samples.data)
                 self.next_row += len(samples)
                 return 0
             counts, missing = self._lay_out()
@@ -199,7 +215,8 @@ class _Partial:
         counts = self.counts = np.zeros((rows, cols), dtype=np.uint16)
         missing = self.missing = np.ones(rows, dtype=bool)
         if self.pieces:
-            counts[: self.next_row] = np.concatenate(self.pieces)
+            received = np.frombuffer(_joined(self.pieces), dtype=_WIRE_SAMPLE)
+            counts[: self.next_row] = received.reshape(self.next_row, cols)
             missing[: self.next_row] = False
             self.pieces = []
         return counts, missing
@@ -208,11 +225,8 @@ class _Partial:
         rows, cols, bits = self.geometry
         if self.counts is None or self.missing is None:
             if self.next_row == rows:  # every block came, in order
-                try:
-                    joined = b"".join(self.pieces)
-                except TypeError:  # a block's samples are not contiguous in memory
-                    joined = np.concatenate(self.pieces).tobytes()
-                counts = np.frombuffer(joined, dtype=_WIRE_SAMPLE).reshape(rows, cols)
+                counts = np.frombuffer(_joined(self.pieces), dtype=_WIRE_SAMPLE)
+                counts = counts.reshape(rows, cols)
                 return _foot_frame(
                     foot, self.seq, self.board_clock_us, counts, _none_missing(rows), True,
                     self.last_byte_ns, bits,
@@ -257,6 +271,41 @@ class FrameAssembler:
         """Frames held for both feet together."""
         return sum(len(state.pending) for state in self._feet.values())
 
+    def push_raw(self, raw: RawRows, t_ns: int = 0) -> list[FootFrame]:
+        """``push(FrameRows.from_raw(raw), t_ns)``, the same frames and counts.
+
+        A block that continues its foot's frame in row order, or starts a frame when
+        none is in progress, is only kept as the bytes it came in: no array, no
+        FrameRows. Anything else goes through ``push``.
+        """
+        foot, seq, _clock, rows, cols, bits, row_start, row_count, packet = raw
+        state = self._feet[_FOOT[foot]]
+        last = state.last_emitted
+        # seq_delta(seq, last) > 0, inline: a block of a newer frame is not stale
+        if _JOIN_IN_ORDER and (last is None or ((seq - last + 0x8000) & 0xFFFF) > 0x8000):
+            pending = state.pending
+            partial = pending.get(seq)
+            if partial is None:
+                if not pending and row_start == 0:
+                    partial = pending[seq] = _Partial(seq, _clock, (rows, cols, bits))
+            elif not (
+                partial.missing is None
+                and row_start == partial.next_row
+                and partial.geometry == (rows, cols, bits)
+            ):
+                partial = None
+            if partial is not None:
+                self.counters.blocks += 1
+                if t_ns > partial.last_byte_ns:
+                    partial.last_byte_ns = t_ns
+                partial.pieces.append(packet[SAMPLES_AT:-CRC_LEN])
+                partial.next_row += row_count
+                out: list[FootFrame] = []
+                if partial.next_row == rows:
+                    self._completed(state, _FOOT[foot], seq, out)
+                return out
+        return self.push(FrameRows.from_raw(raw), t_ns)
+
     def push(self, block: FrameRows, t_ns: int = 0) -> list[FootFrame]:
         """Add one block (``t_ns``: host monotonic time of its packet); return finished frames."""
         self.counters.blocks += 1
@@ -275,19 +324,24 @@ class FrameAssembler:
                     self._emit(state, block.foot, self._oldest(state), out)
                 if self._stale(state, block, out):  # the frames emitted moved last_emitted
                     return out
-            partial = pending[block.seq] = _Partial(block)
+            partial = pending[block.seq] = _Partial(block.seq, block.board_clock_us, block.geometry)
         elif partial.geometry != block.geometry:
             self.counters.geometry_mismatches += 1
             return out
         self.counters.duplicate_rows += partial.add(block, t_ns)
         if partial.complete:
-            if len(pending) == 1:  # the usual case: it is the only frame in progress
-                self._emit(state, block.foot, block.seq, out)
-                return out
-            for seq in sorted(pending, key=lambda s: seq_delta(s, block.seq)):
-                if seq_delta(seq, block.seq) <= 0:
-                    self._emit(state, block.foot, seq, out)  # older incomplete ones first
+            self._completed(state, block.foot, block.seq, out)
         return out
+
+    def _completed(self, state: _FootState, foot: Foot, seq: int, out: list[FootFrame]) -> None:
+        """Frame ``seq`` has all its rows: out it goes, older incomplete ones first."""
+        pending = state.pending
+        if len(pending) == 1:  # the usual case: it is the only frame in progress
+            self._emit(state, foot, seq, out)
+            return
+        for older in sorted(pending, key=lambda s: seq_delta(s, seq)):
+            if seq_delta(older, seq) <= 0:
+                self._emit(state, foot, older, out)
 
     def flush(self) -> list[FootFrame]:
         """Emit every frame in progress (the stream ended or was cut), oldest first."""

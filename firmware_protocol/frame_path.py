@@ -65,20 +65,26 @@ class FramePath:
         # daemon's counts status packets only): two calls fewer per block.
         see_blocks = type(watch).block is not FrameWatch.block
         see_frames = type(watch).frame is not FrameWatch.frame
-        push_block, push_frame = self.assembler.push, self.pairing.push
-        for packet in self.decoder.feed(data):
-            if isinstance(packet, FrameRows):
-                if see_blocks:
+        assembler, push_frame = self.assembler, self.pairing.push
+        for item in self.decoder.feed_raw(data):
+            if isinstance(item, tuple) and not see_blocks:  # a FRAME_ROWS block, as it came
+                frames = assembler.push_raw(item, t_ns)
+            else:
+                packet = FrameRows.from_raw(item) if isinstance(item, tuple) else item
+                if isinstance(packet, FrameRows):
                     watch.block(packet)
-                for frame in push_block(packet, t_ns):
-                    if see_frames:
-                        watch.frame(frame)
-                    out += push_frame(frame)
-            elif isinstance(packet, BoardStatus):
-                self.board_status += 1
-                watch.status(packet)
-            elif isinstance(packet, DecodeError):
-                log.debug("bad packet: %s", packet)
+                    frames = assembler.push(packet, t_ns)
+                else:
+                    if isinstance(packet, BoardStatus):
+                        self.board_status += 1
+                        watch.status(packet)
+                    elif isinstance(packet, DecodeError):
+                        log.debug("bad packet: %s", packet)
+                    continue
+            for frame in frames:
+                if see_frames:
+                    watch.frame(frame)
+                out += push_frame(frame)
         return out
 
     def end(self) -> list[PairedFrame]:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Final
+from typing import Final, TypeAlias
 
 import numpy as np
 from scotti.firmware_protocol import cobs
@@ -29,10 +29,14 @@ from scotti.firmware_protocol.packets import (
     SEQ_MODULUS,
     TYPE_FRAME_ROWS,
     VERSION,
+    FrameRows,
     Packet,
+    RawRows,
     parse_packet,
+    raw_rows,
 )
 
+Item: TypeAlias = RawRows | Packet | DecodeError  # what ``StreamDecoder.feed_raw`` returns
 DELIMITER: Final = 0x00  # ends every COBS-encoded packet on the wire
 MAX_ENCODED_LEN: Final = cobs.max_encoded_len(MAX_PACKET_LEN)  # longest legal run (2057 bytes)
 
@@ -167,7 +171,15 @@ class StreamDecoder:
         return len(self._buffer)
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Packet | DecodeError]:
-        """Take the next bytes of the stream; return what they completed, in order.
+        """Take the next bytes of the stream; return what they completed, in order."""
+        return [
+            FrameRows.from_raw(item) if isinstance(item, tuple) else item
+            for item in self.feed_raw(data)
+        ]
+
+    def feed_raw(self, data: bytes | bytearray | memoryview) -> list[Item]:
+        """``feed``, with each FRAME_ROWS packet of the common case (``raw_rows``) as its
+        header and bytes, not yet a ``FrameRows``: what the frame path's assembler takes.
 
         The chunk is split at its delimiters in one call, and the packets it completes
         are COBS-decoded together (``cobs.decode_many``): no Python loop per byte or block.
@@ -177,7 +189,7 @@ class StreamDecoder:
         counters.bytes_in += len(chunk)
         runs = chunk.split(b"\x00")
         tail = runs.pop()  # after the last delimiter: the start of a packet still coming
-        out: list[Packet | DecodeError] = []
+        out: list[Item] = []
         if runs:
             if self._skipping:  # the end of an over-long run: dropped, counted already
                 counters.bytes_discarded += len(runs[0]) + 1
@@ -197,11 +209,17 @@ class StreamDecoder:
             self._keep(tail, out)
         return out
 
-    def _decode(self, frames: list[bytes], out: list[Packet | DecodeError]) -> None:
+    def _decode(self, frames: list[bytes], out: list[Item]) -> None:
         """COBS frames (each at most ``max_encoded_len``) -> packets or errors, counted."""
         counters = self.counters
         limit = self.max_packet_len
         for frame, decoded in zip(frames, cobs.decode_many(frames), strict=True):
+            if type(decoded) is bytes and len(decoded) <= limit:
+                raw = raw_rows(decoded)
+                if raw is not None:
+                    out.append(raw)
+                    counters.packets += 1
+                    continue
             try:
                 if isinstance(decoded, BadCobsError):
                     raise decoded
@@ -215,7 +233,7 @@ class StreamDecoder:
                 counters.bytes_discarded += len(frame) + 1
                 out.append(exc)
 
-    def _decode_some(self, frames: list[bytes], out: list[Packet | DecodeError]) -> None:
+    def _decode_some(self, frames: list[bytes], out: list[Item]) -> None:
         """``_decode``, where some runs are longer than a packet can be (dropped, counted)."""
         batch: list[bytes] = []
         for frame in frames:
@@ -233,7 +251,7 @@ class StreamDecoder:
         self._buffer.clear()
         self._skipping = False
 
-    def _keep(self, tail: bytes, out: list[Packet | DecodeError]) -> None:
+    def _keep(self, tail: bytes, out: list[Item]) -> None:
         if self._skipping:
             self.counters.bytes_discarded += len(tail)
             return
