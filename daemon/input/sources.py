@@ -129,11 +129,12 @@ class SerialSource:
                 await asyncio.sleep(self.backoff.next_delay())
                 continue
             log.info("receiver: %s opened", self.port)
+            watch = _StallWatch(reader, self.stall_s)
             try:
                 yield SourceEvent("connected", f"{self.port} opened")
                 ended: str | None = None
                 while ended is None:
-                    chunk, ended = await self._read(reader)
+                    chunk, ended = await self._read(reader, watch)
                     if chunk is None and self.played is not None and self.played.is_set():
                         log.info("receiver: %s: the board has played everything", self.port)
                         yield SourceEvent("disconnected", "end of scene")
@@ -144,6 +145,7 @@ class SerialSource:
                             self.backoff.reset()  # bytes flowed: the next outage starts afresh
                         yield chunk
             finally:
+                watch.stop()
                 await _close(writer)
             # A port that opens but stays silent (insoles off) is one WARNING, not one
             # per reopen: after the first, the same outage goes on at INFO.
@@ -161,20 +163,52 @@ class SerialSource:
             raise PortUnavailableError(explain_open_error(self.port, exc)) from None
         return reader, writer
 
-    async def _read(self, reader: asyncio.StreamReader) -> tuple[Chunk | None, str | None]:
+    async def _read(
+        self, reader: asyncio.StreamReader, watch: _StallWatch
+    ) -> tuple[Chunk | None, str | None]:
         """One chunk, or the reason the connection is over."""
+        watch.reading_since = watch.loop.time()
         try:
-            # asyncio.timeout, not wait_for: on 3.11 wait_for can swallow a cancel that
-            # lands as data arrives, and a flooded reader would then never stop.
-            async with asyncio.timeout(self.stall_s):
-                data = await reader.read(READ_SIZE)
-        except TimeoutError:
+            data = await reader.read(READ_SIZE)
+        except _StalledError:
             return None, f"no bytes from {self.port} for {self.stall_s:g} s (stalled)"
         except (serial.SerialException, OSError) as exc:
             return None, f"{self.port} lost: {exc}"
+        finally:
+            watch.reading_since = None
         if not data:
             return None, f"{self.port} closed"
         return (time.monotonic_ns(), data), None
+
+
+class _StalledError(Exception):
+    """No byte came for ``stall_s``: the waiting read ends with this."""
+
+
+class _StallWatch:
+    """Ends a read that has waited ``stall_s`` for a byte, with one timer that looks
+    every ``stall_s`` or so instead of a timeout armed and disarmed around every read
+    (about 4 us a read, several reads per frame pair). The read ends through the
+    reader's ``set_exception``, never by cancelling the task that reads: a stall never
+    lands anywhere but in the read (the connection is closed after it)."""
+
+    def __init__(self, reader: asyncio.StreamReader, stall_s: float) -> None:
+        self.loop = asyncio.get_running_loop()
+        self.reading_since: float | None = None  # loop time a read began waiting, if one is
+        self._reader = reader
+        self._stall_s = stall_s
+        self._handle = self.loop.call_later(stall_s, self._look)
+
+    def _look(self) -> None:
+        since, now = self.reading_since, self.loop.time()
+        if since is not None and now - since >= self._stall_s:
+            self._reader.set_exception(_StalledError())
+            return
+        due = self._stall_s if since is None else since + self._stall_s - now
+        self._handle = self.loop.call_later(due, self._look)
+
+    def stop(self) -> None:
+        self._handle.cancel()
 
 
 async def _close(writer: asyncio.StreamWriter) -> None:

@@ -7,7 +7,10 @@ FRAME_ROWS blocks, 4 per foot frame, both feet, 16 Hz):
 - ``path``: ``FramePath.feed`` alone (decode, assemble, pair);
 - ``consume``: the daemon's ``Pipeline`` reading a live in-memory source: the path
   plus the pipeline's per-chunk and per-pair work (counters, state, the hand-off
-  to inference; the inference lane here takes jobs and runs nothing).
+  to inference; the inference lane here takes jobs and runs nothing);
+- ``consume ... serial``: the same pipeline reading a ``SerialSource`` on a
+  pseudo-terminal that the board emulator writes a foot frame into every 1 ms
+  (the event loop thread's CPU only: ``time.thread_time``).
 
 Frames are ``insole`` (a simulated squat scene through the realistic insole: mostly
 zeros, as a real pressure map) or ``random`` (what ``bench.board_records`` sends);
@@ -44,6 +47,7 @@ import numpy as np
 
 PERIOD_NS: Final = 62_500_000  # 16 Hz
 ROWS_PER_PACKET: Final = 8
+SERIAL_GAP_NS: Final = 1_000_000  # between the emulated board's writes
 SCENE: Final = "squat.toml"  # sim/scenes: six squats with standing between
 Records = list[tuple[int, bytes]]
 
@@ -172,6 +176,30 @@ def time_consume(records: Records, runtime: Any) -> tuple[float, int]:
     return took, engine.lanes[0].jobs
 
 
+def time_serial(records: Records, runtime: Any) -> tuple[float, int]:
+    """CPU seconds of the event loop's thread (``time.thread_time``) while a ``Pipeline``
+    reads ``records`` from a ``SerialSource`` on a pseudo-terminal that a board emulator
+    (another thread, not counted) writes one record into every ``SERIAL_GAP_NS``."""
+    from scotti.daemon.frames.pipeline import Pipeline
+    from scotti.daemon.input.board_emulator import BoardEmulator
+    from scotti.daemon.input.sources import SerialSource
+    from scotti.daemon.service.counters import Counters
+
+    paced = [(i * SERIAL_GAP_NS, data) for i, (_, data) in enumerate(records)]
+    engine = _Engine()
+    with tempfile.TemporaryDirectory() as tmp, BoardEmulator(paced, Path(tmp) / "tty") as board:
+        source = SerialSource(str(board.link), stall_s=0.3, played=board.finished)
+        pipeline = Pipeline(source, runtime, Counters(), engine=engine)
+
+        async def go() -> float:
+            start = time.thread_time()
+            await pipeline.run(lambda _: None, lambda _: None, asyncio.Event())
+            return time.thread_time() - start
+
+        took = asyncio.run(go())
+    return took, engine.lanes[0].jobs
+
+
 def measure(workloads: dict[str, Records], passes: int) -> dict[str, list[float]]:
     """Microseconds of CPU per pair-frame, per workload and pass."""
     from scotti.daemon.settings import default_model_path
@@ -181,6 +209,10 @@ def measure(workloads: dict[str, Records], passes: int) -> dict[str, list[float]
     out: dict[str, list[float]] = {}
     for _ in range(passes):
         for name, records in workloads.items():
+            if name.endswith(" serial"):
+                seconds, pairs = time_serial(records, runtime)
+                out.setdefault(f"consume {name}", []).append(seconds * 1e6 / pairs)
+                continue
             seconds, pairs = time_path(records)
             out.setdefault(f"path {name}", []).append(seconds * 1e6 / pairs)
             seconds, pairs = time_consume(records, runtime)
@@ -225,6 +257,8 @@ def main(argv: list[str] | None = None) -> int:
         for kind, f in frames.items()
         for chunks in ("write", "packet")
     }
+    # A serial port, a foot frame per write (the insole frames; one write every 1 ms)
+    workloads["insole serial"] = workloads["insole write"]
     sides: dict[str, Path | None] = {"this": None}
     if args.baseline is not None:
         sides = {"baseline": args.baseline, "this": None}
