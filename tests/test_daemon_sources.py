@@ -143,6 +143,32 @@ def test_a_stall_counts_as_a_disconnect_and_the_source_reconnects(
     run(body)
 
 
+def test_a_port_that_keeps_sending_is_never_stalled_even_by_a_slow_reader(
+    board_factory: Factory, synthetic_session: SyntheticSession
+) -> None:
+    board = board_factory(synthetic_session, speed=4.0, loop=True)
+
+    async def body() -> None:
+        stream = SerialSource(str(board.link), stall_s=0.2, backoff=fast_backoff()).stream()
+        kinds: list[str] = []
+        nbytes = 0
+        start = time.monotonic()
+        async for item in stream:
+            if isinstance(item, SourceEvent):
+                kinds.append(item.kind)
+            else:
+                if not nbytes:
+                    await asyncio.sleep(0.5)  # busy with the first chunk for 2.5 stall_s
+                nbytes += len(item[1])
+            if time.monotonic() - start > 1.5:
+                break
+        await stream.aclose()
+        assert kinds == ["connected"]
+        assert nbytes > 1000
+
+    run(body)
+
+
 def test_a_port_absent_at_start_is_waited_for(
     tmp_path: Path, synthetic_session: SyntheticSession
 ) -> None:
