@@ -388,7 +388,8 @@ class FrameAssembler:
         if state.last_geometry is not None and state.last_geometry != partial.geometry:
             counters.geometry_changes += 1
         state.last_geometry = partial.geometry
-        if state.last_emitted is None or seq_delta(seq, state.last_emitted) > 0:
+        last = state.last_emitted
+        if last is None or ((seq - last + 0x8000) & 0xFFFF) > 0x8000:  # seq_delta(seq, last) > 0
             state.last_emitted = seq
         state.recent.append(seq)
         out.append(frame)

@@ -199,12 +199,13 @@ class StreamDecoder:
                 self._buffer += runs[0]
                 runs[0] = bytes(self._buffer)
                 self._buffer.clear()
-            frames = [run for run in runs if run]  # an empty run (0x00 0x00) is idle padding
-            if frames:
-                if max(map(len, frames)) > self.max_encoded_len:
-                    self._decode_some(frames, out)
+            if b"" in runs:  # an empty run (0x00 0x00) is idle padding
+                runs = [run for run in runs if run]
+            if runs:
+                if max(map(len, runs)) > self.max_encoded_len:
+                    self._decode_some(runs, out)
                 else:
-                    self._decode(frames, out)
+                    self._decode(runs, out)
         if tail:
             self._keep(tail, out)
         return out
@@ -213,12 +214,13 @@ class StreamDecoder:
         """COBS frames (each at most ``max_encoded_len``) -> packets or errors, counted."""
         counters = self.counters
         limit = self.max_packet_len
+        common = 0
         for frame, decoded in zip(frames, cobs.decode_many(frames), strict=True):
             if type(decoded) is bytes and len(decoded) <= limit:
                 raw = raw_rows(decoded)
                 if raw is not None:
                     out.append(raw)
-                    counters.packets += 1
+                    common += 1
                     continue
             try:
                 if isinstance(decoded, BadCobsError):
@@ -232,6 +234,7 @@ class StreamDecoder:
                 setattr(counters, exc.reason, getattr(counters, exc.reason) + 1)
                 counters.bytes_discarded += len(frame) + 1
                 out.append(exc)
+        counters.packets += common
 
     def _decode_some(self, frames: list[bytes], out: list[Item]) -> None:
         """``_decode``, where some runs are longer than a packet can be (dropped, counted)."""

@@ -137,6 +137,8 @@ class Pairing:
 
     def __init__(self, config: PairingConfig | None = None) -> None:
         self.config = config if config is not None else PairingConfig()
+        self._hold_frames = self.config.hold_frames  # the config is frozen: worked out once
+        self._gap_frames = self.config.gap_frames
         self.counters = PairingCounters()
         self._tracks = (_Track(), _Track())
         self._pending: dict[int, dict[int, _Entry]] = {}
@@ -148,7 +150,7 @@ class Pairing:
 
     def silent(self) -> tuple[bool, bool]:
         """(left, right): held longer than ``hold_s`` (``foot_states`` in two booleans)."""
-        hold = self.config.hold_frames
+        hold = self._hold_frames
         left, right = self._tracks
         return (left.missed > hold, right.missed > hold)
 
@@ -185,7 +187,7 @@ class Pairing:
             self.counters.late += 1
             track.missed = 0  # too late to use, but the foot is back: wait for its next frame
             return out
-        if k - (self._next_k - 1) > self.config.gap_frames:
+        if k - (self._next_k - 1) > self._gap_frames:
             out += self._send_pending()  # what came before the gap still goes out
             self._next_k = k
             self._restart_next = True
@@ -214,7 +216,7 @@ class Pairing:
         # A step back (late frame) or a long step forward (gap) must agree with the
         # board's clock; if it does not, the board restarted. No frame is a second
         # late: a longer step back is a restart (or a replay that looped) whatever the clock.
-        gap = self.config.gap_frames
+        gap = self._gap_frames
         if d < -gap or ((d < 0 or d > gap) and not self._clock_agrees(track, frame, d)):
             self.counters.resyncs += 1
             return self._learn(foot, frame)

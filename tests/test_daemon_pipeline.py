@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -103,6 +104,15 @@ def test_replay_predicts_from_the_t_th_frame_on_with_continuous_seqs(
     bad = snap["bad_packets"]
     assert bad["bad_cobs"] + bad["bad_crc"] + bad["malformed"] >= frames // 5  # the garbage
     assert snap["latency_ms"]["inference"]["n"] == frames
+
+
+def test_a_prediction_is_a_whole_frozen_prediction(tmp_path: Path, runtime: ScottiRuntime) -> None:
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=runtime.window + 2)
+    prediction = run_pipeline(ReplaySource(session.path, speed="max"), runtime)[0][-1]
+    assert list(vars(prediction)) == [f.name for f in dataclasses.fields(Prediction)]
+    assert prediction.unfamiliar_score is None or prediction.unfamiliar_score >= 0.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        prediction.seq = 0  # type: ignore[misc]
 
 
 def test_replaying_the_same_session_twice_gives_identical_predictions(

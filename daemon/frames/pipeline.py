@@ -147,10 +147,13 @@ class Pipeline:
     # --- bytes in --------------------------------------------------------------
 
     async def _consume(self) -> None:
+        live = self.source.live
         async with contextlib.aclosing(self.source.stream()) as items:
             async for item in items:
                 if isinstance(item, SourceEvent):
                     await self._on_source_event(item)
+                elif live:  # never made to wait: no coroutine per read
+                    self._on_live_chunk(*item)
                 else:
                     await self._on_chunk(*item)
                 self._update_state()
@@ -158,18 +161,22 @@ class Pipeline:
         await self.worker.wait_below(1)  # every frame's result delivered
 
     async def _on_chunk(self, t_ns: int, data: bytes) -> None:
+        """A replay's read: it waits while inference is behind."""
+        for pair in self._pairs_of(t_ns, data):
+            await self._submit(pair)
+
+    def _on_live_chunk(self, t_ns: int, data: bytes) -> None:
+        """A live source's read: never made to wait."""
+        for pair in self._pairs_of(t_ns, data):
+            self._submit_now(pair)
+
+    def _pairs_of(self, t_ns: int, data: bytes) -> list[PairedFrame]:
         counters = self.counters
         counters.bytes_in += len(data)
         counters.chunks_in += 1
         if self.recorder is not None:
             self.recorder.tap(t_ns, data)
-        pairs = self.frames.feed(data, t_ns)
-        if self.source.live:  # a live source is never made to wait
-            for pair in pairs:
-                self._submit_now(pair)
-        else:
-            for pair in pairs:
-                await self._submit(pair)
+        return self.frames.feed(data, t_ns)
 
     async def _on_source_event(self, event: SourceEvent) -> None:
         counters = self.counters
@@ -267,26 +274,26 @@ class Pipeline:
                 progress = float("nan")  # the progress head says nothing while standing
             repetition = self.repetitions.update(action, progress)
         left_clock, right_clock = pair.clocks
-        prediction = Prediction(
-            seq=result.job.seq,
-            left_seq=pair.seqs[0],
-            right_seq=pair.seqs[1],
-            device_clock_us=left_clock if left_clock >= 0 else right_clock,
-            host_wall_ns=time.time_ns(),
-            host_mono_ns=now_mono,
-            predicted_for_mono_ns=(last_byte or now_mono) + FRAME_PERIOD_NS,
-            last_byte_mono_ns=last_byte,
-            pose=pose,
-            action_probs=probs,
-            action=action,
-            progress=progress,
-            repetition=repetition,
-            flags=(*pair.flags, *model_flags),
-            inference_ms=result.inference_ms,
-            counts=_read_only(pair.counts),
-            unfamiliar_score=unfamiliar_score,
-            withheld=held_back,
-        )
+        prediction = _frozen(Prediction, {
+            "seq": result.job.seq,
+            "left_seq": pair.seqs[0],
+            "right_seq": pair.seqs[1],
+            "device_clock_us": left_clock if left_clock >= 0 else right_clock,
+            "host_wall_ns": time.time_ns(),
+            "host_mono_ns": now_mono,
+            "predicted_for_mono_ns": (last_byte or now_mono) + FRAME_PERIOD_NS,
+            "last_byte_mono_ns": last_byte,
+            "pose": pose,
+            "action_probs": probs,
+            "action": action,
+            "progress": progress,
+            "repetition": repetition,
+            "flags": (*pair.flags, *model_flags),
+            "inference_ms": result.inference_ms,
+            "counts": _read_only(pair.counts),
+            "unfamiliar_score": unfamiliar_score,
+            "withheld": held_back,
+        })  # fmt: skip
         self.counters.predictions += 1
         self._call(self._on_prediction, prediction)
 
@@ -343,6 +350,14 @@ class _StatusCount(FrameWatch):
 
     def status(self, status: BoardStatus) -> None:
         self.counters.board_status += 1
+
+
+def _frozen(cls: type[T], fields: dict[str, object]) -> T:
+    """``cls(**fields)`` for a frozen dataclass, every field given, in one step instead of
+    one ``object.__setattr__`` per field (a Prediction has 18; one per frame per pair)."""
+    made = object.__new__(cls)
+    object.__setattr__(made, "__dict__", fields)
+    return made
 
 
 def _read_only(array: npt.NDArray[np.uint16]) -> npt.NDArray[np.uint16]:
