@@ -20,18 +20,18 @@ experiments/ood_inputs.py``, figures in docs/ood.md):
   the person: a dead insole, or a long one-legged stance, neither of which
   the model learnt (walking lifts a foot for well under a second).
 
-Per-frame statistics are computed once per frame (``FrameCheck``, a few
-microseconds) so the streaming window keeps the last T of them instead of
-the frames. Numpy only (ARCHITECTURE.md, room ``models/``).
+Per-frame statistics are computed once per frame (``FrameCheck``, or
+``frame_codes`` for a batch) so the streaming window keeps what the rules need
+of the last T frames instead of the frames (models/window_checks.py). Numpy
+only (ARCHITECTURE.md, room ``models/``).
 """
 
 from __future__ import annotations
 
 import functools
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -139,12 +139,6 @@ class FrameCheck:
         return _rule_names(self.rule_bits)
 
 
-# For each value of the rule bits, the rules it sets (a frame's, counted in and out).
-_RULES_IN: Final = tuple(
-    tuple(k for k in range(len(RULES)) if bits >> k & 1) for bits in range(1 << len(RULES))
-)
-
-
 def _rule_names(bits: int) -> list[str]:
     return [name for k, name in enumerate(RULES) if bits >> k & 1]
 
@@ -202,22 +196,12 @@ class FrameStats:
         """(N,) whether ``FrameCheck.implausible`` names any rule for the frame."""
         return np.asarray(self.rule_bits != 0)
 
-    def codes(self) -> tuple[list[int], list[bool], list[bool], list[bool]]:
-        """What ``FrameChecks.push_code`` takes, per frame as Python lists (one conversion
-        per batch, not one per frame and statistic): rule bits, loaded, left foot empty,
-        right foot empty."""
-        force = self.force_n
-        return (
-            self.rule_bits.tolist(),
-            self.loaded.tolist(),
-            (force[:, 0] < FOOT_EMPTY_N).tolist(),
-            (force[:, 1] < FOOT_EMPTY_N).tolist(),
-        )
-
 
 _MASK_FLAT: Final = _MASK.ravel()  # one foot's taxels, row by row
 _OUTSIDE_TAXELS: Final = np.flatnonzero(~_MASK_FLAT)
 _OUTLINE_TAXELS: Final = int(_MASK.sum())
+# (H*W, 2): a foot's taxels -> (all counts, counts outside the outline).
+_SUM_AND_OUTSIDE: Final = np.stack([np.ones(_MASK.size), ~_MASK_FLAT], axis=1).astype(np.int64)
 
 
 def frame_stats(frames: npt.ArrayLike) -> FrameStats:
@@ -226,30 +210,102 @@ def frame_stats(frames: npt.ArrayLike) -> FrameStats:
     Unsigned integer counts (the wire's uint16) are read as they are; anything else is
     cleaned first (NaN as 0, clipped to the counts' range, rounded for the force).
     """
+    feet, whole = _feet(frames)
+    top = feet.max(initial=0)
+    if whole and top > MAX_COUNT:
+        feet = np.minimum(feet, MAX_COUNT)
+    sums_off = _sums_and_outside(feet, whole)
+    sums = sums_off[:, :, 0]
+    total = sums.sum(axis=1)
+    off = sums_off[:, :, 1].sum(axis=1)
+    outside = np.where(total > 0, off / np.maximum(total, 1), 0.0)
+    peak = np.where(sums > 0, feet.max(axis=2, initial=0) / np.maximum(sums, 1), 0.0)
+    rail = _at_rail(feet) / _OUTLINE_TAXELS if top >= RAIL_COUNTS else np.zeros((len(feet), 2))
+    force = _kpa_sums(feet, whole) * _N_PER_KPA
+    return FrameStats(force, outside, rail.max(axis=1), peak.max(axis=1))
+
+
+# What ``FrameChecks.push_code`` takes for one frame: rule bits, loaded, left foot
+# empty, right foot empty.
+FrameCode = tuple[int, bool, bool, bool]
+
+
+def frame_codes(frames: npt.ArrayLike) -> list[FrameCode]:
+    """``FrameCheck.rule_bits``, ``loaded`` and the empty feet of N frames (N, H, 2W).
+
+    ``frame_stats``' figures, the same floats, with the per-frame arithmetic in Python
+    on a few sums per foot: in the daemon this runs between two model calls, where
+    each numpy call (even on a numpy scalar) costs tens of microseconds of cold caches
+    whatever its size, more than the Python that replaces it for a batch of a few frames.
+    """
+    feet, whole = _feet(frames)
+    peaks = feet.max(axis=2, initial=0).tolist()
+    top = max((max(p) for p in peaks), default=0)
+    if whole and top > MAX_COUNT:
+        feet = np.minimum(feet, MAX_COUNT)
+        peaks = feet.max(axis=2, initial=0).tolist()
+    rails = _at_rail(feet).tolist() if top >= RAIL_COUNTS else [(0, 0)] * len(peaks)
+    codes = []
+    for (k_left, k_right), ((s_left, o_left), (s_right, o_right)), (p_left, p_right), r in zip(
+        _kpa_sums(feet, whole).tolist(),
+        _sums_and_outside(feet, whole).tolist(),
+        peaks,
+        rails,
+        strict=True,
+    ):
+        f_left, f_right = k_left * _N_PER_KPA, k_right * _N_PER_KPA
+        force_n = f_left + f_right
+        total = s_left + s_right
+        outside = (o_left + o_right) / max(total, 1) if total > 0 else 0.0
+        peak_share = max(
+            p_left / max(s_left, 1) if s_left > 0 else 0.0,
+            p_right / max(s_right, 1) if s_right > 0 else 0.0,
+        )
+        bits = (
+            (outside > OUTSIDE_SHARE_MAX)
+            | (max(r) / _OUTLINE_TAXELS > RAIL_SHARE_MAX) << 1
+            | (peak_share > PEAK_SHARE_MAX) << 2
+            | (force_n > FORCE_MAX_N) << 3
+        )
+        codes.append(
+            (bits, force_n >= UNLOADED_FORCE_N, f_left < FOOT_EMPTY_N, f_right < FOOT_EMPTY_N)
+        )
+    return codes
+
+
+def _feet(frames: npt.ArrayLike) -> tuple[npt.NDArray[Any], bool]:
+    """(N, foot, H*W), each foot's taxels contiguous so that every sum runs along one
+    axis; and whether they are whole counts (unsigned integers, read as they are: the
+    wire's uint16) or were cleaned (NaN as 0, clipped to the counts' range, float64)."""
     x = np.asarray(frames)
     if x.ndim != 3 or x.shape[1:] != (FRAME_ROWS, 2 * FRAME_COLS):
         msg = f"frames are (N, {FRAME_ROWS}, {2 * FRAME_COLS}), got {x.shape}"
         raise ValueError(msg)
-    n = x.shape[0]
-    if x.dtype.kind == "u":
-        if n and x.max() > MAX_COUNT:
-            x = np.minimum(x, MAX_COUNT)
-    else:
+    whole = x.dtype.kind == "u"
+    if not whole:
         x = np.clip(np.nan_to_num(x.astype(np.float64), nan=0.0), 0.0, MAX_COUNT)
-    # (N, foot, H*W): each foot's taxels contiguous, so every sum runs along one axis.
-    feet = x.reshape(n, FRAME_ROWS, 2, FRAME_COLS).transpose(0, 2, 1, 3).reshape(n, 2, -1)
-    counts = feet if x.dtype.kind == "u" else np.rint(feet).astype(np.intp)
-    force = _KPA_OF_COUNT.take(counts).sum(axis=2) * _N_PER_KPA  # (N, 2)
-    sums = feet.sum(axis=2, dtype=np.float64)  # (N, 2)
-    total = sums.sum(axis=1)
-    off = feet.take(_OUTSIDE_TAXELS, axis=2).sum(axis=(1, 2), dtype=np.float64)
-    outside = np.where(total > 0, off / np.maximum(total, 1), 0.0)
-    if n and x.max() >= RAIL_COUNTS:  # rare: realistic frames stay off the rail
-        rail = ((feet >= RAIL_COUNTS) & _MASK_FLAT).sum(axis=2) / _OUTLINE_TAXELS
-    else:
-        rail = np.zeros((n, 2))
-    peak = np.where(sums > 0, feet.max(axis=2, initial=0) / np.maximum(sums, 1), 0.0)
-    return FrameStats(force, outside, rail.max(axis=1, initial=0.0), peak.max(axis=1))
+    n = x.shape[0]
+    return x.reshape(n, FRAME_ROWS, 2, FRAME_COLS).transpose(0, 2, 1, 3).reshape(n, 2, -1), whole
+
+
+def _kpa_sums(feet: npt.NDArray[Any], whole: bool) -> npt.NDArray[np.float64]:
+    """(N, 2): each foot's taxels in kPa, summed (the counts rounded to whole ones)."""
+    return np.asarray(
+        _KPA_OF_COUNT.take(feet if whole else np.rint(feet).astype(np.intp)).sum(axis=2)
+    )
+
+
+def _sums_and_outside(feet: npt.NDArray[Any], whole: bool) -> npt.NDArray[Any]:
+    """(N, foot, 2): each foot's counts and those outside the outline, summed."""
+    if whole:  # integer products: numpy's own loop (no BLAS threads), exact, one call
+        return np.asarray(feet @ _SUM_AND_OUTSIDE)
+    outside = feet.take(_OUTSIDE_TAXELS, axis=2).sum(axis=2)
+    return np.stack([feet.sum(axis=2), outside], axis=2)
+
+
+def _at_rail(feet: npt.NDArray[Any]) -> npt.NDArray[np.int64]:
+    """(N, 2): each foot's outline taxels at the rail."""
+    return np.asarray(((feet >= RAIL_COUNTS) & _MASK_FLAT).sum(axis=2, dtype=np.int64))
 
 
 def window_flags(
@@ -302,12 +358,13 @@ def verdict(checks: Sequence[FrameCheck], window: int = WINDOW) -> WindowVerdict
     full = len(checks) >= window and not unloaded
     left = full and all(c.force_n[0] < FOOT_EMPTY_N for c in checks)
     right = full and all(c.force_n[1] < FOOT_EMPTY_N for c in checks)
-    return _verdict_of(unloaded, rules, left, right)
+    return verdict_of(unloaded, rules, left, right)
 
 
 @functools.lru_cache(maxsize=256)
-def _verdict_of(unloaded: bool, rules: int, left_empty: bool, right_empty: bool) -> WindowVerdict:
-    """The flags and reason lines for what the rules found (few cases: made once each).
+def verdict_of(unloaded: bool, rules: int, left_empty: bool, right_empty: bool) -> WindowVerdict:
+    """The flags and reason lines for what the rules found (few cases: made once each,
+    shared by ``verdict`` and the streaming window's kept counts, models/window_checks.py).
 
     ``rules``: bits of the rules broken somewhere in a window that holds enough
     implausible frames; ``left_empty``/``right_empty``: that foot was empty on every
@@ -334,80 +391,3 @@ def check_window(frames: npt.ArrayLike) -> WindowVerdict:
     """The rules over a whole window (T, H, 2W) of raw counts (the window graph's input)."""
     checks = check_frames(frames)
     return verdict(checks, window=len(checks))
-
-
-_CLEAR: Final = WindowVerdict((), ())
-
-
-class FrameChecks:
-    """The checks of the last ``size`` frames, for a streaming window.
-
-    ``verdict`` walks every check of the window; run per frame and per device that
-    was a sixth of the inference thread's time (py-spy, 16 pairs). What the rules
-    need is kept up to date as frames come and go instead (per frame: its rule
-    bits and which feet are empty; per window: counts of those and the newest run
-    of unloaded frames), so every frame's verdict costs O(1): the same verdicts as
-    ``verdict`` over the window, flag for flag and reason for reason.
-    """
-
-    def __init__(self, size: int) -> None:
-        if size < 1:
-            msg = f"a window of checks needs size >= 1, got {size}"
-            raise ValueError(msg)
-        self._size = size
-        self._codes: deque[tuple[int, bool, bool]] = deque()  # (rule bits, left, right empty)
-        self._bad_count = 0  # frames that break any rule
-        self._rule_count = [0] * len(RULES)  # frames that break each rule
-        self._empty_count = [0, 0]  # frames with the left, the right foot under FOOT_EMPTY_N
-        self._unloaded_run = 0  # newest frames in a row that are not loaded
-
-    def push(self, counts: npt.ArrayLike) -> WindowVerdict:
-        return self.push_check(check_frame(counts))
-
-    def push_check(self, check: FrameCheck) -> WindowVerdict:
-        """Take a frame's check made elsewhere (``check_frames`` of a batch of frames)."""
-        left, right = check.force_n
-        return self.push_code(
-            check.rule_bits, check.loaded, left < FOOT_EMPTY_N, right < FOOT_EMPTY_N
-        )
-
-    def push_code(
-        self, rule_bits: int, loaded: bool, left_empty: bool, right_empty: bool
-    ) -> WindowVerdict:
-        """Take a frame as ``FrameStats.codes`` gives it (a batch's frames checked at once)."""
-        codes, empty = self._codes, self._empty_count
-        if len(codes) == self._size:
-            old_bits, old_left, old_right = codes.popleft()
-            if old_bits:
-                self._count_rules(old_bits, -1)
-            empty[0] -= old_left
-            empty[1] -= old_right
-        codes.append((rule_bits, left_empty, right_empty))
-        if rule_bits:
-            self._count_rules(rule_bits, 1)
-        empty[0] += left_empty
-        empty[1] += right_empty
-        self._unloaded_run = 0 if loaded else self._unloaded_run + 1
-        held = len(codes)
-        unloaded = self._unloaded_run >= UNLOADED_FRAMES and held >= UNLOADED_FRAMES
-        rules = 0
-        if self._bad_count >= OUT_OF_RANGE_FRAMES:
-            rules = sum(1 << k for k, n in enumerate(self._rule_count) if n)
-        full = held == self._size and not unloaded
-        left = full and empty[0] == held
-        right = full and empty[1] == held
-        if unloaded or rules or left or right:
-            return _verdict_of(unloaded, rules, left, right)
-        return _CLEAR
-
-    def _count_rules(self, bits: int, step: int) -> None:
-        self._bad_count += step
-        for k in _RULES_IN[bits]:
-            self._rule_count[k] += step
-
-    def reset(self) -> None:
-        self._codes.clear()
-        self._bad_count = 0
-        self._rule_count = [0] * len(RULES)
-        self._empty_count = [0, 0]
-        self._unloaded_run = 0

@@ -111,15 +111,20 @@ class StepBatch:
     def _scalars(self) -> tuple[list[float], list[float] | None, list[bool]]:
         """Progress, score and unfamiliar of every row as Python values, made once for
         all the rows (one conversion per batch, not one per row)."""
-        scores = None if self.unfamiliar_score is None else self.unfamiliar_score.tolist()
-        return self.progress.tolist(), scores, self.unfamiliar.tolist()
+        if self.unfamiliar_score is None or self.threshold is None:
+            scores = None if self.unfamiliar_score is None else self.unfamiliar_score.tolist()
+            return self.progress.tolist(), scores, [False] * len(self.progress)
+        scores = self.unfamiliar_score.tolist()
+        threshold = self.threshold
+        return self.progress.tolist(), scores, [score > threshold for score in scores]
 
 
 def softmax(logits: npt.ArrayLike, axis: int = -1) -> F32:
     """Softmax that cannot overflow: the largest logit is subtracted first."""
     x = np.asarray(logits, dtype=np.float32)
     e = np.exp(x - x.max(axis=axis, keepdims=True))
-    return np.asarray(e / e.sum(axis=axis, keepdims=True), dtype=np.float32)
+    e /= e.sum(axis=axis, keepdims=True)  # in place: one numpy call fewer per batch
+    return e
 
 
 class ScottiRuntime:

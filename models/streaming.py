@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from scotti.models.errors import ModelError, ModelInputError
-from scotti.models.input_checks import FrameChecks, frame_stats
+from scotti.models.input_checks import FrameCode, frame_codes
 from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON
 from scotti.models.runtime import ScottiRuntime, StepBatch, StepResult
+from scotti.models.window_checks import FrameChecks
 
 
 class EmbeddingCache:
@@ -131,20 +132,12 @@ class StreamingWindow:
         self._seen = 0
         self.reasons = ()
 
-    def accept_row(
-        self,
-        batch: StepBatch,
-        row: int,
-        rule_bits: int,
-        loaded: bool,
-        left_empty: bool,
-        right_empty: bool,
-    ) -> StepResult | None:
+    def accept_row(self, batch: StepBatch, row: int, code: FrameCode) -> StepResult | None:
         """Take row ``row`` of a step run on ``past()`` into the cache, and its frame's
-        input checks (``FrameStats.codes``) into the window's; the prediction, flagged,
+        input checks (``frame_codes``) into the window's; the prediction, flagged,
         once the window is full."""
         self._cache.push(batch.embedding[row])
-        verdict = self._checks.push_code(rule_bits, loaded, left_empty, right_empty)
+        verdict = self._checks.push_code(*code)
         self._seen += 1
         if self._seen < self._runtime.window:
             return None
@@ -181,11 +174,12 @@ def push_many(
         msg = "push_many needs windows on one runtime"
         raise ModelError(msg)
     stacked = _stacked(frames, runtime.frame_shape)  # (B, H, 2W)
+    # The checks first: they read the frames while the stacking has them in cache.
+    codes = frame_codes(stacked)
     past = np.stack([w.past() for w in windows])  # (B, T-1, E)
     batch = runtime.run_steps(stacked, past)
-    bits, loaded, left, right = frame_stats(stacked).codes()
     return [
-        w.accept_row(batch, i, bits[i], loaded[i], left[i], right[i]) for i, w in enumerate(windows)
+        w.accept_row(batch, i, code) for i, (w, code) in enumerate(zip(windows, codes, strict=True))
     ]
 
 

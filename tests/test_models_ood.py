@@ -20,6 +20,7 @@ from scotti.models.ood import (
     shrunk_covariance,
     withheld,
 )
+from scotti.models.window_checks import FrameChecks
 
 MASK = insole_mask()
 
@@ -105,7 +106,7 @@ def test_one_insole_empty_for_a_whole_window_is_out_of_range_and_a_step_is_not()
 
 
 def test_streaming_checks_forget_on_reset() -> None:
-    checks = ic.FrameChecks(WINDOW)
+    checks = FrameChecks(WINDOW)
     empty = np.zeros((FRAME_ROWS, 2 * FRAME_COLS))
     for _ in range(ic.UNLOADED_FRAMES - 1):
         assert checks.push(empty).flags == ()
