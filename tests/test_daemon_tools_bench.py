@@ -1,4 +1,5 @@
-"""The bench's subscriber: it stops on time even while poses keep pouring in."""
+"""The bench end to end, its subscriber (it stops on time even while poses keep pouring
+in) and its config."""
 
 from __future__ import annotations
 
@@ -65,6 +66,7 @@ def test_the_bench_runs_two_pairs_in_one_daemon_and_prints_their_row(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     from scotti.daemon.tools.bench import main
+    from scotti.daemon.tools.bench_table import HEADER
 
     code = main(["--pairs", "2", "--seconds", "1.5", "--warmup", "0.5", "--modes", "batch"])
     out = capsys.readouterr().out
@@ -72,12 +74,22 @@ def test_the_bench_runs_two_pairs_in_one_daemon_and_prints_their_row(
     rows = [line for line in out.splitlines() if line.startswith("| 2 | batched |")]
     assert len(rows) == 1, out
     cells = [c.strip() for c in rows[0].strip("|").split("|")]
-    assert float(cells[2]) > 0  # poses per second per pair: both devices published
-    assert float(cells[6]) > 0  # the daemon's RSS was sampled
+    header = [c.strip() for c in HEADER.strip("|").split("|")]
+    column = dict(zip(header, cells, strict=True))
+    assert float(column["poses/s per pair"]) > 0  # both devices published
+    assert float(column["RSS MiB"]) > 0  # the daemon's RSS was sampled
+    model, ratio = float(column["model per pair"]), column["daemon / model"]
+    assert model > 0  # the model floor was measured beside the daemon
+    expected = float(column["per pair"]) / model  # from the printed, rounded cells
+    assert ratio.endswith("x")
+    assert abs(float(ratio[:-1]) - expected) <= 0.06 + 0.01 * expected
+    # Simulated people, not random maps: the poses are not flagged out_of_range.
+    out_of_range = float(column["flagged out_of_range / unloaded / unfamiliar %"].split("/")[0])
+    assert out_of_range < 5.0
     peaks = [line for line in out.splitlines() if line.startswith("| 2 | 1 | MQTT only |")]
     assert len(peaks) == 1, out
     rss, threads, fds = (float(c) for c in peaks[0].strip("|").split("|")[3:])
-    assert rss >= float(cells[6])  # from the start: at least the steady state's peak
+    assert rss >= float(column["RSS MiB"])  # from the start: at least the steady state's peak
     assert threads >= 2  # the event loop and the inference worker
     assert fds >= 2 + 3  # two serial ports beside stdin, stdout and stderr
 
