@@ -391,3 +391,14 @@ def check_window(frames: npt.ArrayLike) -> WindowVerdict:
     """The rules over a whole window (T, H, 2W) of raw counts (the window graph's input)."""
     checks = check_frames(frames)
     return verdict(checks, window=len(checks))
+
+
+def __getattr__(name: str) -> Any:
+    # FrameChecks lives in window_checks.py (it imports this module); importable from
+    # here too, where callers found it before.
+    if name == "FrameChecks":
+        from scotti.models.window_checks import FrameChecks
+
+        return FrameChecks
+    msg = f"module {__name__!r} has no attribute {name!r}"
+    raise AttributeError(msg)
