@@ -128,7 +128,8 @@ class OodStats:
             end = start + _ROWS_PER_PRODUCT
             np.matmul(rows[start:end], w_t, out=w[start:end])
         squares = np.einsum("ij,ij->i", w, w)  # one call, where w * w then a sum are two
-        return np.sqrt(squares).reshape(z.shape[:-1])
+        distance: npt.NDArray[np.float64] = np.sqrt(squares)
+        return distance.reshape(z.shape[:-1])
 
     @functools.cached_property
     def _whitening_t(self) -> npt.NDArray[np.float64]:

@@ -122,7 +122,7 @@ class StepBatch:
 def softmax(logits: npt.ArrayLike, axis: int = -1) -> F32:
     """Softmax that cannot overflow: the largest logit is subtracted first."""
     x = np.asarray(logits, dtype=np.float32)
-    e = np.exp(x - x.max(axis=axis, keepdims=True))
+    e: F32 = np.exp(x - x.max(axis=axis, keepdims=True))
     e /= e.sum(axis=axis, keepdims=True)  # in place: one numpy call fewer per batch
     return e
 
