@@ -39,7 +39,10 @@ import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scotti.daemon.service.counters import latency_summary
@@ -61,6 +64,9 @@ from scotti.daemon.tools.bench_table import (
 )
 from scotti.daemon.tools.local_broker import Mosquitto
 from scotti.models.contract import FRAME_RATE_HZ
+
+if TYPE_CHECKING:
+    from scotti.daemon.tools.bench_profile import Profile
 
 # Kept importable from here: the tests', the control flood's and the web bench's boards.
 _play_boards = play_boards
@@ -129,43 +135,38 @@ def run_one(
     cmd += ["--model", str(model)]
     env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
     daemon = subprocess.Popen(cmd, env=env)
-    measuring = threading.Event()
-    dropped_before: list[int] = []  # the boards' drops when the measured seconds start
-    threading.Thread(
-        target=lambda: (measuring.wait(), dropped_before.append(int(dropped.value))),
-        daemon=True,
-    ).start()
-    spy = None
-    if profile:
-        from scotti.daemon.tools.bench_profile import Profile
-
-        spy = Profile(daemon.pid, seconds, measuring, folder / "py-spy.txt")
+    measuring, peaks = threading.Event(), Peaks()
+    others = (boards.pid or 0, os.getpid(), *_broker_pid(broker))
     try:
-        others = (boards.pid or 0, os.getpid(), *_broker_pid(broker))
-        peaks = Peaks()
-        usage: list[tuple[float, float, float]] = []
-        sampler = threading.Thread(
-            target=lambda: usage.append(
-                sample_process(daemon.pid, seconds, measuring, others, peaks)
-            ),
-            daemon=True,
-        )
-        sampler.start()
-        poses = PoseSubscriber(broker, seconds, warmup, pairs=pairs, measuring=measuring).run()
-        dropped_after = int(dropped.value)
-        sampler.join()
-        cpu, rss, bench_cpu = usage[0] if usage else (0.0, 0.0, 0.0)
-        report = spy.report() if spy is not None else ""
+        with ThreadPoolExecutor(2) as pool:
+            usage = pool.submit(sample_process, daemon.pid, seconds, measuring, others, peaks)
+            dropped_before = pool.submit(_once_set, measuring, lambda: int(dropped.value))
+            spy = _profile(daemon.pid, seconds, measuring, folder) if profile else None
+            poses = PoseSubscriber(broker, seconds, warmup, pairs=pairs, measuring=measuring).run()
+            drops = int(dropped.value) - dropped_before.result()
+            report = spy.report() if spy is not None else ""
+            cpu_rss_bench = usage.result()
     finally:
         daemon.terminate()
         daemon.wait(30)
         stop.set()
         boards.join(15)
     return _row(
-        poses, pairs, batch, processes, seconds, (cpu, rss, bench_cpu), peaks, everything,
-        model_ms=model_ms, dropped=dropped_after - (dropped_before or [0])[0],
-        profile=report,
+        poses, pairs, batch, processes, seconds, cpu_rss_bench, peaks, everything,
+        model_ms=model_ms, dropped=drops, profile=report,
     )  # fmt: skip
+
+
+def _once_set(event: threading.Event, read: Callable[[], int]) -> int:
+    """``read()`` as soon as ``event`` is set (the measured seconds start)."""
+    event.wait()
+    return read()
+
+
+def _profile(pid: int, seconds: float, measuring: threading.Event, folder: Path) -> Profile:
+    from scotti.daemon.tools.bench_profile import Profile
+
+    return Profile(pid, seconds, measuring, folder / "py-spy.txt")
 
 
 def _row(

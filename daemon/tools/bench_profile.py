@@ -5,8 +5,12 @@ its workers from outside for the measured seconds (``py-spy record --format raw`
 100 samples a second; each sample pauses the daemon for a moment, so a profiled
 row's latency and CPU are a little above an unprofiled one's). py-spy leaves out
 threads it finds idle, and a sample whose innermost frame is a wait (select,
-Condition.wait, a queue's get, sleep) is left out here too: the shares are of the
-time the daemon's threads ran.
+Condition.wait, a queue's get, an idle pool thread) is left out here too: the shares are of the
+time the daemon's threads ran. A thread waiting for the GIL is not idle to
+py-spy: its samples go to the frame that waits (after a socket write, say), so a
+part's share can be above its CPU; the samples' total, as % of a core, is printed
+beside psutil's figure in the row to show how far.
+
 Each sample goes to the part of the innermost frame of the daemon's own path in
 its stack (the model's Session.run, the inference thread's Python, decoding and
 assembly, the publisher and paho, serial reads, the service's glue); a stack in
@@ -47,6 +51,7 @@ _WAITS: Final = (
     "_wait_for_tstate_lock (threading.py",
     "_worker (concurrent/futures/thread.py",  # an idle pool thread: in SimpleQueue.get (C)
 )
+_RATE_HZ: Final = 100  # samples a second per thread
 ORDER: Final = (*(name for name, _ in PARTS), EVENT_LOOP, OTHER)
 
 
@@ -103,7 +108,7 @@ class Profile:
     def _start(self, measuring: threading.Event) -> None:
         measuring.wait()
         cmd = [spy_path(), "record", "-p", str(self.pid), "-d", str(max(1, round(self.seconds)))]
-        cmd += ["-r", "100", "-f", "raw", "-o", str(self.out), "-s"]
+        cmd += ["-r", str(_RATE_HZ), "-f", "raw", "-o", str(self.out), "-s"]
         self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
     def report(self) -> str:
@@ -120,9 +125,11 @@ class Profile:
             why = err.decode(errors="replace").strip().splitlines()
             return f"profile: py-spy wrote nothing ({why[-1] if why else 'no message'})"
         total, waits, parts, top = shares(self.out.read_text(encoding="utf-8", errors="replace"))
+        busy = 100 * total / (_RATE_HZ * max(1, round(self.seconds)))
         lines = [
             f"daemon CPU by part of the path (py-spy: {total} samples of running threads, "
-            f"{waits} of waits left out; raw samples in {self.out}):"
+            f"{busy:.0f} % of a core beside the row's psutil figure; {waits} samples of "
+            f"waits left out; raw samples in {self.out}):"
         ]
         lines += [f"  {name:38s} {share:5.1f} %" for name, share in parts.items()]
         lines.append("  innermost functions with the most samples:")

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 import paho.mqtt.client as paho
+from paho.mqtt.enums import CallbackAPIVersion
 from scotti.daemon.tools.bench_boards import PERIOD_NS
 from scotti.daemon.tools.local_broker import Mosquitto
 
@@ -32,7 +33,7 @@ _FLAGS = re.compile(rb'"flags"\s*:\s*\[([^\]]*)\]')
 _FLAG_BYTES: Final = tuple(f'"{f}"'.encode() for f in OOD_FLAGS)
 
 
-def read_pose(payload: bytes) -> tuple[int, float, int]:
+def read_pose(payload: bytes | bytearray) -> tuple[int, float, int]:
     """(predicted_for_mono_ns, latency_ms, flag bits: 1 << OOD_FLAGS index) of a JSON
     pose; the fields found by byte search, a full parse only when one is missing."""
     when, latency = _PREDICTED_FOR.search(payload), _LATENCY.search(payload)
@@ -91,7 +92,7 @@ class PoseSubscriber:
         self._done = threading.Event()
 
     def run(self) -> Poses:
-        client = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv5)
+        client = paho.Client(CallbackAPIVersion.VERSION2, protocol=paho.MQTTv5)
         client.on_message = self._on_message
         self._begin = time.monotonic() + (READY_TIMEOUT_S if self.pairs else self.warmup)
         self._end = self._begin + self.seconds
