@@ -176,7 +176,7 @@ class BoardPlayer:
         for k in range(n):  # what the first ticks need, now, not while playing
             self.streams[self.person[k]].at(self.phase[k] + _AHEAD)
         self.writes = 0
-        self.dropped = 0  # foot frames (partly) not taken by the reader
+        self.dropped = 0  # foot frames dropped whole: the reader had not taken the last one
         self.shared_dropped = shared_dropped  # a multiprocessing Value kept equal to it
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
