@@ -10,10 +10,13 @@ uncalibrated predictions, with and without pressure, in JSON and msgpack.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Literal
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scotti.daemon.frames.pipeline import Prediction
 from scotti.daemon.mqtt import messages
 from scotti.daemon.mqtt.latency_slot import LatencySlot
@@ -24,12 +27,13 @@ from scotti.models.contract import ACTIONS, NO_ACTION
 FORMATS: tuple[Literal["json", "msgpack"], ...] = ("json", "msgpack")
 
 
-def predictions() -> list[Prediction]:
+@functools.cache
+def predictions() -> tuple[Prediction, ...]:
     rng = np.random.default_rng(3)
     made = [make_prediction(rng, seq) for seq in range(40)]
     first = made[0]
     standing = ACTIONS.index("standing")
-    return [
+    return (
         *made,
         dataclasses.replace(  # withheld: no action, no progress, the count kept
             first,
@@ -43,7 +47,7 @@ def predictions() -> list[Prediction]:
         dataclasses.replace(first, action=standing, progress=float("nan"), repetition=-1),
         dataclasses.replace(first, withheld="unloaded", flags=("unloaded", "left_filled")),
         dataclasses.replace(first, unfamiliar_score=float("nan")),  # null in JSON
-    ]
+    )
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
@@ -79,3 +83,19 @@ def test_withheld_and_standing_say_so() -> None:
     standing_progress = dict(messages.frame_dicts(standing, 0.0))["progress"]
     assert (standing_progress["action"], standing_progress["progress"]) == ("standing", None)
     assert dict(messages.frame_dicts(unloaded, 0.0))["pose"]["flags"] == ["unloaded", "left_filled"]
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    score=st.floats(allow_nan=True, allow_infinity=True),
+    pose=st.lists(st.floats(width=32), min_size=57, max_size=57),
+)
+def test_any_float_is_written_as_pydantic_writes_it(score: float, pose: list[float]) -> None:
+    p = dataclasses.replace(
+        predictions()[0],
+        unfamiliar_score=score,
+        pose=np.asarray(pose, dtype=np.float32).reshape(19, 3),
+    )
+    for name, data in messages.frame_dicts(p, 0.0):
+        model = TOPICS[name].model_validate(data)
+        assert encode_dict(data, "json") == encode(model, "json"), name

@@ -56,9 +56,17 @@ class LatencySlot(NamedTuple):
 
     def fill(self, latency_ms: float) -> bytes:
         """The payload with ``latency_ms`` (rounded to microseconds) in its place."""
+        return self.filled(value_bytes(latency_ms, self.fmt))
+
+    def filled(self, value: bytes) -> bytes:
+        """The payload with ``value`` (``value_bytes``, same format) in its place: one
+        prediction's messages take one value, encoded once."""
         if self.tail is None:
             return self.head
-        value = round(latency_ms, 3)
-        if self.fmt == "json":
-            return self.head + repr(value).encode() + self.tail
-        return self.head + _FLOAT64.pack(value) + self.tail
+        return self.head + value + self.tail
+
+
+def value_bytes(latency_ms: float, fmt: Literal["json", "msgpack"]) -> bytes:
+    """``latency_ms``, rounded to microseconds, as it stands in a payload of ``fmt``."""
+    value = round(latency_ms, 3)
+    return repr(value).encode() if fmt == "json" else _FLOAT64.pack(value)

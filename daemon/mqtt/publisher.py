@@ -48,7 +48,7 @@ from scotti.daemon.mqtt.acknowledged import NotAcknowledgingError, acknowledged
 from scotti.daemon.mqtt.broker_outage import Outage
 from scotti.daemon.mqtt.broker_outage import explain as explain  # control.py's import
 from scotti.daemon.mqtt.connection import BrokerLostError, Connection
-from scotti.daemon.mqtt.latency_slot import LatencySlot
+from scotti.daemon.mqtt.latency_slot import LatencySlot, value_bytes
 from scotti.daemon.mqtt.publisher_stats import PublisherStats
 from scotti.daemon.mqtt.schemas import Health, Info, Status, encode, encode_dict
 from scotti.daemon.mqtt.status_watch import StatusWatch
@@ -316,10 +316,12 @@ class Publisher:
             origin = prediction.last_byte_mono_ns or prediction.host_mono_ns
             # Each payload is encoded once, its latency_ms left open and written in just
             # before the bytes are queued for the socket (``LatencySlot``): the payload's
-            # age when it leaves, encoding included.
-            for header, slot in self.encode_frame(prediction):
-                latency_ms = (time.monotonic_ns() - origin) / 1e6
-                conn.queue_frame(packets.packet(header, slot.fill(latency_ms)))
+            # age when it leaves, encoding included. A prediction's messages leave in
+            # the same send, so they carry the same value.
+            encoded = self.encode_frame(prediction)
+            latency = value_bytes((time.monotonic_ns() - origin) / 1e6, self._fmt)
+            for header, slot in encoded:
+                conn.queue_frame(packets.packet(header, slot.filled(latency)))
             origins.append((prediction.seq, origin))
         self._room.set()
         if not origins:
