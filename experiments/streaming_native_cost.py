@@ -7,9 +7,11 @@ Builds both forms at the shipped size (T=40, E=128, 2 layers, 4 heads, conv
 exports and proves both (export/onnx_export.py), then times the step graph in
 onnxruntime with 1 intra-op thread at each batch size. The two graphs take turns
 within every repeat (load from other processes hits both alike); each repeat is
-``--calls`` calls, and the table gives per-frame milliseconds (call time / batch),
-min and median over repeats, of wall time and of this process's CPU time
-(``time.process_time``: what the step costs a core, less sensitive to load).
+``--calls`` calls. Beside the graphs alone, each form's runtime ``push_many`` (the
+whole per-frame path a daemon would call: caches, input checks, results). The table
+gives per-frame milliseconds (call time / batch), min and median over repeats, of
+wall time and of this process's CPU time (``time.process_time``: what the step
+costs a core, less sensitive to load).
 A benchmark, not a test. docs/streaming-native.md has a run's output.
 """
 
@@ -30,7 +32,12 @@ from scotti.export.model_streaming import kv_slots
 from scotti.export.onnx_export import Checkpoint, export_model
 from scotti.export.parity import session
 from scotti.models import contract
-from scotti.models.kv_streaming import KV_INPUT_PAST, KV_INPUT_VALID
+from scotti.models.kv_contract import KV_INPUT_PAST, KV_INPUT_VALID
+from scotti.models.kv_streaming import KvStepRuntime, KvStreamingWindow
+from scotti.models.kv_streaming import push_many as kv_push_many
+from scotti.models.runtime import ScottiRuntime
+from scotti.models.streaming import StreamingWindow
+from scotti.models.streaming import push_many as paper_push_many
 
 SHIPPED = {"embed_dim": 128, "layers": 2, "heads": 4, "conv_channels": (16, 32), "head_hidden": 128}
 
@@ -67,6 +74,26 @@ def measure(
     return out
 
 
+def runtime_calls(
+    steps: dict[str, Path], batch: int, rng: np.random.Generator
+) -> dict[str, Callable[[], object]]:
+    """The whole per-frame path of each form's runtime: ``push_many`` of ``batch``
+    windows (cache copies in and out, input checks, results), full windows."""
+    paper = ScottiRuntime(steps["paper"], threads=1)
+    kv = KvStepRuntime(steps["streaming"], threads=1)
+    shape = (batch, *paper.frame_shape)
+    frames = list(rng.uniform(0, contract.MAX_COUNT, shape).astype(np.float32))
+    paper_windows = [StreamingWindow(paper) for _ in range(batch)]
+    kv_windows = [KvStreamingWindow(kv) for _ in range(batch)]
+    for _ in range(paper.window):  # past warming: every call below predicts
+        paper_push_many(paper_windows, frames)
+        kv_push_many(kv_windows, frames)
+    return {
+        "paper push_many": functools.partial(paper_push_many, paper_windows, frames),
+        "streaming push_many": functools.partial(kv_push_many, kv_windows, frames),
+    }
+
+
 def export_form(arch: str, directory: Path) -> Path:
     torch.manual_seed(0)
     model = Scotti(ScottiConfig(**SHIPPED, arch=arch)).eval()  # type: ignore[arg-type]
@@ -90,23 +117,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         sessions = {a: session(p, threads=1) for a, p in steps.items()}
         rng = np.random.default_rng(0)
         print(
-            f"{'batch':>5s} {'form':10s} {'wall ms/frame min':>18s} {'median':>8s} "
+            f"{'batch':>5s} {'form':17s} {'wall ms/frame min':>18s} {'median':>8s} "
             f"{'cpu ms/frame min':>17s} {'median':>8s}"
         )
         ratios = []
         for batch in args.batches:
             feeds = {a: feeds_for(cfgs[a], batch, rng) for a in steps}
-            calls = {a: functools.partial(sessions[a].run, None, feeds[a]) for a in steps}
+            calls: dict[str, Callable[[], object]] = {
+                a: functools.partial(sessions[a].run, None, feeds[a]) for a in steps
+            }
+            calls.update(runtime_calls(steps, batch, rng))
             n = max(args.calls // batch, 10)
             res = measure(calls, args.repeats, n)
-            for arch, (wall, cpu) in res.items():
+            for arch, (wall, cpu) in res.items():  # graph alone, then runtime.push_many
                 w, c = np.array(wall) / batch, np.array(cpu) / batch
                 print(
-                    f"{batch:5d} {arch:10s} {w.min():18.4f} {np.median(w):8.4f} "
+                    f"{batch:5d} {arch:17s} {w.min():18.4f} {np.median(w):8.4f} "
                     f"{c.min():17.4f} {np.median(c):8.4f}"
                 )
-            paper, kv = (np.median(np.array(res[a][1])) for a in ("paper", "streaming"))
-            ratios.append(f"batch {batch}: streaming/paper CPU (median) {kv / paper:.2f}")
+            for what in ("", " push_many"):
+                paper, kv = (np.median(res[a + what][1]) for a in ("paper", "streaming"))
+                ratios.append(f"batch {batch}{what}: streaming/paper CPU (median) {kv / paper:.2f}")
         print("\n".join(ratios))
     return 0
 

@@ -38,7 +38,7 @@ from scotti.export.parity import (
     torch_window,
 )
 from scotti.models import contract
-from scotti.models.kv_streaming import (
+from scotti.models.kv_contract import (
     KV_GRAPH,
     KV_INPUT_PAST,
     KV_INPUT_VALID,

@@ -45,7 +45,7 @@ from scotti.export.quantize import quantize_int8
 from scotti.export.subnormals import zero_subnormal_weights
 from scotti.models import contract
 from scotti.models.input_checks import input_check_thresholds
-from scotti.models.kv_streaming import KV_STEP_INPUTS, KV_STEP_OUTPUTS
+from scotti.models.kv_contract import KV_STEP_INPUTS, KV_STEP_OUTPUTS
 from scotti.models.ood import OodStats
 from scotti.models.progress_calibration import ProgressCalibration
 from torch import nn

@@ -18,36 +18,29 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 from scotti.models import contract as c
 from scotti.models.errors import ModelContractError, ModelError, ModelInputError
 from scotti.models.graph_checks import check_metadata, ood_stats, open_session, sha256_of
-from scotti.models.input_checks import FrameCheck, FrameChecks, check_frames
+from scotti.models.input_checks import FrameCheck, check_frames
+from scotti.models.kv_contract import (
+    KV_GRAPH,
+    KV_INPUT_PAST,
+    KV_INPUT_VALID,
+    KV_STEP_INPUTS,
+    KV_STEP_OUTPUTS,
+    META_KV_SLOTS,
+    META_STEP_KIND,
+    STEP_KIND_KV,
+)
 from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON, OodStats
 from scotti.models.progress_calibration import ProgressCalibration
 from scotti.models.runtime import StepBatch, StepResult, softmax
+from scotti.models.window_checks import FrameChecks
 
 F32 = npt.NDArray[np.float32]
-
-KV_GRAPH: Final = "step_kv"  # scotti.graph of the streaming-native step graph
-META_STEP_KIND: Final = "scotti.step_kind"
-STEP_KIND_KV: Final = "kv_cache"  # what the paper form's step graph would be: embeddings
-META_KV_SLOTS: Final = "scotti.kv_slots"  # S = 2 * layers + 1 vectors of E per frame
-META_RECEPTIVE_FIELD: Final = "scotti.receptive_field"  # frames one prediction reads
-KV_INPUT_PAST: Final = "past_kv"  # float32 (B, T-1, S, E), oldest frame first
-KV_INPUT_VALID: Final = "past_valid"  # float32 (B, T-1), 1 where the slot holds a frame
-KV_OUTPUT_PRESENT: Final = "present_kv"  # float32 (B, S, E), the new frame's row
-KV_STEP_INPUTS: Final = (c.STEP_INPUT_FRAME, KV_INPUT_PAST, KV_INPUT_VALID)
-KV_STEP_OUTPUTS: Final = (
-    c.OUTPUT_POSE,
-    c.OUTPUT_ACTION_LOGITS,
-    c.OUTPUT_PROGRESS,
-    KV_OUTPUT_PRESENT,
-    c.OUTPUT_POOLED,
-)
 
 
 class KvCache:

@@ -24,11 +24,8 @@ from scotti.export.parity import FP32, session, stream_sequence
 from scotti.export.train_args import add_arguments
 from scotti.models import contract
 from scotti.models.errors import ModelContractError, ModelInputError
+from scotti.models.kv_contract import KV_GRAPH, META_KV_SLOTS, META_STEP_KIND, STEP_KIND_KV
 from scotti.models.kv_streaming import (
-    KV_GRAPH,
-    META_KV_SLOTS,
-    META_STEP_KIND,
-    STEP_KIND_KV,
     KvCache,
     KvStepRuntime,
     KvStreamingWindow,
