@@ -161,8 +161,8 @@ def push_many(
     (the input checks read those as they are).
 
     Per batch, not per frame: one stacked array in, one ``StepBatch`` out, the input
-    checks of every frame in one numpy pass; per window only its cache, its checks'
-    counts and, once warm, its result.
+    checks of every frame in a few numpy calls (``frame_codes``); per window only its
+    cache, its checks' counts and, once warm, its result.
     """
     if len(windows) != len(frames):
         msg = f"{len(windows)} windows but {len(frames)} frames"
