@@ -117,7 +117,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sessions = {a: session(p, threads=1) for a, p in steps.items()}
         rng = np.random.default_rng(0)
         print(
-            f"{'batch':>5s} {'form':17s} {'wall ms/frame min':>18s} {'median':>8s} "
+            f"{'batch':>5s} {'form':19s} {'wall ms/frame min':>18s} {'median':>8s} "
             f"{'cpu ms/frame min':>17s} {'median':>8s}"
         )
         ratios = []
@@ -132,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for arch, (wall, cpu) in res.items():  # graph alone, then runtime.push_many
                 w, c = np.array(wall) / batch, np.array(cpu) / batch
                 print(
-                    f"{batch:5d} {arch:17s} {w.min():18.4f} {np.median(w):8.4f} "
+                    f"{batch:5d} {arch:19s} {w.min():18.4f} {np.median(w):8.4f} "
                     f"{c.min():17.4f} {np.median(c):8.4f}"
                 )
             for what in ("", " push_many"):
