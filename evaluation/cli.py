@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any, Final
@@ -61,7 +62,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "refused, unless --force",
     )
     parser.add_argument("--force", action="store_true", help=FORCE_HELP)
-    parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    parser.add_argument(
+        "--threads", type=int, default=1, help="onnxruntime intra-op threads of each graph"
+    )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        metavar="J",
+        help="step each chunk's segments in J groups side by side on threads, the same "
+        "predictions (default: the cores this process may use; 1: one thread)",
+    )
     parser.add_argument(
         "--every",
         type=int,
@@ -92,13 +103,17 @@ def run(args: argparse.Namespace) -> int:
         if args.batch < 1:
             msg = f"--batch must be at least 1, got {args.batch}"
             raise EvaluationError(msg)
+        jobs = usable_cores() if args.jobs is None else args.jobs
+        if jobs < 1:
+            msg = f"--jobs must be at least 1, got {jobs}"
+            raise EvaluationError(msg)
         files = find_session_files(args.sessions)
         models = args.model or [default_model_path()]
         if args.plots is not None:  # before the replay: a refusal costs nothing
             refuse_existing(plot_paths(args.plots, models), force=args.force)
         runtimes = [ScottiRuntime(m, threads=args.threads) for m in models]
         reports = evaluate_models(
-            files, runtimes, every=args.every, batch=args.batch, on_session=_progress
+            files, runtimes, every=args.every, batch=args.batch, jobs=jobs, on_session=_progress
         )
         for report, runtime in zip(reports, runtimes, strict=True):
             report["model"]["ood"] = runtime.ood_info()
@@ -120,6 +135,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity, as a container or taskset sets it)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def rate_line(rate: dict[str, Any]) -> str:
     """How fast it went, one line on stderr."""
     return (
@@ -128,7 +148,7 @@ def rate_line(rate: dict[str, Any]) -> str:
         f"{rate['frames_per_cpu_s'] or 0:.0f} frames/s); "
         f"model {rate['model_cpu_seconds']:.2f} CPU s of it, "
         f"without the model {rate['without_model_frames_per_cpu_s'] or 0:.0f} frames per CPU s; "
-        f"peak RSS {rate['peak_rss_mb']} MB"
+        f"peak RSS {rate['peak_rss_mb']} MB; {rate['jobs']} job(s)"
     )
 
 

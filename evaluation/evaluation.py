@@ -11,6 +11,7 @@ import resource
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -24,10 +25,13 @@ from scotti.evaluation.replay import (
 )
 from scotti.evaluation.sampling import window_timing
 from scotti.evaluation.scores import random_baseline, score, task_metrics
-from scotti.evaluation.segments import BATCH
+from scotti.evaluation.segments import BATCH, quick_gil_handoff
 from scotti.firmware_protocol.pairing import PairingConfig
 from scotti.models.ood import shares_of
 from scotti.models.runtime import ScottiRuntime
+
+# Sessions replayed at once when segments are stepped on threads (``evaluate_models``).
+SESSIONS_IN_FLIGHT = 2
 
 __all__ = [
     "EvaluationError",
@@ -51,9 +55,10 @@ def evaluate_sessions(
     *,
     every: int = 1,
     batch: int = BATCH,
+    jobs: int = 1,
 ) -> dict[str, Any]:
     """Replay every session, pool their frames, and score them (JSON-ready)."""
-    return evaluate_models(paths, [runtime], pairing, every=every, batch=batch)[0]
+    return evaluate_models(paths, [runtime], pairing, every=every, batch=batch, jobs=jobs)[0]
 
 
 def evaluate_models(
@@ -63,28 +68,54 @@ def evaluate_models(
     *,
     every: int = 1,
     batch: int = BATCH,
+    jobs: int = 1,
     on_session: Callable[[int, int, Path, float], None] | None = None,
 ) -> list[dict[str, Any]]:
     """``evaluate_sessions`` for several models over one replay of each session.
 
-    ``on_session(done, total, path, seconds)`` after each session: a long run's progress.
+    ``jobs`` > 1: each session's segments stepped in that many groups side by side,
+    on threads (``replay_session_models``), two sessions replayed at a time; the
+    reports are the same as with one thread, sessions in the order given.
+    ``on_session(done, total, path, seconds)`` after each session, in that order: a
+    long run's progress.
     """
     if every < 1:
         msg = f"--every must be at least 1, got {every}"
         raise EvaluationError(msg)
+    if jobs < 1:
+        msg = f"--jobs must be at least 1, got {jobs}"
+        raise EvaluationError(msg)
     windows = window_graphs(runtimes) if every > 1 else None
-    per_session = []
-    began, began_cpu = time.perf_counter(), time.process_time()
-    for i, p in enumerate(paths):
+
+    def one(p: str | Path) -> tuple[list[SessionReplay], float]:
         started = time.perf_counter()
         replays = replay_session_models(
-            p, runtimes, pairing, every=every, windows=windows, batch=batch
+            p, runtimes, pairing, every=every, windows=windows, batch=batch, jobs=jobs, pool=pool
         )
         for replay in replays:
-            replay.drop_predictions()  # memory stays that of one session, however many
-        per_session.append(replays)
-        if on_session is not None:
-            on_session(i + 1, len(paths), Path(p), time.perf_counter() - started)
+            replay.drop_predictions()  # memory stays that of a session or two, however many
+        return replays, time.perf_counter() - started
+
+    per_session = []
+    began, began_cpu = time.perf_counter(), time.process_time()
+    # With jobs > 1, two sessions at a time: one decodes while the other's last chunk is
+    # stepped and scored, so that the threads stepping segments seldom wait for work.
+    in_flight = SESSIONS_IN_FLIGHT if jobs > 1 else 1
+    with (
+        ThreadPoolExecutor(jobs, thread_name_prefix="scotti-eval") as pool,
+        ThreadPoolExecutor(in_flight, thread_name_prefix="scotti-eval-session") as sessions,
+        quick_gil_handoff(),
+    ):
+        futures = [sessions.submit(one, p) for p in paths]
+        try:
+            for i, (p, future) in enumerate(zip(paths, futures, strict=True)):
+                replays, took = future.result()
+                per_session.append(replays)
+                if on_session is not None:
+                    on_session(i + 1, len(paths), Path(p), took)
+        finally:
+            for future in futures:  # a session that failed: the ones after it never start
+                future.cancel()
     seconds = time.perf_counter() - began
     cpu_seconds = time.process_time() - began_cpu
     reports = [
@@ -98,6 +129,7 @@ def evaluate_models(
     peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)  # Linux: kB
     for report in reports:
         report["rate"]["peak_rss_mb"] = peak_rss_mb
+        report["rate"]["jobs"] = jobs
     return reports
 
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +34,7 @@ import numpy as np
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet, align
 from scotti.evaluation.sampling import Prediction, SampledTrack
-from scotti.evaluation.segments import BATCH, SegmentTrack
+from scotti.evaluation.segments import BATCH, SegmentTrack, quick_gil_handoff
 from scotti.firmware_protocol.frame_path import FramePath, PairSeq
 from scotti.firmware_protocol.pairing import PairedFrame, PairingConfig
 from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
@@ -94,9 +95,10 @@ def replay_session(
     *,
     every: int = 1,
     batch: int = BATCH,
+    jobs: int = 1,
 ) -> SessionReplay:
     """Replay one session file through the daemon's path; score against its labels."""
-    return replay_session_models(path, [runtime], pairing, every=every, batch=batch)[0]
+    return replay_session_models(path, [runtime], pairing, every=every, batch=batch, jobs=jobs)[0]
 
 
 def window_graphs(runtimes: Sequence[ScottiRuntime]) -> list[ScottiRuntime]:
@@ -113,6 +115,8 @@ def replay_session_models(
     every: int = 1,
     windows: Sequence[ScottiRuntime] | None = None,
     batch: int = BATCH,
+    jobs: int = 1,
+    pool: Executor | None = None,
 ) -> list[SessionReplay]:
     """One replay, several models: the bytes are decoded, assembled and paired once,
     and every paired frame goes into each model's own window (nothing is shared
@@ -120,12 +124,30 @@ def replay_session_models(
 
     ``every`` > 1: every ``every``-th prediction through the window graphs
     ``windows`` (default: those next to ``runtimes``) instead of the step graph;
-    ``batch`` > 1: segments side by side in each step-graph call (same predictions)."""
+    ``batch`` > 1: segments side by side in each step-graph call (same predictions);
+    ``jobs`` > 1: that many groups of them stepped side by side on threads (``pool``,
+    else one of ``jobs`` threads for this session), the same predictions again."""
+    if jobs > 1 and pool is None:
+        own = ThreadPoolExecutor(jobs, thread_name_prefix="scotti-eval")
+        with own, quick_gil_handoff():
+            return replay_session_models(
+                path,
+                runtimes,
+                pairing,
+                every=every,
+                windows=windows,
+                batch=batch,
+                jobs=jobs,
+                pool=own,
+            )
     if every < 1:
         msg = f"--every must be at least 1, got {every}"
         raise EvaluationError(msg)
     if batch < 1:
         msg = f"--batch must be at least 1, got {batch}"
+        raise EvaluationError(msg)
+    if jobs < 1:
+        msg = f"--jobs must be at least 1, got {jobs}"
         raise EvaluationError(msg)
     frame_path = FramePath(pairing)
     labels: list[LabelRecord] = []
@@ -134,7 +156,10 @@ def replay_session_models(
         subject = _subject_of(reader.header.subject) or Path(path).stem
         tracks: list[SampledTrack | SegmentTrack]
         if every == 1:
-            tracks = [SegmentTrack(r, SessionReplay(str(path), subject), batch) for r in runtimes]
+            tracks = [
+                SegmentTrack(r, SessionReplay(str(path), subject), batch, jobs=jobs, pool=pool)
+                for r in runtimes
+            ]
         else:
             graphs = window_graphs(runtimes) if windows is None else windows
             tracks = [SampledTrack(w, every, SessionReplay(str(path), subject)) for w in graphs]

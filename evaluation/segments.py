@@ -25,9 +25,13 @@ frame, on a real exported model.
 
 from __future__ import annotations
 
+import sys
 import time
+from collections.abc import Iterator
+from concurrent.futures import Executor, Future
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -52,6 +56,8 @@ BATCH: Final = 16
 CHUNK_FRAMES: Final = 16_384
 # Shortest segment: each costs T-1 = 39 warm-up steps more, 10 % of 400.
 MIN_SEGMENT_FRAMES: Final = 400
+# Python's switch interval while step loops run on threads (``quick_gil_handoff``).
+GIL_SWITCH_S: Final = 0.0005
 # Rows of the input checks computed together (float64 temporaries of ~6 MB).
 _STATS_BLOCK: Final = 512
 # The input flags of a window by (unloaded, out_of_range), in ``verdict``'s order.
@@ -63,22 +69,47 @@ _INPUT_FLAGS: Final = {
 }
 
 
+@dataclass(frozen=True)
+class _Chunk:
+    """Held paired frames handed to the step loops (not written while they run)."""
+
+    counts: U16  # (N, H, 2W)
+    run_pos: npt.NDArray[np.int64]
+    ext: npt.NDArray[np.int64]
+    has_ext: npt.NDArray[np.bool_]
+
+
+@dataclass
+class _Stepped:
+    """What one group of lanes gave: its predictions in time order, its calls' timing."""
+
+    made: list[Prediction]
+    step_batches: list[tuple[float, int]]
+    model_cpu_s: float
+
+
 @dataclass
 class SegmentTrack:
     """One model's batched replay over the shared pairs: ``take`` each pair, then
-    ``finish``; every prediction is in ``made`` (time order), the counts in ``out``."""
+    ``finish``; every prediction is in ``made`` (time order), the counts in ``out``.
+
+    ``jobs`` > 1 with a ``pool``: a chunk's segments are cut into ``jobs`` groups of
+    ``batch`` lanes, stepped side by side on the pool's threads (onnxruntime lets go
+    of the GIL while it runs), while the caller goes on decoding the next chunk.
+    One chunk at most is in flight, so the held frames stay two chunks."""
 
     runtime: ScottiRuntime  # the step graph
     out: SessionReplay
     batch: int = BATCH
-    chunk_frames: int | None = None  # default CHUNK_FRAMES
+    chunk_frames: int | None = None  # default CHUNK_FRAMES per job
     min_segment: int | None = None  # default MIN_SEGMENT_FRAMES
+    jobs: int = 1
+    pool: Executor | None = None  # needed for jobs > 1
     made: list[Prediction] = field(default_factory=list)
     restarts: int = 0  # restarts of a window that held frames (as ``Window.restarts``)
-    _counts: U16 = field(init=False, repr=False)
-    _run_pos: npt.NDArray[np.int64] = field(init=False, repr=False)  # frames since restart
-    _ext: npt.NDArray[np.int64] = field(init=False, repr=False)  # unwrapped seq
-    _has_ext: npt.NDArray[np.bool_] = field(init=False, repr=False)
+    _cap: int = field(default=0, init=False)  # frames a chunk holds
+    _buf: _Chunk = field(init=False, repr=False)
+    _in_flight: list[Future[_Stepped]] = field(default_factory=list, init=False, repr=False)
     _held: int = field(default=0, init=False)  # frames in the buffer
     _carried: int = field(default=0, init=False)  # of them, already scored (warm-up only)
     _run_len: int = field(default=0, init=False)
@@ -87,12 +118,24 @@ class SegmentTrack:
         if self.batch < 1:
             msg = f"--batch must be at least 1, got {self.batch}"
             raise ValueError(msg)
-        chunk = CHUNK_FRAMES if self.chunk_frames is None else self.chunk_frames
-        cap = max(chunk, 2 * self.runtime.window)
-        self._counts = np.empty((cap, *self.runtime.frame_shape), dtype=np.uint16)
-        self._run_pos = np.zeros(cap, dtype=np.int64)
-        self._ext = np.zeros(cap, dtype=np.int64)
-        self._has_ext = np.zeros(cap, dtype=bool)
+        if self.jobs < 1:
+            msg = f"--jobs must be at least 1, got {self.jobs}"
+            raise ValueError(msg)
+        if self.jobs > 1 and self.pool is None:
+            msg = "jobs > 1 needs a pool of threads"
+            raise ValueError(msg)
+        chunk = CHUNK_FRAMES * self.jobs if self.chunk_frames is None else self.chunk_frames
+        self._cap = max(chunk, 2 * self.runtime.window)
+        self._buf = self._new_buffer()
+
+    def _new_buffer(self) -> _Chunk:
+        cap = self._cap
+        return _Chunk(
+            np.empty((cap, *self.runtime.frame_shape), dtype=np.uint16),
+            np.zeros(cap, dtype=np.int64),
+            np.zeros(cap, dtype=np.int64),
+            np.zeros(cap, dtype=bool),
+        )
 
     def take(self, pair: PairedFrame, ext: int | None) -> None:
         """One paired frame; ``ext`` is its unwrapped seq."""
@@ -101,39 +144,85 @@ class SegmentTrack:
         if pair.restart:
             self.restarts += bool(self._run_len)
             self._run_len = 0
-        i = self._held
-        self._counts[i] = pair.counts
-        self._run_pos[i] = self._run_len
-        self._ext[i] = ext if ext is not None else 0
-        self._has_ext[i] = ext is not None
+        i, buf = self._held, self._buf
+        buf.counts[i] = pair.counts
+        buf.run_pos[i] = self._run_len
+        buf.ext[i] = ext if ext is not None else 0
+        buf.has_ext[i] = ext is not None
         self._run_len += 1
         self._held += 1
-        if self._held == len(self._counts):
-            self._replay_held()
+        if self._held == self._cap:
+            self._step_held()
             keep = self.runtime.window - 1  # the next chunk's warm-up
-            for a in (self._counts, self._run_pos, self._ext, self._has_ext):
-                a[:keep] = a[self._held - keep : self._held]
+            # In flight, the old buffer is the step loops' until they end: a new one.
+            new = self._new_buffer() if self._in_flight else buf
+            for a, b in zip(_arrays(new), _arrays(buf), strict=True):
+                a[:keep] = b[self._held - keep : self._held]
+            self._buf = new
             self._held = self._carried = keep
 
     def finish(self) -> None:
-        """Replay what is held (the session's end)."""
-        self._replay_held()
+        """Replay what is held (the session's end) and wait for every step loop."""
+        self._step_held()
+        self._collect()
         self._held = self._carried = 0
 
-    def _replay_held(self) -> None:
+    def _step_held(self) -> None:
+        """Cut the held frames into segments and step them (in groups, on the pool)."""
         first, end = self._carried, self._held
         if end <= first:
             return
+        self._collect()  # the chunk before: one in flight at most
         t = self.runtime.window
-        unloaded, out_of_range = window_flags(_stats(self._counts[:end]), t)
         shortest = MIN_SEGMENT_FRAMES if self.min_segment is None else self.min_segment
-        lanes = max(1, min(self.batch, (end - first) // max(shortest, 1)))
+        lanes = max(1, min(self.batch * self.jobs, (end - first) // max(shortest, 1)))
         bounds = [first + (end - first) * k // lanes for k in range(lanes + 1)]
         score_from = np.array(bounds[:-1], dtype=np.int64)
         # Warm up on the T-1 frames before the segment, or from the restart after them.
-        feed_from = score_from - np.minimum(t - 1, self._run_pos[score_from])
+        feed_from = score_from - np.minimum(t - 1, self._buf.run_pos[score_from])
         ends = np.array(bounds[1:], dtype=np.int64)
+        groups = np.array_split(np.arange(lanes), min(self.jobs, lanes))
+        for g in groups:
+            args = (self._buf, score_from[g], feed_from[g], ends[g])
+            if self.pool is None or self.jobs == 1:
+                done: Future[_Stepped] = Future()
+                done.set_result(self._step_lanes(*args))
+                self._in_flight.append(done)
+            else:
+                self._in_flight.append(self.pool.submit(self._step_lanes, *args))
+        if self.pool is None or self.jobs == 1:
+            self._collect()
+
+    def _collect(self) -> None:
+        """The predictions of the chunk in flight, groups in lane (so time) order."""
+        try:
+            for future in self._in_flight:
+                stepped = future.result()
+                self.made.extend(stepped.made)
+                self.out.step_batches.extend(stepped.step_batches)
+                self.out.model_cpu_s += stepped.model_cpu_s
+        finally:
+            self._in_flight = []
+
+    def _step_lanes(
+        self,
+        buf: _Chunk,
+        score_from: npt.NDArray[np.int64],
+        feed_from: npt.NDArray[np.int64],
+        ends: npt.NDArray[np.int64],
+    ) -> _Stepped:
+        """Step contiguous segments side by side, one call of the step graph per time step.
+
+        Runs on a pool thread with jobs > 1: it touches nothing but its arguments."""
+        t = self.runtime.window
+        # The input checks of the frames these lanes feed on: a window's flags read its
+        # own T frames only, and every scored frame has its T-1 before it in the range.
+        lo, hi = int(feed_from.min()), int(ends.max())
+        unloaded, out_of_range = window_flags(_stats(buf.counts[lo:hi]), t)
+        lanes = len(score_from)
         per_lane: list[list[Prediction]] = [[] for _ in range(lanes)]
+        batches: list[tuple[float, int]] = []
+        model_cpu_s = 0.0
         cache = np.zeros((lanes, 2 * (t - 1), self.runtime.embed_dim), dtype=np.float32)
         head = 0
         for step in range(int((ends - feed_from).max())):
@@ -143,32 +232,51 @@ class SegmentTrack:
             every = len(active) == lanes
             past = cache[:, head : head + t - 1] if every else cache[active, head : head + t - 1]
             start, start_cpu = time.perf_counter(), time.thread_time()
-            result = self.runtime.run_steps(self._counts[rows].astype(np.float32), past)
-            self.out.step_batches.append(((time.perf_counter() - start) * 1e3, len(rows)))
-            self.out.model_cpu_s += time.thread_time() - start_cpu
+            result = self.runtime.run_steps(buf.counts[rows].astype(np.float32), past)
+            batches.append(((time.perf_counter() - start) * 1e3, len(rows)))
+            model_cpu_s += time.thread_time() - start_cpu
             # Ring written twice (as models.streaming.EmbeddingCache), one head for all lanes.
             cache[active, head] = result.embedding
             cache[active, head + t - 1] = result.embedding
             head = (head + 1) % (t - 1)
-            scored = (rows >= score_from[active]) & (self._run_pos[rows] >= t - 1)
-            scored &= self._has_ext[rows]
+            scored = (rows >= score_from[active]) & (buf.run_pos[rows] >= t - 1)
+            scored &= buf.has_ext[rows]
             unfamiliar = result.unfamiliar
             for i in np.flatnonzero(scored):
                 j = int(rows[i])
-                flags = _INPUT_FLAGS[bool(unloaded[j]), bool(out_of_range[j])]
+                flags = _INPUT_FLAGS[bool(unloaded[j - lo]), bool(out_of_range[j - lo])]
                 if unfamiliar[i]:
                     flags = (*flags, UNFAMILIAR)
                 per_lane[int(active[i])].append(
                     Prediction(
-                        int(self._ext[j]) + 1,
+                        int(buf.ext[j]) + 1,
                         result.pose[i],
                         result.action_probs[i],
                         float(result.progress[i]),
                         flags,
                     )
                 )
-        for lane in per_lane:  # lanes are contiguous and in order: time order
-            self.made.extend(lane)
+        made = [m for lane in per_lane for m in lane]  # lanes are contiguous: time order
+        return _Stepped(made, batches, model_cpu_s)
+
+
+@contextmanager
+def quick_gil_handoff(interval_s: float = GIL_SWITCH_S) -> Iterator[None]:
+    """Python's switch interval at most ``interval_s`` while the step loops run on threads.
+
+    A loop that comes back from onnxruntime needs the GIL for its next call; at the
+    default 5 ms the thread decoding the session keeps it that long, longer than half
+    a 16-row call takes, so the loops would wait about as long as they compute."""
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(min(before, interval_s))
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(before)
+
+
+def _arrays(buf: _Chunk) -> tuple[npt.NDArray[Any], ...]:
+    return (buf.counts, buf.run_pos, buf.ext, buf.has_ext)
 
 
 def _stats(counts: U16) -> FrameStats:

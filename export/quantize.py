@@ -3,11 +3,24 @@
 Measured on the development machine: int8 Conv (ConvInteger) ran 2.7x slower
 than fp32, so the per-frame CNN stays fp32 and only the transformer's and the
 heads' matrix products are quantized.
+
+``scotti export --int8`` writes the int8 copies beside a fresh export (and fits
+them OOD statistics of their own with ``--calibrate``). For a model already
+exported, whose checkpoint may be gone (the shipped one):
+
+    python -m scotti.export.quantize models/scotti-default.onnx -o DIR
+
+writes DIR/NAME.int8.onnx and DIR/NAME.int8.window.onnx from the step graph and
+the window graph beside it, the metadata as they are (the fp32 model's OOD
+statistics and progress calibration), the names ``scotti eval --every K``
+pairs (``models.runtime.window_graph_for``).
 """
 
 from __future__ import annotations
 
+import argparse
 import logging
+import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -67,3 +80,44 @@ def quantize_int8(src: Path, dst: Path, ops: Sequence[str] = QUANTIZED_OPS) -> N
         entry = out.metadata_props.add()
         entry.key, entry.value = key, value
     onnx.save(out, str(dst))
+
+
+def int8_copies(step: Path, out_dir: Path) -> tuple[Path, Path]:
+    """int8 copies of an exported step graph and of the window graph beside it, into
+    ``out_dir`` as NAME.int8.onnx and NAME.int8.window.onnx (replaced if there)."""
+    name = step.name.removesuffix(".onnx")
+    window = step.with_name(f"{name}.window.onnx")
+    for graph in (step, window):
+        if not graph.is_file():
+            msg = f"{graph}: no such graph (an export writes NAME.onnx and NAME.window.onnx)"
+            raise ExportError(msg)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    copies = (out_dir / f"{name}.int8.onnx", out_dir / f"{name}.int8.window.onnx")
+    for src, dst in zip((step, window), copies, strict=True):
+        if dst.resolve() == src.resolve():
+            msg = f"{dst}: would replace its own source"
+            raise ExportError(msg)
+        quantize_int8(src, dst)
+    return copies
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m scotti.export.quantize",
+        description="int8 copies (MatMul/Gemm weights) of an exported model's two graphs",
+    )
+    parser.add_argument("model", type=Path, help="the step graph, NAME.onnx")
+    parser.add_argument("-o", "--out", type=Path, required=True, help="folder for the copies")
+    args = parser.parse_args(argv)
+    try:
+        copies = int8_copies(args.model, args.out)
+    except (ExportError, OSError) as exc:
+        print(f"quantize: {exc}", file=sys.stderr)
+        return 2
+    for path in copies:
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -5,15 +5,23 @@ by frame."""
 from __future__ import annotations
 
 import json
+import math
+import threading
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import onnx
 import pytest
 from scotti.cli.main import main
 from scotti.daemon.inference.window import Window
 from scotti.evaluation import segments
-from scotti.evaluation.evaluation import SessionReplay, evaluate_sessions, replay_session
+from scotti.evaluation.evaluation import (
+    SessionReplay,
+    evaluate_models,
+    evaluate_sessions,
+    replay_session,
+)
 from scotti.evaluation.frames import Prediction
 from scotti.firmware_protocol.frame_path import PairSeq, stream_pairs
 from scotti.firmware_protocol.packets import Foot
@@ -21,7 +29,7 @@ from scotti.firmware_protocol.session import PacketRecord, SessionReader
 from scotti.models.contract import MAX_COUNT, META_OOD
 from scotti.models.input_checks import OUT_OF_RANGE, UNLOADED
 from scotti.models.ood import UNFAMILIAR, OodStats, flag_shares
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.runtime import ScottiRuntime, StepBatch
 
 from tests.support.export_sessions import write_session
 from tests.support.sessions import synthetic_counts, write_synthetic_session
@@ -208,11 +216,99 @@ def test_a_session_cut_mid_record_replays_alike(tmp_path: Path, tiny_model_path:
 
 
 def _rounded(value: object) -> object:
-    """Floats to 4 places, through lists and dicts (a report within float tolerance)."""
+    """Floats to 4 places (NaN: None), through lists and dicts (a report within float
+    tolerance)."""
     if isinstance(value, float):
-        return round(value, 4)
+        return None if math.isnan(value) else round(value, 4)
     if isinstance(value, dict):
         return {k: _rounded(v) for k, v in value.items()}
     if isinstance(value, list):
         return [_rounded(v) for v in value]
     return value
+
+
+class ThreadRecordingRuntime(ScottiRuntime):
+    """The real step graph, noting which threads ran it."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self.threads_seen: set[int] = set()
+
+    def run_steps(self, frames: npt.ArrayLike, past: npt.ArrayLike) -> StepBatch:
+        self.threads_seen.add(threading.get_ident())
+        return super().run_steps(frames, past)
+
+
+@pytest.mark.parametrize(("batch", "jobs"), [(3, 2), (4, 3), (64, 2)])
+@pytest.mark.usefixtures("small_segments")
+def test_segment_groups_on_threads_predict_what_frame_by_frame_predicts(
+    tmp_path: Path, tiny_model_path: Path, batch: int, jobs: int
+) -> None:
+    # As above: a restart mid-session, seqs wrapping; chunks of 100 frames per job cut
+    # into jobs groups of batch segments, stepped side by side on threads.
+    silent = {(k, foot) for k in range(150, 170) for foot in (0, 1)}
+    path = write_session(tmp_path / "gap.ses", 301, first_seq=65_500, drop_foot=silent)
+    runtime = ThreadRecordingRuntime(tiny_model_path)
+    threaded = replay_session(path, runtime, batch=batch, jobs=jobs)
+    assert threading.get_ident() not in runtime.threads_seen  # the pool's threads ran it
+    assert len(runtime.threads_seen) > 1
+    assert max(n for _, n in threaded.step_batches) <= batch
+    assert_same_replay(threaded, path, ScottiRuntime(tiny_model_path))
+
+
+@pytest.mark.usefixtures("small_segments")
+def test_flags_on_threads_count_exactly_as_frame_by_frame(
+    tmp_path: Path, calibrated: ScottiRuntime
+) -> None:
+    path = write_synthetic_session(
+        tmp_path / "flags.ses", frames=FLAG_FRAMES, counts_of=_counts
+    ).path
+    threaded = replay_session(path, calibrated, batch=2, jobs=3)
+    assert_same_replay(threaded, path, calibrated)
+
+
+@pytest.mark.usefixtures("small_segments")
+def test_cli_jobs_report_the_same_scores(
+    tmp_path: Path, tiny_model_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = write_session(tmp_path / "s.ses", 250, first_seq=65_520)
+    model = str(tiny_model_path)
+    assert main(["eval", str(path), "--model", model, "--json", "--jobs", "1"]) == 0
+    one = json.loads(capsys.readouterr().out)
+    assert main(["eval", str(path), "--model", model, "--json", "--jobs", "2", "--batch", "3"]) == 0
+    run = capsys.readouterr()
+    two = json.loads(run.out)
+    assert "2 job(s)" in run.err
+    assert (one["rate"]["jobs"], two["rate"]["jobs"]) == (1, 2)
+    assert two["step_ms_per_row"]["largest_batch"] == 3
+    for key in ("metrics", "per_action", "confusion", "ood", "sessions"):
+        assert _rounded(two[key]) == _rounded(one[key]), key
+    assert main(["eval", str(path), "--model", model, "--jobs", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--jobs must be at least 1" in err
+    assert err.count("\n") == 1
+
+
+def test_sessions_on_threads_report_what_one_thread_reports(
+    tmp_path: Path, tiny_model_path: Path
+) -> None:
+    # Three sessions of different lengths, two replayed at a time with jobs > 1: the same
+    # report, sessions in the order given.
+    paths = [write_session(tmp_path / f"s{n}.ses", n, first_seq=65_400 + n) for n in (530, 90, 410)]
+    runtime = ScottiRuntime(tiny_model_path)
+    seen: list[list[str]] = [[], []]
+    reports = [
+        evaluate_models(
+            paths,
+            [runtime],
+            jobs=jobs,
+            on_session=lambda _i, _n, p, _s, k=k: seen[k].append(p.name),
+        )[0]
+        for k, jobs in enumerate((1, 2))
+    ]
+    assert seen[0] == seen[1] == ["s530.ses", "s90.ses", "s410.ses"]
+    one, two = reports
+    assert [s["path"] for s in two["sessions"]] == [str(p) for p in paths]
+    for key in ("metrics", "per_action", "confusion", "ood", "sessions", "predictions"):
+        assert _rounded(two[key]) == _rounded(one[key]), key
+    assert two["rate"]["paired_frames"] == one["rate"]["paired_frames"] == 1030
