@@ -204,7 +204,11 @@ def run_child(args: argparse.Namespace, root: Path | None) -> dict[str, Any]:
         cmd = [sys.executable, "-m", "scotti.daemon.tools.bench_inference", *argv]
     else:
         cmd = [sys.executable, "-c", _CHILD, str(root.resolve()), __file__, *argv]
-    done = subprocess.run(cmd, check=True, capture_output=True, text=True)
+    done = subprocess.run(cmd, check=False, capture_output=True, text=True)
+    if done.returncode != 0:  # e.g. no editable install to point at another checkout
+        last = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        msg = f"bench_inference: the run on {root or 'this checkout'} failed: {last}"
+        raise SystemExit(msg)
     result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
     return result
 
@@ -240,6 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if min(args.devices) < 1 or args.max_batch < 1 or args.repeats < 1:
         p.error("--devices, --max-batch and --repeats must be at least 1")
+    if args.baseline is not None and not (args.baseline / "models").is_dir():
+        p.error(f"--baseline {args.baseline}: not a checkout of this repository")
     if args.json:
         print(json.dumps(run_here(args)))
         return 0
