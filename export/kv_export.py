@@ -15,6 +15,8 @@ frame. ``prove_kv`` checks, on the hard inputs and a sequence:
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import onnx
 import onnxruntime as ort
@@ -88,22 +90,22 @@ def kv_metadata(cfg: ScottiConfig) -> dict[str, str]:
     }
 
 
-def check_kv_structure(path_step: str, path_window: str) -> None:
+def check_kv_structure(path_step: Path, path_window: Path) -> None:
     for path, want_in, want_out in (
         (path_step, KV_STEP_INPUTS, KV_STEP_OUTPUTS),
         (path_window, WINDOW_INPUTS, WINDOW_OUTPUTS),
     ):
         try:
-            onnx.checker.check_model(path, full_check=True)
+            onnx.checker.check_model(str(path), full_check=True)
         except Exception as exc:  # checker errors are many types and many lines
             first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            msg = f"{path}: ONNX checker: {first}"
+            msg = f"{path.name}: ONNX checker: {first}"
             raise ExportError(msg) from None
-        proto = onnx.load(path, load_external_data=False)
+        proto = onnx.load(str(path), load_external_data=False)
         got_in = tuple(i.name for i in proto.graph.input)
         got_out = tuple(o.name for o in proto.graph.output)
         if got_in != want_in or got_out != want_out:
-            msg = f"{path}: I/O {got_in} -> {got_out}, wanted {want_in} -> {want_out}"
+            msg = f"{path.name}: I/O {got_in} -> {got_out}, wanted {want_in} -> {want_out}"
             raise ExportError(msg)
 
 
@@ -132,12 +134,12 @@ def torch_sequence(model: Scotti, frames: np.ndarray) -> Arrays:
 
 
 def prove_kv(
-    model: Scotti, step_path: str, window_path: str, threads: int, tol: Tolerance
+    model: Scotti, step_path: Path, window_path: Path, threads: int, tol: Tolerance
 ) -> Report:
     """All checks on a streaming-native export; the max abs differences measured."""
     cfg = model.cfg
     check_kv_structure(step_path, window_path)
-    step, win = session(step_path, threads), session(window_path, threads)  # type: ignore[arg-type]
+    step, win = session(step_path, threads), session(window_path, threads)
     frames = np.stack(list(hard_windows(cfg).values()))  # (B, T, H, 2W)
     report: Report = {}
     got = run(win, {contract.WINDOW_INPUT_FRAMES: frames})

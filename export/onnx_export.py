@@ -352,7 +352,7 @@ def export_model(
         write_metadata(staged.step, step_kind, cfg, card)
         write_metadata(staged.window, "window", cfg, card)
         if kv:
-            parity = prove_kv(model, str(staged.step), str(staged.window), threads, tol)
+            parity = prove_kv(model, staged.step, staged.window, threads, tol)
         else:
             parity = prove(model, staged.step, staged.window, threads, tol)
         ood, progress = None, None
