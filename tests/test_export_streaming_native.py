@@ -5,6 +5,7 @@ step graph over a sequence == ONNX window graph; its runtime; its config and tra
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 pytest.importorskip("torch")
 import onnx
 import torch
+from scotti.cli.main import main
 from scotti.export.errors import ExportError
 from scotti.export.evaluate import chunked_outputs
 from scotti.export.kv_export import stream_kv, torch_sequence
@@ -32,6 +34,8 @@ from scotti.models.kv_streaming import (
     push_many,
 )
 from scotti.models.runtime import ScottiRuntime
+
+from tests.support.export_sessions import write_session
 
 pytestmark = pytest.mark.torch
 
@@ -249,3 +253,31 @@ def test_checkpoint_round_trip_and_int8_is_refused(
     assert ckpt.model.cfg.arch == "streaming"
     with pytest.raises(ExportError, match="int8"):
         export_model(ckpt, tmp_path / "x.onnx", int8=True)
+
+
+def test_cli_trains_the_streaming_form_refuses_a_mixed_resume_and_exports(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    torch.set_num_threads(1)
+    sessions = tmp_path / "sessions"
+    sessions.mkdir()
+    write_session(sessions / "a.scotti", 110, subject="a")
+    write_session(sessions / "b.scotti", 60, subject="b")
+    run = tmp_path / "run"
+    config = SMALL.to_dict() | {"layers": 1}
+    common = [str(sessions), "-o", str(run), "--config", json.dumps(config), "--no-progress"]
+    common += ["--batch", "8", "--chunk", "4", "--stride", "2", "--val-subjects", "b"]
+    common += ["--test-fraction", "0"]
+    assert main(["train", *common, "--arch", "streaming", "--epochs", "1"]) == 0
+    ckpt = torch.load(run / "last.pt", weights_only=True)
+    assert ckpt["config"]["arch"] == "streaming"
+    assert np.isfinite(ckpt["metrics"]["val"]["mpjpe_mm"])
+    capsys.readouterr()
+    assert main(["train", *common, "--arch", "paper", "--epochs", "2", "--resume"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "streaming form" in err[0]
+    out = tmp_path / "kv.onnx"
+    assert main(["export", str(run / "last.pt"), "-o", str(out)]) == 0
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert meta[contract.META_GRAPH] == KV_GRAPH
