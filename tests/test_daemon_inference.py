@@ -7,6 +7,7 @@ import json
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -287,3 +288,73 @@ def test_frames_per_model_call_follow_batch_and_max_batch(
 
     assert asyncio.run(body()) == 1
     assert sorted(r.batch_size for r in got) == sizes
+
+
+def test_gather_waits_for_a_due_device_and_runs_both_in_one_call(runtime: ScottiRuntime) -> None:
+    """inference.gather_ms: a frame waits for another device's frame that is due (its
+    last came about a frame period ago), and the two go in one model call."""
+    got: dict[str, list[InferenceResult]] = {"a": [], "b": []}
+    delivered_at: dict[str, float] = {}
+
+    async def body() -> InferenceEngine:
+        # Under a frame period (a device's own next frame is not due within it); b comes
+        # 15 ms after a: 40 ms of margin for a slow host.
+        engine = InferenceEngine(batch=True, gather_ms=55)
+
+        def on(name: str) -> Any:
+            def take(r: InferenceResult) -> None:
+                got[name].append(r)
+                delivered_at[name] = time.monotonic()
+
+            return take
+
+        a, b = engine.lane(Window(runtime), on("a")), engine.lane(Window(runtime), on("b"))
+        a.start()
+        b.start()
+        engine.start()
+        a.submit(InferenceJob(0, paired(0)))
+        b.submit(InferenceJob(0, paired(1)))
+        await asyncio.wait_for(a.wait_below(1), 10)
+        await asyncio.wait_for(b.wait_below(1), 10)
+        await asyncio.sleep(0.0625)  # both due again now
+        a.submit(InferenceJob(1, paired(2)))
+        await asyncio.sleep(0.015)  # b's frame comes 15 ms later
+        b_sent = time.monotonic()
+        b.submit(InferenceJob(1, paired(3)))
+        await asyncio.wait_for(a.wait_below(1), 10)
+        await asyncio.wait_for(b.wait_below(1), 10)
+        assert delivered_at["a"] >= b_sent  # a waited for b
+        await engine.stop()
+        return engine
+
+    engine = asyncio.run(body())
+    assert got["a"][-1].batch_size == 2
+    assert got["b"][-1].batch_size == 2
+    assert engine.gathered >= 1
+    stats = engine.stats()
+    assert stats["frames"] == 4
+    assert stats["frames_per_call"] == pytest.approx(4 / stats["model_calls"])
+
+
+def test_gather_never_waits_for_a_silent_device_or_for_one_alone(runtime: ScottiRuntime) -> None:
+    got: list[InferenceResult] = []
+
+    async def body() -> InferenceEngine:
+        engine = InferenceEngine(batch=True, gather_ms=55)
+        a, b = engine.lane(Window(runtime), got.append), engine.lane(Window(runtime), got.append)
+        a.start()
+        b.start()
+        engine.start()
+        b.submit(InferenceJob(0, paired(1)))  # then silent: unplugged
+        await asyncio.wait_for(b.wait_below(1), 10)
+        await asyncio.sleep(0.0625 + 0.25)  # its next frame is long overdue
+        for i in range(3):  # a alone, every frame period
+            a.submit(InferenceJob(i, paired(10 + i)))
+            await asyncio.wait_for(a.wait_below(1), 10)
+            await asyncio.sleep(0.0625)
+        await engine.stop()
+        return engine
+
+    engine = asyncio.run(body())
+    assert engine.gathered == 0
+    assert [r.batch_size for r in got] == [1, 1, 1, 1]

@@ -71,13 +71,14 @@ def test_the_bench_runs_two_pairs_in_one_daemon_and_prints_their_row(
     code = main(["--pairs", "2", "--seconds", "1.5", "--warmup", "0.5", "--modes", "batch"])
     out = capsys.readouterr().out
     assert code == 0, out
-    rows = [line for line in out.splitlines() if line.startswith("| 2 | batched |")]
+    rows = [line for line in out.splitlines() if line.startswith("| 2 | batched, gather 4 ms |")]
     assert len(rows) == 1, out
     cells = [c.strip() for c in rows[0].strip("|").split("|")]
     header = [c.strip() for c in HEADER.strip("|").split("|")]
     column = dict(zip(header, cells, strict=True))
     assert float(column["poses/s per pair"]) > 0  # both devices published
     assert float(column["RSS MiB"]) > 0  # the daemon's RSS was sampled
+    assert 1 <= float(column["frames per model call"]) <= 2  # from the engine, via health
     model, ratio = float(column["model per pair"]), column["daemon / model"]
     assert model > 0  # the model floor was measured beside the daemon
     expected = float(column["per pair"]) / model  # from the printed, rounded cells

@@ -37,6 +37,9 @@ from dataclasses import dataclass
 
 from scotti.daemon.inference.window import Window, WindowOutput
 from scotti.firmware_protocol.pairing import PairedFrame
+from scotti.models.contract import FRAME_RATE_HZ
+
+PERIOD_S = 1.0 / FRAME_RATE_HZ  # a lane's next frame is due this long after its last
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +78,7 @@ class InferenceLane:
         # Guarded by the engine's condition: shared with the engine's thread.
         self._queue: deque[InferenceJob] = deque()
         self._restart_pending = False
+        self._last_submit = -1.0  # monotonic time of the last submit (-1: none yet)
         # Loop-thread bookkeeping: jobs submitted whose result has not been delivered yet.
         self._in_flight = 0
         self._changed = asyncio.Event()
@@ -103,6 +107,7 @@ class InferenceLane:
                 self._restart_pending = True  # the cache would miss that frame
                 dropped = 1
             self._queue.append(job)
+            self._last_submit = time.monotonic()
             self.engine.cond.notify()
         self._in_flight += 1 - dropped
         return dropped
@@ -119,6 +124,11 @@ class InferenceLane:
 
     # --- called by the engine ------------------------------------------------------
 
+    @property
+    def has_waiting(self) -> bool:
+        """A frame waits (the caller holds the engine's condition)."""
+        return bool(self._queue)
+
     def take(self) -> tuple[InferenceJob, bool] | None:
         """(oldest job, restart first?) or None; the caller holds the engine's condition."""
         if not self._queue:
@@ -127,6 +137,14 @@ class InferenceLane:
         restart = self._restart_pending or job.frame.restart
         self._restart_pending = False
         return job, restart
+
+    def due_within(self, now: float, horizon_s: float) -> bool:
+        """Is this lane's next frame due within ``horizon_s`` of ``now`` (or that late)?
+        A silent lane (unplugged, a foot gone) is not: its last frame is long past.
+        The caller holds the engine's condition."""
+        if self._last_submit < 0:
+            return False
+        return abs(self._last_submit + PERIOD_S - now) <= horizon_s
 
     def discard_waiting(self) -> None:
         """Drop the frames not yet taken; the caller holds the engine's condition."""
@@ -146,9 +164,20 @@ class InferenceEngine:
     own engine); a shared engine is started and stopped by the daemon.
     """
 
-    def __init__(self, *, batch: bool = True, max_batch: int = 8, owned: bool = False) -> None:
+    def __init__(
+        self,
+        *,
+        batch: bool = True,
+        max_batch: int = 8,
+        gather_ms: float = 0.0,
+        owned: bool = False,
+    ) -> None:
         self.batch = batch
         self.max_batch = max_batch if batch else 1
+        # Up to this long for the frames of other lanes that are due now: bigger batches,
+        # fewer model calls (a call of 1 frame costs 2-3x a frame of 8), for at most this
+        # much more latency. Only lanes whose next frame is due wait: one pair never does.
+        self.gather_s = gather_ms / 1e3 if batch else 0.0
         self.owned = owned
         self.cond = threading.Condition()
         self._lanes: list[InferenceLane] = []
@@ -157,6 +186,8 @@ class InferenceEngine:
         self._turn = 0  # rotates the lane order, so no device is always run last
         self.turns = 0  # model turns run (read from any thread; an int)
         self.frames = 0  # frames run in them
+        self.calls = 0  # model calls (a turn of more than max_batch frames makes several)
+        self.gathered = 0  # turns that waited for due frames (gather_ms)
 
     def lane(
         self,
@@ -209,6 +240,8 @@ class InferenceEngine:
                 while not taken and not self._stopping:
                     self.cond.wait()
                     taken = self._take_ready()
+                if self.gather_s and len(taken) < self.max_batch and not self._stopping:
+                    taken += self._gather(taken)
                 if self._stopping:
                     return
             for lane, _job, restart in taken:
@@ -218,6 +251,47 @@ class InferenceEngine:
                 self._run_batch(taken[first : first + self.max_batch])
             self.turns += 1
             self.frames += len(taken)
+
+    def _gather(
+        self, taken: list[tuple[InferenceLane, InferenceJob, bool]]
+    ) -> list[tuple[InferenceLane, InferenceJob, bool]]:
+        """Wait (the condition's wait: the loop goes on submitting) until the lanes not in
+        ``taken`` whose frame waits or is due within ``gather_s`` have one, or
+        ``gather_s`` has passed, or the batch is full; their frames. The caller holds the
+        condition."""
+        now = time.monotonic()
+        have = len(taken)
+        in_turn = {id(lane) for lane, _, _ in taken}
+        due = [
+            lane
+            for lane in self._lanes
+            if id(lane) not in in_turn and (lane.has_waiting or lane.due_within(now, self.gather_s))
+        ]
+        if not due:
+            return []
+        self.gathered += 1
+        deadline = now + self.gather_s
+        while not self._stopping:
+            ready = sum(1 for lane in due if lane.has_waiting)
+            left = deadline - time.monotonic()
+            if ready == len(due) or have + ready >= self.max_batch or left <= 0:
+                break
+            self.cond.wait(left)
+        out = []
+        for lane in due:
+            item = lane.take()
+            if item is not None:
+                out.append((lane, *item))
+        return out
+
+    def stats(self) -> dict[str, float]:
+        """What the engine did since it started, shared by every device of the daemon."""
+        return {
+            "model_calls": self.calls,
+            "frames": self.frames,
+            "frames_per_call": round(self.frames / self.calls, 2) if self.calls else 0.0,
+            "gathered_turns": self.gathered,
+        }
 
     def _take_ready(self) -> list[tuple[InferenceLane, InferenceJob, bool]]:
         """The oldest job of every lane that has one, starting one lane further each turn."""
@@ -233,6 +307,7 @@ class InferenceEngine:
         return taken
 
     def _run_batch(self, taken: list[tuple[InferenceLane, InferenceJob, bool]]) -> None:
+        self.calls += 1
         start = time.perf_counter()
         try:
             outputs: list[WindowOutput | None] = list(

@@ -55,7 +55,9 @@ class Daemon:
         self.runtime = runtime
         self.notifier = notifier or Notifier()
         self.engine = InferenceEngine(
-            batch=settings.inference.batch, max_batch=settings.inference.max_batch
+            batch=settings.inference.batch,
+            max_batch=settings.inference.max_batch,
+            gather_ms=settings.inference.gather_ms,
         )
         self.devices: list[Device] = []
         self.started_mono = time.monotonic()

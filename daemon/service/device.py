@@ -222,10 +222,11 @@ class Device:
             outputs_dropped=self.outputs.dropped,
             outputs_errors=self.outputs.errors,
         )
-        if self.control is None:
-            return health
-        # Under ``pipeline`` (open in the schema), as the outputs' counts are.
-        pipeline = {**health.pipeline, "control": self.control.stats.as_dict()}
+        # Under ``pipeline`` (open in the schema), as the outputs' counts are. The engine's
+        # counts are the daemon's (every device's frames), the same on each device.
+        pipeline = {**health.pipeline, "engine": self.engine.stats()}
+        if self.control is not None:
+            pipeline["control"] = self.control.stats.as_dict()
         return health.model_copy(update={"pipeline": pipeline})
 
 

@@ -79,6 +79,10 @@ class InferenceSettings(BaseModel):
     # More ready frames than this go in several calls (the step's cost per frame is
     # lowest at a few frames per call: python -m scotti.daemon.tools.bench --step-batches).
     max_batch: Annotated[int, Field(ge=1, le=1024)] = 8
+    # Wait up to this long for the frames of other devices that are due, to run them in
+    # one call (fewer, fuller calls: less CPU per pair; docs/performance.md); 0: run what
+    # is ready at once. One pair never waits: no other device is due.
+    gather_ms: Annotated[float, Field(ge=0, le=50)] = 4.0
     queue_size: Annotated[int, Field(ge=1, le=256)] = 16  # frames per device waiting
 
 

@@ -49,7 +49,12 @@ from scotti.daemon.service.counters import latency_summary
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.daemon.tools.bench_boards import PERIOD_NS, board_records, play_boards, render_people
 from scotti.daemon.tools.bench_model import engine_batch, model_cpu_ms
-from scotti.daemon.tools.bench_subscriber import Poses, PoseSubscriber, collect
+from scotti.daemon.tools.bench_subscriber import (
+    Poses,
+    PoseSubscriber,
+    collect,
+    engine_frames_per_call,
+)
 from scotti.daemon.tools.bench_table import (
     COLUMNS,
     GOAL_P99_MS,
@@ -81,6 +86,7 @@ def config_text(
     processes: int = 1,
     *,
     everything: bool = False,
+    gather_ms: float = 0.0,
 ) -> str:
     """``everything``: remote control on and, in one process, the web and Foxglove
     servers on free ports (no clients), so that the peaks hold all the daemon opens."""
@@ -92,8 +98,9 @@ def config_text(
     return (
         f'log_level = "warning"\nprocesses = {processes}\n'
         f"[inference]\nbatch = {str(batch).lower()}\n"
-        f"max_batch = {max_batch}\n"
-        f'[mqtt]\nbroker = "{broker.url}"\n{control}{outputs}{tables}'
+        f"max_batch = {max_batch}\ngather_ms = {gather_ms}\n"
+        # Health each second: the engine's frames per call read at the end are fresh.
+        f'[mqtt]\nbroker = "{broker.url}"\nhealth_interval_s = 1\n{control}{outputs}{tables}'
     )
 
 
@@ -111,13 +118,16 @@ def run_one(
     model_ms: float = 0.0,
     profile: bool = False,
     people: list[np.ndarray] | None = None,
+    gather_ms: float = 0.0,
 ) -> Row:
     from scotti.daemon.tools.bench_process import Peaks, sample_process
 
     folder = Path(tempfile.mkdtemp(prefix="scotti-bench-"))
     links = [folder / f"tty{i:02d}" for i in range(pairs)]
     config = folder / "devices.toml"
-    text = config_text(links, broker, batch, max_batch, processes, everything=everything)
+    text = config_text(
+        links, broker, batch, max_batch, processes, everything=everything, gather_ms=gather_ms
+    )
     config.write_text(text)
     ctx = multiprocessing.get_context("spawn")
     ready, stop, dropped = ctx.Event(), ctx.Event(), ctx.Value("q", 0)
@@ -146,6 +156,7 @@ def run_one(
             drops = int(dropped.value) - dropped_before.result()
             report = spy.report() if spy is not None else ""
             cpu_rss_bench = usage.result()
+        per_call = engine_frames_per_call(broker)
     finally:
         daemon.terminate()
         daemon.wait(30)
@@ -153,7 +164,8 @@ def run_one(
         boards.join(15)
     return _row(
         poses, pairs, batch, processes, seconds, cpu_rss_bench, peaks, everything,
-        model_ms=model_ms, dropped=drops, profile=report,
+        model_ms=model_ms, dropped=drops, profile=report, frames_per_call=per_call,
+        gather_ms=gather_ms,
     )  # fmt: skip
 
 
@@ -233,12 +245,12 @@ def run(args: argparse.Namespace, model: Path) -> int:
     with Mosquitto() as broker:
         for pairs in args.pairs:
             for processes in args.processes:
-                for batch in modes:
+                for batch, gather_ms in _engine_modes(modes, args.gather_ms):
                     row = run_one(
                         broker, model, pairs, batch, args.seconds, args.warmup,
                         args.max_batch, processes, args.everything,
                         model_ms=model_ms[engine_batch(pairs, batch, args.max_batch)],
-                        profile=args.profile, people=people[:pairs],
+                        profile=args.profile, people=people[:pairs], gather_ms=gather_ms,
                     )  # fmt: skip
                     rows.append(row)
                     print(table_row(row), flush=True)
@@ -254,6 +266,11 @@ def run(args: argparse.Namespace, model: Path) -> int:
     return 0 if all(r.published for r in rows) else 1
 
 
+def _engine_modes(modes: list[bool], gathers: list[float]) -> list[tuple[bool, float]]:
+    """(batch, gather_ms) per run: each gather for the batched engine, none per pair."""
+    return [(b, g) for b in modes for g in (gathers if b else [0.0])]  # per pair: no batch
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m scotti.daemon.tools.bench")
     p.add_argument("--pairs", type=int, nargs="+", default=[1], help="insole pairs, e.g. 1 8 32")
@@ -267,6 +284,10 @@ def main(argv: list[str] | None = None) -> int:
         help="batched engine (batch) and/or one model call per pair (single)",
     )  # fmt: skip
     p.add_argument("--max-batch", type=int, default=8, help="inference.max_batch (default 8)")
+    p.add_argument(
+        "--gather-ms", type=float, nargs="+", default=[4.0], metavar="MS",
+        help="inference.gather_ms, one run each (default 4, the daemon's default)",
+    )  # fmt: skip
     p.add_argument(
         "--processes", type=int, nargs="+", default=[1], metavar="N",
         help="the daemon's worker processes, one run each (default 1: all pairs in one)",
@@ -296,10 +317,11 @@ def main(argv: list[str] | None = None) -> int:
         or args.seconds <= 0
         or args.warmup < 0
         or args.max_batch < 1
+        or min(args.gather_ms) < 0
     ):
         print(
             "bench: --pairs, --processes and --max-batch must be >= 1, --seconds > 0, "
-            "--warmup >= 0",
+            "--warmup and --gather-ms >= 0",
             file=sys.stderr,
         )
         return 2

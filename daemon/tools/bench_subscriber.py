@@ -12,6 +12,7 @@ its cost is the bench's, not the daemon's (the bench prints it apart).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import re
@@ -151,3 +152,28 @@ async def collect(
     sub = PoseSubscriber(broker, seconds, warmup, topic, pairs=pairs, measuring=measuring)
     poses = await asyncio.to_thread(sub.run)
     return [{"publish": a, "receipt": b} for a, b in zip(poses.publish, poses.receipt, strict=True)]
+
+
+def engine_frames_per_call(broker: Mosquitto, wait_s: float = 1.5) -> float:
+    """Frames per model call of the daemon's engine(s), from the devices' retained health
+    (``pipeline.engine``; each worker process has its own engine): the mean over the
+    devices, 0.0 when none said. Health is periodic, so this lags the run by up to its
+    interval."""
+    said: dict[str, float] = {}
+
+    def on_message(_c: paho.Client, _u: object, m: paho.MQTTMessage) -> None:
+        with contextlib.suppress(ValueError, TypeError, KeyError):
+            engine = json.loads(m.payload)["pipeline"]["engine"]
+            said[m.topic] = float(engine["frames_per_call"])
+
+    client = paho.Client(CallbackAPIVersion.VERSION2, protocol=paho.MQTTv5)
+    client.on_message = on_message
+    client.connect(broker.host, broker.port)
+    client.subscribe("scotti/+/health")
+    client.loop_start()
+    try:
+        time.sleep(wait_s)  # the retained ones come at once; a second for stragglers
+    finally:
+        client.disconnect()
+        client.loop_stop()
+    return sum(said.values()) / len(said) if said else 0.0

@@ -40,6 +40,8 @@ class Row:
     flagged: dict[str, float] = field(default_factory=dict)  # OOD flag -> share 0..1
     dropped: int = 0  # foot frames the daemon did not take from its ports in time
     profile: str = ""  # bench --profile: the daemon's CPU by part of the path
+    gather_ms: float = 0.0  # inference.gather_ms of the run
+    frames_per_call: float = 0.0  # the engine's, from the devices' health (0: not said)
 
     @property
     def rate(self) -> float:
@@ -63,7 +65,8 @@ class Row:
 
 HEADER = (
     "| pairs | inference | poses/s per pair | publish p50 / p99 ms "
-    "| subscriber p50 / p99 ms | daemon CPU % of a core | per pair | model per pair "
+    "| subscriber p50 / p99 ms | frames per model call | daemon CPU % of a core | per pair "
+    "| model per pair "
     "| daemon / model | RSS MiB | bench's own CPU % | flagged out_of_range / unloaded "
     "/ unfamiliar % | load avg |"
 )
@@ -74,11 +77,14 @@ def table_row(r: Row) -> str:
     mode = "batched" if r.batch else "per pair"
     if r.processes > 1:
         mode += f", {r.processes} processes"
+    if r.batch:
+        mode += f", gather {r.gather_ms:g} ms"
     p, s = r.publish, r.receipt
     flags = " / ".join(f"{100 * r.flagged.get(f, 0.0):.2f}" for f in OOD_FLAGS)
     return (
         f"| {r.pairs} | {mode} | {r.rate:.1f} | {p['p50']:.1f} / {p['p99']:.1f} "
-        f"| {s['p50']:.1f} / {s['p99']:.1f} | {r.cpu:.0f} | {r.cpu_per_pair:.2f} "
+        f"| {s['p50']:.1f} / {s['p99']:.1f} | {r.frames_per_call:.1f} | {r.cpu:.0f} "
+        f"| {r.cpu_per_pair:.2f} "
         f"| {r.model_per_pair:.2f} | {r.ratio:.1f}x | {r.rss:.0f} | {r.bench_cpu:.0f} "
         f"| {flags} | {r.load:.1f} |"
     )
