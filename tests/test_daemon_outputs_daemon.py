@@ -591,3 +591,28 @@ def test_an_output_failing_on_every_prediction_is_counted_in_health(
     failed = health["pipeline"]["outputs"]["errors"]["broken"]
     assert 0 < failed <= outputs.errors["broken"]
     assert outputs.errors["broken"] + outputs.dropped == made
+
+
+class _ServingOutput(_HeldOutput):
+    """A network output as the web and Foxglove ones report themselves: its server's
+    connections and refusals (``counters``), never holding anything up."""
+
+    name = "web"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.gate.set()
+        self.counters = {"connections": 2, "max_connections": 64, "refused": {"over_cap": 5}}
+
+
+@pytest.mark.mosquitto
+def test_the_servers_connections_and_refusals_are_in_the_devices_health(
+    mosquitto: Mosquitto, tiny_model_path: Path, tmp_path: Path
+) -> None:
+    serving = _ServingOutput()
+    _, _, health = _replay_through(
+        serving, mosquitto, tiny_model_path, tmp_path, "servers", frames=50
+    )
+    assert health["pipeline"]["outputs"]["servers"] == {"web": serving.counters}
+    engine = health["pipeline"]["engine"]  # the engine's own counts beside them
+    assert engine["frames"] >= 50 - 40 and engine["model_calls"] >= 1

@@ -25,7 +25,7 @@ import json
 import logging
 import time
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Final, Protocol
+from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from scotti.daemon.errors import DaemonError
 from scotti.daemon.outputs import guard
@@ -191,6 +191,14 @@ class Outputs:
         """Times each output failed on one of ``device``'s predictions or statuses."""
         return dict(self._errors_by_device.get(device, {}))
 
+    @property
+    def servers(self) -> dict[str, dict[str, Any]]:
+        """Per network output (web, Foxglove) its server's counts: connections now, the
+        cap, refusals by reason (over the cap, Host, Origin, token, ...); the daemon's, the
+        same for every device."""
+        counts = {o.name: getattr(o, "counters", None) for o in self.outputs}
+        return {name: dict(c) for name, c in counts.items() if c}
+
     def of(self, device: str) -> DeviceOutputs:
         """What one device calls."""
         return DeviceOutputs(self, device)
@@ -268,3 +276,8 @@ class DeviceOutputs:
     def errors(self) -> dict[str, int]:
         """Per output, times it failed on this device's predictions or statuses."""
         return self.outputs.errors_of(self.device) if self.outputs is not None else {}
+
+    @property
+    def servers(self) -> dict[str, dict[str, Any]]:
+        """``Outputs.servers``: the network outputs' connections and refusals."""
+        return self.outputs.servers if self.outputs is not None else {}

@@ -225,6 +225,8 @@ class Device:
         # Under ``pipeline`` (open in the schema), as the outputs' counts are. The engine's
         # counts are the daemon's (every device's frames), the same on each device.
         pipeline = {**health.pipeline, "engine": self.engine.stats()}
+        if servers := self.outputs.servers:  # who is connected to the web and Foxglove
+            pipeline["outputs"] = {**pipeline["outputs"], "servers": servers}
         if self.control is not None:
             pipeline["control"] = self.control.stats.as_dict()
         return health.model_copy(update={"pipeline": pipeline})
