@@ -35,7 +35,7 @@ GONE: Final = (
 
 
 class PortReader:
-    """``await read()``: (host monotonic ns the reader took them, bytes), or why no more
+    """``await read()``: (host monotonic ns the bytes were read, bytes), or why no more
     will come (``STALLED``, ``"read failed: ..."``, ``GONE``). ``close()`` closes the
     port (and releases its lock) at once."""
 
@@ -44,7 +44,7 @@ class PortReader:
         self._port = port
         self._fd: int = port.fileno()
         self._stall_s = stall_s
-        self._chunks: deque[bytes] = deque()
+        self._chunks: deque[tuple[int, bytes]] = deque()
         self._held = 0  # bytes in _chunks
         self._end: str | None = None  # why no more bytes will come (after those held)
         self._waiter: asyncio.Future[None] | None = None
@@ -63,13 +63,12 @@ class PortReader:
                 await self._waiter
             finally:
                 self._waiter = self._waiting_since = None
-        data = self._chunks.popleft()
-        self._held -= len(data)
+        chunk = self._chunks.popleft()
+        self._held -= len(chunk[1])
         if not self._reading and self._end is None and self._held < HELD_MAX // 2:
             self._loop.add_reader(self._fd, self._readable)
             self._reading = True
-        # Stamped as the reader takes them, as the daemon's latencies always counted.
-        return time.monotonic_ns(), data
+        return chunk
 
     def close(self) -> None:
         self._timer.cancel()
@@ -88,7 +87,7 @@ class PortReader:
         if not data:
             self._finish(GONE)
             return
-        self._chunks.append(data)
+        self._chunks.append((time.monotonic_ns(), data))
         self._held += len(data)
         if self._held >= HELD_MAX:
             self._stop_reading()
