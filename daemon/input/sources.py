@@ -13,8 +13,8 @@ each change once and tries again with a capped, jittered exponential backoff.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import errno
-import functools
 import logging
 import threading
 import time
@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Final, Literal, Protocol, TypeAlias
 
 import serial
+import serial_asyncio_fast
 from scotti.daemon.errors import DaemonError
-from scotti.daemon.input.port_reader import STALLED, PortReader
 from scotti.daemon.input.speed import Speed
 from scotti.daemon.waiting import Backoff
 
@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+READ_SIZE: Final = 4096  # bytes asked for per read; a 16 Hz pair of frames is ~3 KB
 _YIELD_EVERY: Final = 64  # replay at max speed gives the loop a turn every this many records
 # Replay reads its file a batch at a time, one batch ahead: this many bytes of packet
 # data or records, whichever comes first (about 20 s of a pair at 16 Hz; a record
@@ -115,7 +116,7 @@ class SerialSource:
         reported: str | None = None  # the last disconnect reason already yielded
         while True:
             try:
-                reader = await self._open()
+                reader, writer = await self._open()
             except PortUnavailableError as exc:
                 reason = str(exc)
                 if reason != reported:
@@ -128,11 +129,12 @@ class SerialSource:
                 await asyncio.sleep(self.backoff.next_delay())
                 continue
             log.info("receiver: %s opened", self.port)
+            watch = _StallWatch(reader, self.stall_s)
             try:
                 yield SourceEvent("connected", f"{self.port} opened")
                 ended: str | None = None
                 while ended is None:
-                    chunk, ended = await self._read(reader)
+                    chunk, ended = await self._read(reader, watch)
                     if chunk is None and self.played is not None and self.played.is_set():
                         log.info("receiver: %s: the board has played everything", self.port)
                         yield SourceEvent("disconnected", "end of scene")
@@ -143,7 +145,8 @@ class SerialSource:
                             self.backoff.reset()  # bytes flowed: the next outage starts afresh
                         yield chunk
             finally:
-                reader.close()
+                watch.stop()
+                await _close(writer)
             # A port that opens but stays silent (insoles off) is one WARNING, not one
             # per reopen: after the first, the same outage goes on at INFO.
             log.log(logging.WARNING if reported is None else logging.INFO, "receiver: %s", ended)
@@ -151,31 +154,73 @@ class SerialSource:
             reported = ended
             await asyncio.sleep(self.backoff.next_delay())
 
-    async def _open(self) -> PortReader:
-        """The port opened (in a thread: opening may block a moment) and being read."""
-        loop = asyncio.get_running_loop()
-        opening = functools.partial(
-            serial.serial_for_url, self.port, baudrate=self.baudrate, exclusive=True
-        )
+    async def _open(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         try:
-            port = await loop.run_in_executor(None, opening)
+            reader, writer = await serial_asyncio_fast.open_serial_connection(
+                url=self.port, baudrate=self.baudrate, exclusive=True
+            )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PortUnavailableError(explain_open_error(self.port, exc)) from None
-        try:
-            return PortReader(port, self.stall_s)
-        except (OSError, ValueError, AttributeError) as exc:  # no descriptor to watch
-            port.close()
-            msg = f"cannot read {self.port} as a serial device: {exc}"
-            raise PortUnavailableError(msg) from None
+        return reader, writer
 
-    async def _read(self, reader: PortReader) -> tuple[Chunk | None, str | None]:
+    async def _read(
+        self, reader: asyncio.StreamReader, watch: _StallWatch
+    ) -> tuple[Chunk | None, str | None]:
         """One chunk, or the reason the connection is over."""
-        got = await reader.read()
-        if isinstance(got, str):
-            if got == STALLED:
-                return None, f"no bytes from {self.port} for {self.stall_s:g} s (stalled)"
-            return None, f"{self.port} lost: {got}"
-        return got, None
+        watch.reading_since = watch.loop.time()
+        try:
+            data = await reader.read(READ_SIZE)
+        except _StalledError:
+            return None, f"no bytes from {self.port} for {self.stall_s:g} s (stalled)"
+        except (serial.SerialException, OSError) as exc:
+            return None, f"{self.port} lost: {exc}"
+        finally:
+            watch.reading_since = None
+        if not data:
+            return None, f"{self.port} closed"
+        return (time.monotonic_ns(), data), None
+
+
+class _StalledError(Exception):
+    """No byte came for ``stall_s``: the waiting read ends with this."""
+
+
+class _StallWatch:
+    """Ends a read that has waited ``stall_s`` for a byte, with one timer that looks
+    every ``stall_s`` or so instead of a timeout armed and disarmed around every read
+    (about 4 us a read, several reads per frame pair). The read ends through the
+    reader's ``set_exception``, never by cancelling the task that reads: a stall never
+    lands anywhere but in the read (the connection is closed after it)."""
+
+    def __init__(self, reader: asyncio.StreamReader, stall_s: float) -> None:
+        self.loop = asyncio.get_running_loop()
+        self.reading_since: float | None = None  # loop time a read began waiting, if one is
+        self._reader = reader
+        self._stall_s = stall_s
+        self._handle = self.loop.call_later(stall_s, self._look)
+
+    def _look(self) -> None:
+        since, now = self.reading_since, self.loop.time()
+        if since is not None and now - since >= self._stall_s:
+            self._reader.set_exception(_StalledError())
+            return
+        due = self._stall_s if since is None else since + self._stall_s - now
+        self._handle = self.loop.call_later(due, self._look)
+
+    def stop(self) -> None:
+        self._handle.cancel()
+
+
+async def _close(writer: asyncio.StreamWriter) -> None:
+    """Close without flushing (the port may be gone) and wait until it is closed."""
+    # The library closes the transport itself when a read fails (unplug). Its abort() is
+    # not idempotent: a second one schedules a second connection-lost task that fails on
+    # the protocol already gone, and asyncio logs "Task exception was never retrieved".
+    if not writer.transport.is_closing():
+        writer.transport.abort()
+    with contextlib.suppress(Exception):
+        async with asyncio.timeout(2.0):
+            await writer.wait_closed()
 
 
 @dataclass(frozen=True)
