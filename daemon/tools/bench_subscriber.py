@@ -154,17 +154,20 @@ async def collect(
     return [{"publish": a, "receipt": b} for a, b in zip(poses.publish, poses.receipt, strict=True)]
 
 
-def engine_frames_per_call(broker: Mosquitto, wait_s: float = 1.5) -> float:
+def engine_frames_per_call(broker: Mosquitto, devices: int, wait_s: float = 1.5) -> float:
     """Frames per model call of the daemon's engine(s), from the devices' retained health
     (``pipeline.engine``; each worker process has its own engine): the mean over the
-    devices, 0.0 when none said. Health is periodic, so this lags the run by up to its
-    interval."""
+    devices, 0.0 when none said. Counted from the daemon's start: read after it stopped
+    (its last health), the whole run's. Only the run's ``devices`` (pair00, pair01, ...):
+    an earlier run's in the same broker may still be retained."""
+    ours = {f"scotti/pair{i:02d}/health" for i in range(devices)}
     said: dict[str, float] = {}
 
     def on_message(_c: paho.Client, _u: object, m: paho.MQTTMessage) -> None:
         with contextlib.suppress(ValueError, TypeError, KeyError):
-            engine = json.loads(m.payload)["pipeline"]["engine"]
-            said[m.topic] = float(engine["frames_per_call"])
+            if m.topic in ours:
+                engine = json.loads(m.payload)["pipeline"]["engine"]
+                said[m.topic] = float(engine["frames_per_call"])
 
     client = paho.Client(CallbackAPIVersion.VERSION2, protocol=paho.MQTTv5)
     client.on_message = on_message
