@@ -11,7 +11,10 @@ Every prediction is made one way, batched streaming: ``--batch K`` (default
 16) runs K segments of a session side by side in each step-graph call, the
 same predictions as the daemon's window frame by frame (``--batch 1``), in
 73 % of the CPU time with the shipped model: the model's arithmetic, not the
-call, is most of a step (docs/performance.md).
+call, is most of a step (docs/performance.md). ``--jobs J`` (default: the
+cores the process may use) steps J such groups side by side on threads while
+the next frames are decoded, again the same predictions (docs/evaluation.md,
+"How fast it runs").
 
 A session without labels (a live recording) has nothing to score: the report
 says so in one line and gives what the model made of it (predictions, the

@@ -28,6 +28,10 @@ def test_model_mode_times_both_graphs_at_each_batch(
     ]
     assert rows[0].endswith("| 1.00x; 1.00x |")  # fp32 against itself
     assert "int8: " in out  # the copy made for the run
+    # fp32 rows do not see each other; dynamic int8 scales each call's activations at once.
+    assert "fp32: one call of 4 frames against 4 calls of one: pose moves up to 0.00 mm" in out
+    int8 = next(line for line in out.splitlines() if line.startswith("int8: one call"))
+    assert float(int8.split("up to ")[1].split(" mm")[0]) > 0
 
 
 def test_session_inputs_are_frames_with_their_own_embeddings(
