@@ -21,6 +21,13 @@ The warm-up costs T-1 extra steps per segment, so a segment is at least
 segments, down to one (``batch=1``: frame by frame). ``tests/test_evaluation_segments.py``
 compares every prediction and flag with the daemon's own window stepped frame by
 frame, on a real exported model.
+
+With ``jobs`` J > 1 a chunk holds J x ``CHUNK_FRAMES`` frames, cut into J groups
+of K segments that J threads step side by side (onnxruntime lets go of the GIL
+during a call) while the caller decodes the next chunk; one chunk at most is in
+flight, so two are held (J x 92 MB of counts). Each group computes the input
+checks of its own frames. Two jobs run 1.5x the frames per second of one on two
+cores (docs/evaluation.md, "How fast it runs").
 """
 
 from __future__ import annotations
@@ -50,8 +57,8 @@ U16 = npt.NDArray[np.uint16]
 # 0.58 to 0.60 ms per frame, 1.06 at batch 1; docs/performance.md); more rows only
 # need a longer chunk for the same warm-up share.
 BATCH: Final = 16
-# Paired frames held at most (raw counts: 2.8 kB each, 46 MB): a longer session is
-# replayed chunk after chunk, the last T-1 frames of one warming the next. 16 segments
+# Paired frames a chunk holds per job (raw counts: 2.8 kB each, 46 MB): a longer session
+# is replayed chunk after chunk, the last T-1 frames of one warming the next. 16 segments
 # of 1,024 frames: 3.8 % warm-up steps.
 CHUNK_FRAMES: Final = 16_384
 # Shortest segment: each costs T-1 = 39 warm-up steps more, 10 % of 400.
