@@ -38,7 +38,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from common import ROOT, ExperimentError, run, scotti_command, table, utc_now, write_between_markers
+from common import (
+    ROOT,
+    ExperimentError,
+    from_root,
+    run,
+    scotti_command,
+    table,
+    utc_now,
+    write_between_markers,
+)
 from scotti.export.sensor_transfer import OURS, ForeignSensor, cell_layouts, draw_sensor, render
 from scotti.export.sensor_transfer import with_curve as curve
 
@@ -173,7 +182,7 @@ def score_file(path: Path, model: Path, every: int) -> dict[str, Any]:
     truth = _labels_by_ext(replay.made, labels)
     rows = [(m, truth[m.ext]) for m in replay.made if m.ext in truth]
     result = {
-        "file": str(path.relative_to(ROOT)),
+        "file": from_root(path),
         "predictions": len(replay.made),
         "action_true": [int(lab.action) for _, lab in rows],
         "action_pred": [int(np.argmax(m.probs)) for m, _ in rows],
@@ -316,7 +325,7 @@ def doc_section(
     scored = report[0]["scored"] if report else 0
     drawn = next((r["drawn"] for r in report if r["drawn"]), [])
     lines = [
-        f"Model `{model.relative_to(ROOT)}`; three simulated people it never saw "
+        f"Model `{from_root(model)}`; three simulated people it never saw "
         f"(`scotti sim corpus {' '.join(CORPUS)}`, realistic effects), every {every}th "
         f"prediction time through the window graph ({scored} action-labelled predictions per "
         f"sensor); made {utc_now()}, this run {minutes:.0f} min (rendered files and reports "
