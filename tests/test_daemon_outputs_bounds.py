@@ -246,6 +246,15 @@ def test_the_foxglove_gate_caps_checks_and_passes_the_protocol_through(
             assert await hears(two, "/action")
 
     try:
+        # The SDK's own server checks nothing: it is not where a page scanning 127.0.0.1
+        # would find it (Linux binds any 127/8 address; elsewhere it stays 127.0.0.1).
+        assert output.sdk_address is not None
+        sdk_host, sdk_port = output.sdk_address
+        assert sdk_host.startswith("127.")
+        if sys.platform == "linux":
+            assert sdk_host != "127.0.0.1"
+            with pytest.raises(ConnectionRefusedError):
+                socket.create_connection(("127.0.0.1", sdk_port), timeout=5).close()
         asyncio.run(session())
         assert output.gate is not None
         gate = output.gate

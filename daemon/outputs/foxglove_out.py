@@ -63,7 +63,7 @@ from scotti.daemon.input.recording import RecordingError, new_file
 from scotti.daemon.mqtt import messages
 from scotti.daemon.mqtt.schemas import Status
 from scotti.daemon.outputs import OutputError, device_prefix, guard
-from scotti.daemon.outputs.front_process import FrontProcess, listen
+from scotti.daemon.outputs.front_process import FrontProcess, hidden_loopback, listen
 from scotti.daemon.outputs.json_schema import foxglove_schema
 from scotti.firmware_protocol.session import LabelRecord
 from scotti.models.contract import ACTIONS, BONE_INDEX, FRAME_COLS, KEYPOINTS
@@ -251,6 +251,7 @@ class FoxgloveOutput:
         self._server: WebSocketServer | None = None
         self.gate: FrontProcess | None = None
         self._port: int | None = None
+        self._upstream_host = "127.0.0.1"
         listener = listen(host, port, "--foxglove") if port is not None else None
         try:
             if mcap is not None:
@@ -259,8 +260,9 @@ class FoxgloveOutput:
                 )
             if listener is not None:
                 self._port = listener.getsockname()[1]
+                self._upstream_host = hidden_loopback()
                 self._server = foxglove.start_server(
-                    name="scotti-daemon", host="127.0.0.1", port=0, context=self.context
+                    name="scotti-daemon", host=self._upstream_host, port=0, context=self.context
                 )
         except Exception as exc:  # the library's own errors: file exists, port in use
             if listener is not None:
@@ -278,7 +280,11 @@ class FoxgloveOutput:
                 allowed_origins=base.allowed_origins,
                 token=base.token,
             )
-            config = {"mode": "proxy", "upstream_port": self._server.port}
+            config = {
+                "mode": "proxy",
+                "upstream_host": self._upstream_host,
+                "upstream_port": self._server.port,
+            }
             try:
                 self.gate = FrontProcess.start("foxglove", listener, rules, config)
             except OutputError:
@@ -300,6 +306,14 @@ class FoxgloveOutput:
     def port(self) -> int | None:
         """Where clients connect (the gate's), ``None`` when not served (or stopped)."""
         return self._port if self._server is not None else None
+
+    @property
+    def sdk_address(self) -> tuple[str, int] | None:
+        """Where the SDK's own server listens, reached only through the gate (a hidden
+        loopback address: ``front_process.hidden_loopback``); None when not served."""
+        if self._server is None:
+            return None
+        return self._upstream_host, self._server.port
 
     @property
     def counters(self) -> dict[str, Any]:

@@ -114,7 +114,7 @@ class Front:
         if config["mode"] == "web":
             self.routes = WebRoutes(self, config)
         else:
-            self.upstream = ("127.0.0.1", int(config["upstream_port"]))
+            self.upstream = (config["upstream_host"], int(config["upstream_port"]))
 
     # --- to the daemon ----------------------------------------------------------------
     def tell(self, message: dict[str, Any]) -> None:

@@ -17,6 +17,7 @@ import contextlib
 import json
 import logging
 import os
+import secrets
 import select
 import socket
 import subprocess
@@ -53,6 +54,21 @@ def listen(host: str, port: int, what: str) -> socket.socket:
         msg = f"{what}: cannot listen on {host}:{port}: {exc.strerror or exc}"
         raise OutputError(msg) from None
     return sock
+
+
+def hidden_loopback() -> str:
+    """A loopback address for a server only the gate may reach (the Foxglove SDK's, which
+    checks no Origin, Host or token): a random one of 127.0.0.0/8, not 127.0.0.1, where
+    the host takes it (Linux does). A web page in a local browser can open WebSockets to
+    127.0.0.1 and scan its ports; 2^24 addresses times their ports it cannot. Where the
+    host has only 127.0.0.1 (macOS), 127.0.0.1."""
+    for _ in range(4):
+        a, b = secrets.randbelow(256), secrets.randbelow(256)
+        host = f"127.{a}.{b}.{2 + secrets.randbelow(253)}"  # never .0, .1 or .255
+        with contextlib.suppress(OSError), socket.socket() as probe:
+            probe.bind((host, 0))
+            return host
+    return "127.0.0.1"
 
 
 class FrontProcess:
