@@ -86,7 +86,7 @@ def config_text(
     processes: int = 1,
     *,
     everything: bool = False,
-    gather_ms: float = 0.0,
+    gather_ms: float | None = 0.0,
 ) -> str:
     """``everything``: remote control on and, in one process, the web and Foxglove
     servers on free ports (no clients), so that the peaks hold all the daemon opens."""
@@ -95,10 +95,11 @@ def config_text(
     )
     control = "control = true\n" if everything else ""
     outputs = "[outputs]\nweb = 0\nfoxglove = 0\n" if everything and processes == 1 else ""
+    # gather_ms None: the key left out, for a daemon from before the setting (--daemon-from).
+    gather = f"gather_ms = {gather_ms}\n" if gather_ms is not None else ""
     return (
         f'log_level = "warning"\nprocesses = {processes}\n'
-        f"[inference]\nbatch = {str(batch).lower()}\n"
-        f"max_batch = {max_batch}\ngather_ms = {gather_ms}\n"
+        f"[inference]\nbatch = {str(batch).lower()}\nmax_batch = {max_batch}\n{gather}"
         # Health at its default interval (5 s): a shorter one costs the daemon CPU the
         # bench would count (64 devices at 1 s: a tenth of its event loop).
         f'[mqtt]\nbroker = "{broker.url}"\n{control}{outputs}{tables}'
@@ -119,7 +120,8 @@ def run_one(
     model_ms: float = 0.0,
     profile: bool = False,
     people: list[np.ndarray] | None = None,
-    gather_ms: float = 0.0,
+    gather_ms: float | None = 0.0,
+    daemon_from: Path | None = None,
 ) -> Row:
     from scotti.daemon.tools.bench_process import Peaks, sample_process
 
@@ -145,6 +147,9 @@ def run_one(
     cmd = [sys.executable, "-m", "scotti.daemon.service.main", "--config", str(config)]
     cmd += ["--model", str(model)]
     env = {k: v for k, v in os.environ.items() if not k.startswith("SCOTTI_")}
+    if daemon_from is not None:  # ``scotti`` is a namespace package: a link to a checkout is it
+        (folder / "scotti").symlink_to(daemon_from.resolve())
+        env["PYTHONPATH"] = str(folder)
     daemon = subprocess.Popen(cmd, env=env)
     measuring, peaks = threading.Event(), Peaks()
     others = (boards.pid or 0, os.getpid(), *_broker_pid(broker))
@@ -167,7 +172,7 @@ def run_one(
     return _row(
         poses, pairs, batch, processes, seconds, cpu_rss_bench, peaks, everything,
         model_ms=model_ms, dropped=drops, profile=report, frames_per_call=per_call,
-        gather_ms=gather_ms,
+        gather_ms=gather_ms or 0.0, daemon_from=daemon_from,
     )  # fmt: skip
 
 
@@ -247,12 +252,15 @@ def run(args: argparse.Namespace, model: Path) -> int:
     with Mosquitto() as broker:
         for pairs in args.pairs:
             for processes in args.processes:
-                for batch, gather_ms in _engine_modes(modes, args.gather_ms):
+                for batch, gather_ms, daemon_from in _engine_modes(
+                    modes, args.gather_ms, args.daemon_from
+                ):
                     row = run_one(
                         broker, model, pairs, batch, args.seconds, args.warmup,
                         args.max_batch, processes, args.everything,
                         model_ms=model_ms[engine_batch(pairs, batch, args.max_batch)],
                         profile=args.profile, people=people[:pairs], gather_ms=gather_ms,
+                        daemon_from=daemon_from,
                     )  # fmt: skip
                     rows.append(row)
                     print(table_row(row), flush=True)
@@ -268,9 +276,14 @@ def run(args: argparse.Namespace, model: Path) -> int:
     return 0 if all(r.published for r in rows) else 1
 
 
-def _engine_modes(modes: list[bool], gathers: list[float]) -> list[tuple[bool, float]]:
-    """(batch, gather_ms) per run: each gather for the batched engine, none per pair."""
-    return [(b, g) for b in modes for g in (gathers if b else [0.0])]  # per pair: no batch
+def _engine_modes(
+    modes: list[bool], gathers: list[float], daemon_from: Path | None
+) -> list[tuple[bool, float | None, Path | None]]:
+    """(batch, gather_ms, checkout) per run: each gather for the batched engine, none per
+    pair; with ``daemon_from``, first that checkout's daemon (its own defaults) then this."""
+    ours = [(b, g, None) for b in modes for g in (gathers if b else [0.0])]
+    theirs = [(b, None, daemon_from) for b in modes] if daemon_from is not None else []
+    return theirs + ours
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -303,6 +316,12 @@ def main(argv: list[str] | None = None) -> int:
         "--profile", action="store_true",
         help="also sample the daemon with py-spy for the measured seconds and print its "
         "CPU by part of the path",
+    )  # fmt: skip
+    p.add_argument(
+        "--daemon-from", type=Path, metavar="CHECKOUT",
+        help="also run the daemon of another checkout of this repository (e.g. a `git "
+        "worktree` of an older commit) before this one's, same boards and subscriber: "
+        "a before/after in one run",
     )  # fmt: skip
     p.add_argument("--model", type=Path, help="ONNX step graph (default: the shipped one)")
     p.add_argument(

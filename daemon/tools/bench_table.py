@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from scotti.daemon.service.counters import latency_summary
 from scotti.daemon.tools.bench_model import core_share_per_pair
@@ -41,6 +42,7 @@ class Row:
     dropped: int = 0  # foot frames the daemon did not take from its ports in time
     profile: str = ""  # bench --profile: the daemon's CPU by part of the path
     gather_ms: float = 0.0  # inference.gather_ms of the run
+    daemon_from: Path | None = None  # another checkout's daemon ran (bench --daemon-from)
     frames_per_call: float = 0.0  # the engine's, from the devices' health (0: not said)
 
     @property
@@ -77,7 +79,9 @@ def table_row(r: Row) -> str:
     mode = "batched" if r.batch else "per pair"
     if r.processes > 1:
         mode += f", {r.processes} processes"
-    if r.batch:
+    if r.daemon_from is not None:
+        mode += f", daemon of {r.daemon_from.name}"
+    elif r.batch:
         mode += f", gather {r.gather_ms:g} ms"
     p, s = r.publish, r.receipt
     flags = " / ".join(f"{100 * r.flagged.get(f, 0.0):.2f}" for f in OOD_FLAGS)
