@@ -127,3 +127,26 @@ def test_everything_turns_on_what_the_units_limits_must_allow(tmp_path: Path) ->
     plain = load_settings({}, path)
     assert not plain.mqtt.control
     assert not plain.outputs.any
+
+
+def test_a_daemon_from_another_checkout_runs_first_with_its_own_defaults(tmp_path: Path) -> None:
+    """--daemon-from: that checkout's daemon is run before this one's, batched and per
+    pair alike, with no ``gather_ms`` key (a daemon from before the setting refuses it)."""
+    from scotti.daemon.tools.bench import _engine_modes, config_text
+    from scotti.daemon.tools.local_broker import Mosquitto
+
+    old = tmp_path / "before"
+    runs = _engine_modes([True, False], [0.0, 4.0], old)
+    assert runs == [
+        (True, None, old),
+        (False, None, old),
+        (True, 0.0, None),
+        (True, 4.0, None),
+        (False, 0.0, None),
+    ]
+    assert _engine_modes([True], [4.0], None) == [(True, 4.0, None)]
+    broker = Mosquitto(port=1883)  # not started: only its url is read
+    theirs = config_text([tmp_path / "tty0"], broker, True, gather_ms=None)
+    ours = config_text([tmp_path / "tty0"], broker, True, gather_ms=4.0)
+    assert "gather_ms" not in theirs
+    assert "gather_ms = 4.0\n" in ours
