@@ -9,9 +9,9 @@ scores every K-th prediction time only, through the window graph next to each
 model (NAME.window.onnx) in batches: a uniform sample for a fraction of the time.
 Every prediction is made one way, batched streaming: ``--batch K`` (default
 16) runs K segments of a session side by side in each step-graph call, the
-same predictions as the daemon's window frame by frame (``--batch 1``), in
-73 % of the CPU time with the shipped model: the model's arithmetic, not the
-call, is most of a step (docs/performance.md). ``--jobs J`` (default: the
+same predictions as the daemon's window frame by frame (``--batch 1``), for
+less CPU (a step costs 0.41 ms a frame at 16 frames a call, 1.10 alone:
+docs/performance.md). ``--jobs J`` (default: the
 cores the process may use) steps J such groups side by side on threads while
 the next frames are decoded, again the same predictions (docs/evaluation.md,
 "How fast it runs").

@@ -31,7 +31,8 @@ F32 = npt.NDArray[np.float32]
 U16 = npt.NDArray[np.uint16]
 # Windows per run of the window graph. Its activations (T frames through the CNN per
 # window) stay in onnxruntime's arena at their peak: 64 windows held ~900 MB
-# (scotti-default, T=40), 8 hold under 200 MB and run as fast (docs/performance.md).
+# (scotti-default, T=40), 8 hold under 200 MB and run as fast (`/usr/bin/time -v
+# scotti eval SESSION --every 8`: 961 MB at 64, 211 MB at 8).
 BATCH_SIZE = 8
 
 

@@ -54,8 +54,8 @@ if TYPE_CHECKING:  # replay imports this module
 
 U16 = npt.NDArray[np.uint16]
 # Segments run side by side in one step-graph call. scotti-default costs the same per
-# row from 16 rows up (``python -m scotti.daemon.tools.bench --step-batches 1 8 16 64``:
-# 0.58 to 0.60 ms per frame, 1.06 at batch 1; docs/performance.md); more rows only
+# row from 8 rows up (``python -m scotti.daemon.tools.bench --step-batches 1 8 16 64``:
+# 0.41 to 0.44 ms per frame, 1.10 at batch 1; docs/performance.md); more rows only
 # need a longer chunk for the same warm-up share.
 BATCH: Final = 16
 # Paired frames a chunk holds per job (raw counts: 2.8 kB each, 46 MB): a longer session

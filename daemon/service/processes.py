@@ -2,8 +2,8 @@
 
 One process runs every device's reading, decoding, assembly and publishing on
 one event loop, and Python runs one thread of it at a time. On the 2-core
-host that loop is the limit near 32 pairs (docs/performance.md): the model's
-step is a third of the work, per-frame Python the rest. With ``processes = N``
+host that thread is the limit past about 96 pairs (docs/performance.md: 128
+pairs need two processes there). With ``processes = N``
 the daemon starts N worker processes instead, each a whole daemon
 (``app.Daemon``) over its share of the ``[[devices]]``: every N-th device, so
 receivers listed in order spread evenly. Each worker has its own event loop,
