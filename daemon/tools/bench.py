@@ -281,9 +281,11 @@ def _engine_modes(
 ) -> list[tuple[bool, float | None, Path | None]]:
     """(batch, gather_ms, checkout) per run: each gather for the batched engine, none per
     pair; with ``daemon_from``, first that checkout's daemon (its own defaults) then this."""
-    ours = [(b, g, None) for b in modes for g in (gathers if b else [0.0])]
-    theirs = [(b, None, daemon_from) for b in modes] if daemon_from is not None else []
-    return theirs + ours
+    runs: list[tuple[bool, float | None, Path | None]] = []
+    if daemon_from is not None:
+        runs += [(b, None, daemon_from) for b in modes]
+    runs += [(b, g, None) for b in modes for g in (gathers if b else [0.0])]
+    return runs
 
 
 def main(argv: list[str] | None = None) -> int:
