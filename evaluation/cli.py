@@ -15,6 +15,9 @@ docs/performance.md). ``--jobs J`` (default: the
 cores the process may use) steps J such groups side by side on threads while
 the next frames are decoded, again the same predictions (docs/evaluation.md,
 "How fast it runs").
+A streaming-native export (``scotti train --arch streaming``: its step graph says
+``scotti.graph`` = ``step_kv``) is stepped through its own graph with a key/value
+cache per segment (``evaluation.kv_segments``), the same report.
 
 A session without labels (a live recording) has nothing to score: the report
 says so in one line and gives what the model made of it (predictions, the
@@ -35,6 +38,7 @@ from typing import Any, Final
 
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.evaluation.evaluation import EvaluationError, evaluate_models
+from scotti.evaluation.kv_segments import open_step_graph
 from scotti.evaluation.segments import BATCH
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.overwrite import FORCE_HELP, refuse_existing
@@ -42,7 +46,6 @@ from scotti.firmware_protocol.session import find_session_files
 from scotti.models.contract import ACTIONS
 from scotti.models.errors import ModelError
 from scotti.models.ood import format_flag_shares
-from scotti.models.runtime import ScottiRuntime
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,8 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--model",
         type=Path,
         action="append",
-        help="streaming step graph (.onnx); repeat it to score several models on one replay "
-        "(default: the shipped model, as the daemon)",
+        help="streaming step graph (.onnx, either form); repeat it to score several models "
+        "on one replay (default: the shipped model, as the daemon)",
     )
     parser.add_argument(
         "--json", action="store_true", help="print the report as JSON (a list for several models)"
@@ -114,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         models = args.model or [default_model_path()]
         if args.plots is not None:  # before the replay: a refusal costs nothing
             refuse_existing(plot_paths(args.plots, models), force=args.force)
-        runtimes = [ScottiRuntime(m, threads=args.threads) for m in models]
+        runtimes = [open_step_graph(m, threads=args.threads) for m in models]
         reports = evaluate_models(
             files, runtimes, every=args.every, batch=args.batch, jobs=jobs, on_session=_progress
         )

@@ -17,6 +17,7 @@ from typing import Any
 
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet
+from scotti.evaluation.kv_segments import StepModel
 from scotti.evaluation.replay import (
     SessionReplay,
     replay_session,
@@ -50,7 +51,7 @@ __all__ = [
 
 def evaluate_sessions(
     paths: Sequence[str | Path],
-    runtime: ScottiRuntime,
+    runtime: StepModel,
     pairing: PairingConfig | None = None,
     *,
     every: int = 1,
@@ -63,7 +64,7 @@ def evaluate_sessions(
 
 def evaluate_models(
     paths: Sequence[str | Path],
-    runtimes: Sequence[ScottiRuntime],
+    runtimes: Sequence[StepModel],
     pairing: PairingConfig | None = None,
     *,
     every: int = 1,
@@ -157,7 +158,7 @@ def rate(
 
 
 def _report(
-    runtime: ScottiRuntime,
+    runtime: StepModel,
     replays: list[SessionReplay],
     every: int,
     window_graph: ScottiRuntime | None,
@@ -176,6 +177,8 @@ def _report(
         "sessions": [r.summary() | {"metrics": task_metrics(r.scores)} for r in replays],
         "subjects": sorted({r.subject for r in replays}),
     }
+    if not isinstance(runtime, ScottiRuntime):  # the streaming-native form says so
+        report["model"] |= {"step_kind": "kv_cache", "receptive_field": runtime.receptive_field}
     if window_graph is None:
         # Segments side by side: throughput per step-graph row (warm-up rows included).
         batches = [b for r in replays for b in r.step_batches]

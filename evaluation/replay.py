@@ -13,7 +13,9 @@ The model runs one way for every prediction: batched streaming
 (``evaluation.segments``), the step graph with its embedding cache on K
 segments of the session side by side (``batch=K``, default 16; ``batch=1``
 is frame by frame), the predictions the daemon's window makes
-(tests/test_evaluation.py compares them with the daemon's own pipeline).
+(tests/test_evaluation.py compares them with the daemon's own pipeline); a
+streaming-native step graph (``KvStepRuntime``) runs the same way with a key/value
+cache per segment (``evaluation.kv_segments``).
 ``every=K`` > 1 scores every K-th prediction time instead, through
 the window graph in batches (``evaluation.sampling``): same decoding,
 assembly, pairing and restarts, a fraction of the model time.
@@ -33,8 +35,9 @@ from typing import Any
 import numpy as np
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet, align
+from scotti.evaluation.kv_segments import KvSegmentTrack, StepModel, kv_window_graph
 from scotti.evaluation.sampling import Prediction, SampledTrack
-from scotti.evaluation.segments import BATCH, SegmentTrack, quick_gil_handoff
+from scotti.evaluation.segments import BATCH, ChunkedSegments, SegmentTrack, quick_gil_handoff
 from scotti.firmware_protocol.frame_path import FramePath, PairSeq
 from scotti.firmware_protocol.pairing import PairedFrame, PairingConfig
 from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
@@ -90,7 +93,7 @@ class SessionReplay:
 
 def replay_session(
     path: str | Path,
-    runtime: ScottiRuntime,
+    runtime: StepModel,
     pairing: PairingConfig | None = None,
     *,
     every: int = 1,
@@ -101,15 +104,27 @@ def replay_session(
     return replay_session_models(path, [runtime], pairing, every=every, batch=batch, jobs=jobs)[0]
 
 
-def window_graphs(runtimes: Sequence[ScottiRuntime]) -> list[ScottiRuntime]:
+def window_graphs(runtimes: Sequence[StepModel]) -> list[ScottiRuntime]:
     """The window graph next to each step graph (``--every K``); ``load_pair`` checks that
     it exists and comes from the same export (a one-line ModelError if not)."""
-    return [load_pair(runtime.path, runtime.threads)[1] for runtime in runtimes]
+    return [
+        load_pair(r.path, r.threads)[1] if isinstance(r, ScottiRuntime) else kv_window_graph(r)
+        for r in runtimes
+    ]
+
+
+def segment_track(
+    runtime: StepModel, out: SessionReplay, batch: int, jobs: int, pool: Executor | None
+) -> ChunkedSegments:
+    """The batched step loop of the runtime's form (the cache it carries per segment)."""
+    if isinstance(runtime, ScottiRuntime):
+        return SegmentTrack(runtime, out, batch, jobs=jobs, pool=pool)
+    return KvSegmentTrack(runtime, out, batch, jobs=jobs, pool=pool)
 
 
 def replay_session_models(
     path: str | Path,
-    runtimes: Sequence[ScottiRuntime],
+    runtimes: Sequence[StepModel],
     pairing: PairingConfig | None = None,
     *,
     every: int = 1,
@@ -154,10 +169,10 @@ def replay_session_models(
     clock = PairSeq()
     with SessionReader(path) as reader:
         subject = _subject_of(reader.header.subject) or Path(path).stem
-        tracks: list[SampledTrack | SegmentTrack]
+        tracks: list[SampledTrack | ChunkedSegments]
         if every == 1:
             tracks = [
-                SegmentTrack(r, SessionReplay(str(path), subject), batch, jobs=jobs, pool=pool)
+                segment_track(r, SessionReplay(str(path), subject), batch, jobs, pool)
                 for r in runtimes
             ]
         else:

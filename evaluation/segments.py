@@ -39,7 +39,7 @@ from collections.abc import Iterator
 from concurrent.futures import Executor, Future
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, Final, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -96,17 +96,29 @@ class _Stepped:
     model_cpu_s: float
 
 
+class SegmentModel(Protocol):
+    """What the chunking needs of a step graph (``ScottiRuntime``, ``KvStepRuntime``)."""
+
+    @property
+    def window(self) -> int: ...
+
+    @property
+    def frame_shape(self) -> tuple[int, int]: ...
+
+
 @dataclass
-class SegmentTrack:
+class ChunkedSegments:
     """One model's batched replay over the shared pairs: ``take`` each pair, then
     ``finish``; every prediction is in ``made`` (time order), the counts in ``out``.
+    ``_step_lanes`` (the model's step loop) is the subclass's: ``SegmentTrack`` for the
+    paper form, ``evaluation.kv_segments.KvSegmentTrack`` for the streaming-native one.
 
     ``jobs`` > 1 with a ``pool``: a chunk's segments are cut into ``jobs`` groups of
     ``batch`` lanes, stepped side by side on the pool's threads (onnxruntime lets go
     of the GIL while it runs), while the caller goes on decoding the next chunk.
     One chunk at most is in flight, so the held frames stay two chunks."""
 
-    runtime: ScottiRuntime  # the step graph
+    runtime: SegmentModel  # the step graph
     out: SessionReplay
     batch: int = BATCH
     chunk_frames: int | None = None  # default CHUNK_FRAMES per job
@@ -133,8 +145,12 @@ class SegmentTrack:
             msg = "jobs > 1 needs a pool of threads"
             raise ValueError(msg)
         chunk = CHUNK_FRAMES * self.jobs if self.chunk_frames is None else self.chunk_frames
-        self._cap = max(chunk, 2 * self.runtime.window)
+        self._cap = max(chunk, 2 * (self.history() + 1))
         self._buf = self._new_buffer()
+
+    def history(self) -> int:
+        """Frames before a prediction's newest one that it reads: a segment's warm-up."""
+        return self.runtime.window - 1
 
     def _new_buffer(self) -> _Chunk:
         cap = self._cap
@@ -161,7 +177,7 @@ class SegmentTrack:
         self._held += 1
         if self._held == self._cap:
             self._step_held()
-            keep = self.runtime.window - 1  # the next chunk's warm-up
+            keep = self.history()  # the next chunk's warm-up
             # In flight, the old buffer is the step loops' until they end: a new one.
             new = self._new_buffer() if self._in_flight else buf
             for a, b in zip(_arrays(new), _arrays(buf), strict=True):
@@ -189,8 +205,8 @@ class SegmentTrack:
         lanes = max(1, min(self.batch * self.jobs, (end - first) // max(shortest, 1)))
         bounds = [first + (end - first) * k // lanes for k in range(lanes + 1)]
         score_from = np.array(bounds[:-1], dtype=np.int64)
-        # Warm up on the T-1 frames before the segment, or from the restart after them.
-        feed_from = score_from - np.minimum(t - 1, self._buf.run_pos[score_from])
+        # Warm up on the frames before the segment it reads, or from the restart after them.
+        feed_from = score_from - np.minimum(self.history(), self._buf.run_pos[score_from])
         ends = np.array(bounds[1:], dtype=np.int64)
         groups = np.array_split(np.arange(lanes), min(self.jobs, lanes))
         for g in groups:
@@ -214,6 +230,24 @@ class SegmentTrack:
                 self.out.model_cpu_s += stepped.model_cpu_s
         finally:
             self._in_flight = []
+
+    def _step_lanes(
+        self,
+        buf: _Chunk,
+        flags: tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]],
+        score_from: npt.NDArray[np.int64],
+        feed_from: npt.NDArray[np.int64],
+        ends: npt.NDArray[np.int64],
+    ) -> _Stepped:
+        """Step contiguous segments side by side (the model's own step loop)."""
+        raise NotImplementedError
+
+
+@dataclass
+class SegmentTrack(ChunkedSegments):
+    """The paper form's step graph: an embedding cache per segment."""
+
+    runtime: ScottiRuntime  # the step graph
 
     def _step_lanes(
         self,

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +33,7 @@ from scotti.models.kv_contract import (
     KV_STEP_INPUTS,
     KV_STEP_OUTPUTS,
     META_KV_SLOTS,
+    META_RECEPTIVE_FIELD,
     META_STEP_KIND,
     STEP_KIND_KV,
 )
@@ -100,6 +102,7 @@ class KvStepRuntime:
         if threads < 1:
             msg = f"threads must be at least 1, got {threads}"
             raise ModelError(msg)
+        self._threads = threads
         self._sha256 = sha256_of(self._path)
         self._session = open_session(self._path, threads)
         meta = dict(self._session.get_modelmeta().custom_metadata_map)
@@ -112,6 +115,10 @@ class KvStepRuntime:
             _, self._window, self._embed_dim, _ = check_metadata({**meta, c.META_GRAPH: "step"})
             self._slots = int(meta.get(META_KV_SLOTS, "0"))
             self._check_io()
+            # A frame's row reads layers x (T-1) frames back (docs/streaming-native.md).
+            layers = (self._slots - 1) // 2
+            reads = self._window + layers * (self._window - 1)
+            self._receptive_field = int(meta.get(META_RECEPTIVE_FIELD, str(reads)))
             self._ood = ood_stats(meta, self._embed_dim, True)
             text = meta.get(c.META_PROGRESS_CALIBRATION)
             self._calibration = ProgressCalibration.from_json(text) if text else None
@@ -153,12 +160,28 @@ class KvStepRuntime:
         return self._slots
 
     @property
+    def threads(self) -> int:
+        return self._threads
+
+    @property
+    def receptive_field(self) -> int:
+        """Frames one prediction depends on, the newest included (T + layers x (T-1))."""
+        return self._receptive_field
+
+    @property
     def frame_shape(self) -> tuple[int, int]:
         return self._frame_shape
 
     @property
     def ood(self) -> OodStats | None:
         return self._ood
+
+    def ood_info(self) -> dict[str, Any]:
+        """What ``info`` says about the unfamiliar score, as ``ScottiRuntime.ood_info``."""
+        if self._ood is None:
+            why = "the model carries no OOD statistics (export it with --calibrate)"
+            return {"calibrated": False, "reason": f"not calibrated: {why}"}
+        return {"calibrated": True, "threshold": self._ood.threshold, "summary": self._ood.summary}
 
     def run_steps(
         self, frames: npt.ArrayLike, past: npt.ArrayLike, valid: npt.ArrayLike
