@@ -87,6 +87,7 @@ def test_page_and_feed_over_plain_http(view: LiveView, preds: list[Prediction]) 
         hello = json.loads(feed.readline().removeprefix(b"data: "))
         assert hello["actions"] == list(ACTIONS)
         feed.readline()
+        view.watched("scotti")  # the server's process has told the daemon of its reader
         view.send(preds[0])
         frame = json.loads(feed.readline().removeprefix(b"data: "))
     assert frame["seq"] == preds[0].seq
@@ -202,6 +203,7 @@ def test_live_view_in_headless_chromium(
     try:
         driver.get(view.url)
         WebDriverWait(driver, 10).until(lambda d: d.find_element("id", "conn").text == "live")
+        view.watched("scotti")
         view.send(status=messages.status("online", [], None))
         shown = preds[-1]
         for p in preds[-20:]:  # a second of frames, the last one stays on screen

@@ -181,7 +181,7 @@ class SerialSource:
         return (time.monotonic_ns(), data), None
 
 
-class _StalledError(Exception):
+class _StalledError(DaemonError):
     """No byte came for ``stall_s``: the waiting read ends with this."""
 
 
