@@ -39,7 +39,7 @@ from scotti.models.kv_contract import (
 )
 from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON, OodStats
 from scotti.models.progress_calibration import ProgressCalibration
-from scotti.models.runtime import StepBatch, StepResult, softmax
+from scotti.models.runtime import ScottiRuntime, StepBatch, StepResult, softmax
 from scotti.models.window_checks import FrameChecks
 
 F32 = npt.NDArray[np.float32]
@@ -112,7 +112,8 @@ class KvStepRuntime:
                 msg = f"graph kind is {graph!r}, a key/value streaming step graph is {KV_GRAPH!r}"
                 raise ModelContractError(msg)
             # The paper form's checks on everything else (version, T, frame, names).
-            _, self._window, self._embed_dim, _ = check_metadata({**meta, c.META_GRAPH: "step"})
+            checked = check_metadata({**meta, c.META_GRAPH: "step"})
+            _, self._window, self._embed_dim, self._card = checked
             self._slots = int(meta.get(META_KV_SLOTS, "0"))
             self._check_io()
             # A frame's row reads layers x (T-1) frames back (docs/streaming-native.md).
@@ -145,6 +146,20 @@ class KvStepRuntime:
     @property
     def sha256(self) -> str:
         return self._sha256
+
+    @property
+    def graph(self) -> str:
+        """``scotti.graph``: what ``info`` and the daemon's start-up check read."""
+        return KV_GRAPH
+
+    @property
+    def step_kind(self) -> str:
+        return STEP_KIND_KV
+
+    @property
+    def card(self) -> dict[str, Any]:
+        """The model card from metadata ``scotti.card`` ({} if the export has none)."""
+        return dict(self._card)
 
     @property
     def window(self) -> int:
@@ -182,6 +197,12 @@ class KvStepRuntime:
             why = "the model carries no OOD statistics (export it with --calibrate)"
             return {"calibrated": False, "reason": f"not calibrated: {why}"}
         return {"calibrated": True, "threshold": self._ood.threshold, "summary": self._ood.summary}
+
+    def progress_calibration_info(self) -> dict[str, Any]:
+        """What ``info`` says about progress, as ``ScottiRuntime.progress_calibration_info``."""
+        if self._calibration is None:
+            return {"calibrated": False, "reason": "the model carries none"}
+        return {"calibrated": True, "summary": self._calibration.summary}
 
     def run_steps(
         self, frames: npt.ArrayLike, past: npt.ArrayLike, valid: npt.ArrayLike
@@ -301,3 +322,20 @@ def push_many(
     checks = check_frames(stacked)
     rows = [batch.row(i) for i in range(len(windows))]
     return [w.accept(f, r, k) for w, f, r, k in zip(windows, arrays, rows, checks, strict=True)]
+
+
+def open_step_model(path: str | Path, threads: int = 1) -> ScottiRuntime | KvStepRuntime:
+    """The runtime for the step graph at ``path``, by its metadata's ``scotti.graph``:
+    ``KvStepRuntime`` for the streaming-native form, ``ScottiRuntime`` otherwise. The
+    paper form opens as it always did; only a graph it refuses has its metadata read."""
+    try:
+        return ScottiRuntime(path, threads)
+    except ModelContractError:
+        meta = open_session(Path(path), 1).get_modelmeta().custom_metadata_map
+        if meta.get(c.META_GRAPH) != KV_GRAPH:
+            raise
+    return KvStepRuntime(path, threads)
+
+
+# A step graph of either form, as the daemon serves it.
+StepModel = ScottiRuntime | KvStepRuntime

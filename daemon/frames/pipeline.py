@@ -36,8 +36,8 @@ from scotti.firmware_protocol.frame_path import FramePath, FrameWatch
 from scotti.firmware_protocol.packets import BoardStatus
 from scotti.firmware_protocol.pairing import PairedFrame, PairingConfig
 from scotti.models.contract import FRAME_RATE_HZ, NO_ACTION, has_progress
+from scotti.models.kv_streaming import StepModel
 from scotti.models.ood import withheld
-from scotti.models.runtime import ScottiRuntime
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ class Pipeline:
     def __init__(
         self,
         source: Source,
-        runtime: ScottiRuntime,
+        runtime: StepModel,
         counters: Counters,
         recorder: Recorder | None = None,
         *,

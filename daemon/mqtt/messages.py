@@ -43,7 +43,7 @@ if TYPE_CHECKING:
     from scotti.daemon.frames.pipeline import PipelineState, Prediction
     from scotti.daemon.mqtt.publisher import Publisher
     from scotti.daemon.settings import Settings
-    from scotti.models.runtime import ScottiRuntime
+    from scotti.models.kv_streaming import StepModel
 
 POSE_FRAME = "metres; origin on the floor under the mid-hip, z up, x forward, y to the left"
 
@@ -199,11 +199,13 @@ def status(
 
 def info(
     settings: Settings,
-    runtime: ScottiRuntime,
+    runtime: StepModel,
     versions: dict[str, str],
     recording: Path | None = None,
 ) -> Info:
     """``recording``: the file actually recorded to (a new name when ``--record`` existed)."""
+    from scotti.models.kv_streaming import KvStepRuntime  # loaded already: the model is open
+
     mqtt = settings.mqtt
     effective = settings.summary()
     if recording is not None:
@@ -224,6 +226,11 @@ def info(
             "ood": runtime.ood_info(),
             "progress_calibration": runtime.progress_calibration_info(),
             "input_checks": input_check_thresholds(),
+            **(
+                {"step_kind": runtime.step_kind, "receptive_field": runtime.receptive_field}
+                if isinstance(runtime, KvStepRuntime)
+                else {}
+            ),
         },
         keypoints=list(KEYPOINTS),
         actions=list(ACTIONS),

@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from scotti.daemon.mqtt.schemas import Status
     from scotti.daemon.settings import Settings
     from scotti.daemon.settings.outputs import OutputSettings
-    from scotti.models.runtime import ScottiRuntime
+    from scotti.models.kv_streaming import StepModel
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ def device_prefix(device: str, devices: Sequence[str]) -> str:
     return f"{device}/" if len(devices) > 1 else ""
 
 
-def recording_metadata(settings: Settings, runtime: ScottiRuntime) -> dict[str, str]:
+def recording_metadata(settings: Settings, runtime: StepModel) -> dict[str, str]:
     """The ``scotti`` metadata record of a live MCAP file: the model that made it (file
     and sha256, as an export names it) and the daemon's settings (``info``'s, no secret)."""
     from importlib.metadata import PackageNotFoundError, version

@@ -37,7 +37,7 @@ from scotti.daemon.service.device import Device
 from scotti.daemon.service.notify import Notifier
 from scotti.daemon.settings import Settings
 from scotti.daemon.settings.source import DeviceSettings
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.kv_streaming import StepModel
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +49,7 @@ class Daemon:
     """One run of the service; ``await Daemon(settings, runtime).run()`` -> exit status."""
 
     def __init__(
-        self, settings: Settings, runtime: ScottiRuntime, notifier: Notifier | None = None
+        self, settings: Settings, runtime: StepModel, notifier: Notifier | None = None
     ) -> None:
         self.settings = settings
         self.runtime = runtime

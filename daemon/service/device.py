@@ -32,7 +32,7 @@ from scotti.daemon.service.counters import Counters
 from scotti.daemon.settings import Settings
 from scotti.daemon.settings.source import DeviceSettings
 from scotti.daemon.waiting import wait_event
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.kv_streaming import StepModel
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,7 @@ class Device:
         self,
         settings: Settings,
         device: DeviceSettings,
-        runtime: ScottiRuntime,
+        runtime: StepModel,
         engine: InferenceEngine,
         source: Source,
         recorder: Recorder | None,

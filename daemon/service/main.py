@@ -189,13 +189,14 @@ def main(argv: list[str] | None = None) -> int:
     # Imported here: onnxruntime takes a moment, and a config error should not wait.
     from scotti.daemon.service.app import Daemon
     from scotti.models.errors import ModelError
-    from scotti.models.runtime import ScottiRuntime
+    from scotti.models.kv_contract import KV_GRAPH
+    from scotti.models.kv_streaming import open_step_model
 
-    try:
-        runtime = ScottiRuntime(model_path, threads=settings.model.threads)
+    try:  # the paper form's step graph, or a streaming-native one (its metadata says)
+        runtime = open_step_model(model_path, threads=settings.model.threads)
     except ModelError as exc:
         return _fail("model error", str(exc))
-    if runtime.graph != "step":
+    if runtime.graph not in ("step", KV_GRAPH):
         return _fail(
             "model error", f"{model_path.name} is a {runtime.graph} graph; give the step graph"
         )

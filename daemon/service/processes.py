@@ -93,10 +93,10 @@ def run_worker(settings: Settings, model_path: Path, index: int) -> None:
     from scotti.daemon.errors import DaemonError
     from scotti.daemon.service.app import Daemon
     from scotti.models.errors import ModelError
-    from scotti.models.runtime import ScottiRuntime
+    from scotti.models.kv_streaming import open_step_model
 
     try:
-        runtime = ScottiRuntime(model_path, threads=settings.model.threads)
+        runtime = open_step_model(model_path, threads=settings.model.threads)
     except ModelError as exc:
         print(f"{PROG}: model error: {exc}", file=sys.stderr)
         sys.exit(EX_CONFIG)
