@@ -38,13 +38,13 @@ from typing import Any, Final
 
 from scotti.daemon.settings import ConfigError, default_model_path
 from scotti.evaluation.evaluation import EvaluationError, evaluate_models
-from scotti.evaluation.kv_segments import open_step_graph
 from scotti.evaluation.segments import BATCH
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.overwrite import FORCE_HELP, refuse_existing
 from scotti.firmware_protocol.session import find_session_files
 from scotti.models.contract import ACTIONS
 from scotti.models.errors import ModelError
+from scotti.models.kv_streaming import open_step_model
 from scotti.models.ood import format_flag_shares
 
 
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         models = args.model or [default_model_path()]
         if args.plots is not None:  # before the replay: a refusal costs nothing
             refuse_existing(plot_paths(args.plots, models), force=args.force)
-        runtimes = [open_step_graph(m, threads=args.threads) for m in models]
+        runtimes = [open_step_model(m, threads=args.threads) for m in models]
         reports = evaluate_models(
             files, runtimes, every=args.every, batch=args.batch, jobs=jobs, on_session=_progress
         )

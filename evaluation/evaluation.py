@@ -17,7 +17,6 @@ from typing import Any
 
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet
-from scotti.evaluation.kv_segments import StepModel
 from scotti.evaluation.replay import (
     SessionReplay,
     replay_session,
@@ -28,6 +27,7 @@ from scotti.evaluation.sampling import window_timing
 from scotti.evaluation.scores import random_baseline, score, task_metrics
 from scotti.evaluation.segments import BATCH, quick_gil_handoff
 from scotti.firmware_protocol.pairing import PairingConfig
+from scotti.models.kv_streaming import StepModel
 from scotti.models.ood import shares_of
 from scotti.models.runtime import ScottiRuntime
 

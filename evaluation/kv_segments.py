@@ -22,32 +22,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 from scotti.evaluation.sampling import Prediction
-from scotti.evaluation.segments import _INPUT_FLAGS, ChunkedSegments, _Chunk, _Stepped
-from scotti.models import contract as c
+from scotti.evaluation.segments import ChunkedSegments, _Chunk, _Stepped, add_predictions
 from scotti.models.errors import ModelContractError, ModelError
-from scotti.models.graph_checks import open_session
-from scotti.models.kv_contract import KV_GRAPH
 from scotti.models.kv_streaming import KvStepRuntime
-from scotti.models.ood import UNFAMILIAR
 from scotti.models.runtime import ScottiRuntime, window_graph_for
-
-# A step graph of either form: what ``scotti eval`` replays every prediction through.
-StepModel = ScottiRuntime | KvStepRuntime
-
-
-def open_step_graph(path: str | Path, threads: int = 1) -> StepModel:
-    """The runtime for the step graph at ``path``, by its metadata's ``scotti.graph``:
-    ``KvStepRuntime`` for the streaming-native form, ``ScottiRuntime`` otherwise (which
-    refuses, in one line, what it does not know)."""
-    meta = open_session(Path(path), 1).get_modelmeta().custom_metadata_map
-    if meta.get(c.META_GRAPH) == KV_GRAPH:
-        return KvStepRuntime(path, threads)
-    return ScottiRuntime(path, threads)
 
 
 def kv_window_graph(step: KvStepRuntime) -> ScottiRuntime:
@@ -90,7 +72,6 @@ class KvSegmentTrack(ChunkedSegments):
         Runs on a pool thread with jobs > 1: it touches nothing but its arguments."""
         t = self.runtime.window
         size = t - 1
-        unloaded, out_of_range = flags  # (unloaded, out_of_range) of the window ending at j
         lanes = len(score_from)
         per_lane: list[list[Prediction]] = [[] for _ in range(lanes)]
         batches: list[tuple[float, int]] = []
@@ -119,20 +100,6 @@ class KvSegmentTrack(ChunkedSegments):
             head = (head + 1) % size
             scored = (rows >= score_from[active]) & (buf.run_pos[rows] >= t - 1)
             scored &= buf.has_ext[rows]
-            unfamiliar = result.unfamiliar
-            for i in np.flatnonzero(scored):
-                j = int(rows[i])
-                named = _INPUT_FLAGS[bool(unloaded[j]), bool(out_of_range[j])]
-                if unfamiliar[i]:
-                    named = (*named, UNFAMILIAR)
-                per_lane[int(active[i])].append(
-                    Prediction(
-                        int(buf.ext[j]) + 1,
-                        result.pose[i],
-                        result.action_probs[i],
-                        float(result.progress[i]),
-                        named,
-                    )
-                )
+            add_predictions(per_lane, buf, rows, active, scored, flags, result)
         made = [m for lane in per_lane for m in lane]  # lanes are contiguous: time order
         return _Stepped(made, batches, model_cpu_s)

@@ -35,13 +35,14 @@ from typing import Any
 import numpy as np
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet, align
-from scotti.evaluation.kv_segments import KvSegmentTrack, StepModel, kv_window_graph
+from scotti.evaluation.kv_segments import KvSegmentTrack, kv_window_graph
 from scotti.evaluation.sampling import Prediction, SampledTrack
 from scotti.evaluation.segments import BATCH, ChunkedSegments, SegmentTrack, quick_gil_handoff
 from scotti.firmware_protocol.frame_path import FramePath, PairSeq
 from scotti.firmware_protocol.pairing import PairedFrame, PairingConfig
 from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
 from scotti.models.contract import ACTIONS
+from scotti.models.kv_streaming import StepModel
 from scotti.models.ood import flag_counts, withheld
 from scotti.models.runtime import ScottiRuntime, load_pair
 

@@ -47,7 +47,7 @@ from scotti.evaluation.sampling import Prediction
 from scotti.firmware_protocol.pairing import PairedFrame
 from scotti.models.input_checks import OUT_OF_RANGE, UNLOADED, FrameStats, frame_stats, window_flags
 from scotti.models.ood import UNFAMILIAR
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.runtime import ScottiRuntime, StepBatch
 
 if TYPE_CHECKING:  # replay imports this module
     from scotti.evaluation.replay import SessionReplay
@@ -243,6 +243,34 @@ class ChunkedSegments:
         raise NotImplementedError
 
 
+def add_predictions(
+    per_lane: list[list[Prediction]],
+    buf: _Chunk,
+    rows: npt.NDArray[np.int64],
+    active: npt.NDArray[np.int64],
+    scored: npt.NDArray[np.bool_],
+    flags: tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]],
+    result: StepBatch,
+) -> None:
+    """One step's scored rows as predictions, each to its lane (either form's step)."""
+    unloaded, out_of_range = flags  # (unloaded, out_of_range) of the window ending at j
+    unfamiliar = result.unfamiliar
+    for i in np.flatnonzero(scored):
+        j = int(rows[i])
+        named = _INPUT_FLAGS[bool(unloaded[j]), bool(out_of_range[j])]
+        if unfamiliar[i]:
+            named = (*named, UNFAMILIAR)
+        per_lane[int(active[i])].append(
+            Prediction(
+                int(buf.ext[j]) + 1,
+                result.pose[i],
+                result.action_probs[i],
+                float(result.progress[i]),
+                named,
+            )
+        )
+
+
 @dataclass
 class SegmentTrack(ChunkedSegments):
     """The paper form's step graph: an embedding cache per segment."""
@@ -261,7 +289,6 @@ class SegmentTrack(ChunkedSegments):
 
         Runs on a pool thread with jobs > 1: it touches nothing but its arguments."""
         t = self.runtime.window
-        unloaded, out_of_range = flags  # (unloaded, out_of_range) of the window ending at j
         lanes = len(score_from)
         per_lane: list[list[Prediction]] = [[] for _ in range(lanes)]
         batches: list[tuple[float, int]] = []
@@ -284,21 +311,7 @@ class SegmentTrack(ChunkedSegments):
             head = (head + 1) % (t - 1)
             scored = (rows >= score_from[active]) & (buf.run_pos[rows] >= t - 1)
             scored &= buf.has_ext[rows]
-            unfamiliar = result.unfamiliar
-            for i in np.flatnonzero(scored):
-                j = int(rows[i])
-                named = _INPUT_FLAGS[bool(unloaded[j]), bool(out_of_range[j])]
-                if unfamiliar[i]:
-                    named = (*named, UNFAMILIAR)
-                per_lane[int(active[i])].append(
-                    Prediction(
-                        int(buf.ext[j]) + 1,
-                        result.pose[i],
-                        result.action_probs[i],
-                        float(result.progress[i]),
-                        named,
-                    )
-                )
+            add_predictions(per_lane, buf, rows, active, scored, flags, result)
         made = [m for lane in per_lane for m in lane]  # lanes are contiguous: time order
         return _Stepped(made, batches, model_cpu_s)
 

@@ -17,7 +17,7 @@ import onnx
 from scotti.cli.main import main
 from scotti.evaluation import segments
 from scotti.evaluation.evaluation import SessionReplay, evaluate_sessions, replay_session
-from scotti.evaluation.kv_segments import KvSegmentTrack, open_step_graph
+from scotti.evaluation.kv_segments import KvSegmentTrack
 from scotti.evaluation.sampling import Prediction
 from scotti.export.onnx_export import Checkpoint, export_model
 from scotti.firmware_protocol.frame_path import FramePath, PairSeq, stream_pairs
@@ -25,7 +25,7 @@ from scotti.firmware_protocol.packets import Foot
 from scotti.firmware_protocol.session import PacketRecord, SessionReader
 from scotti.models.contract import MAX_COUNT, META_OOD
 from scotti.models.input_checks import OUT_OF_RANGE, UNLOADED
-from scotti.models.kv_streaming import KvCache, KvStepRuntime, KvStreamingWindow
+from scotti.models.kv_streaming import KvCache, KvStepRuntime, KvStreamingWindow, open_step_model
 from scotti.models.ood import UNFAMILIAR, OodStats, flag_shares
 from scotti.models.runtime import ScottiRuntime, window_graph_for
 
@@ -100,7 +100,7 @@ def test_kv_segments_predict_what_the_window_pushed_frame_by_frame_predicts(
     # at batch 1 one segment steps across the restart and scores the frames after it.
     silent = {(k, foot) for k in range(250, 270) for foot in (0, 1)}
     path = write_session(tmp_path / "gap.ses", 420, first_seq=65_500, drop_foot=silent)
-    runtime = open_step_graph(kv_model)
+    runtime = open_step_model(kv_model)
     assert isinstance(runtime, KvStepRuntime)
     assert runtime.receptive_field == 118
     batched = replay_session(path, runtime, batch=batch)

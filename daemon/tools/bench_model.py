@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scotti.models.contract import FRAME_RATE_HZ, MAX_COUNT
+from scotti.models.contract import FRAME_RATE_HZ
 
 
 def engine_batch(pairs: int, batch: bool, max_batch: int) -> int:
@@ -31,18 +31,12 @@ def model_cpu_ms(model: Path, sizes: list[int], seconds: float = 1.5) -> dict[in
     """CPU ms per frame of the model's step at each batch size: the median of rounds
     (sizes interleaved, so that a busy host weighs on all of them alike), about
     ``seconds`` of CPU in all."""
+    from scotti.daemon.tools.step_costs import step_inputs
     from scotti.models.runtime import ScottiRuntime
 
     runtime = ScottiRuntime(model)
-    rng = np.random.default_rng(0)
     sizes = sorted(set(sizes))
-    inputs = {
-        b: (
-            rng.integers(0, MAX_COUNT // 3, (b, *runtime.frame_shape)).astype(np.float32),
-            rng.normal(size=(b, runtime.window - 1, runtime.embed_dim)).astype(np.float32),
-        )
-        for b in sizes
-    }
+    inputs = step_inputs(runtime, sizes)
     for frames, past in inputs.values():  # onnxruntime plans each new shape once
         runtime.run_steps(frames, past)
     per_frame: dict[int, list[float]] = {b: [] for b in sizes}

@@ -12,23 +12,30 @@ import time
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 from scotti.models.contract import MAX_COUNT
+from scotti.models.runtime import ScottiRuntime
 
 
-def step_costs(model: Path, sizes: list[int], repeats: int = 15) -> int:
-    """The model's step alone: ms per frame at each batch size, sizes interleaved so
-    that a busy host weighs on all of them alike."""
-    from scotti.models.runtime import ScottiRuntime
-
-    runtime = ScottiRuntime(model)
+def step_inputs(
+    runtime: ScottiRuntime, sizes: list[int]
+) -> dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]:
+    """Per batch size, frames and cached embeddings to time the step on (seeded)."""
     rng = np.random.default_rng(0)
-    inputs = {
+    return {
         b: (
             rng.integers(0, MAX_COUNT // 3, (b, *runtime.frame_shape)).astype(np.float32),
             rng.normal(size=(b, runtime.window - 1, runtime.embed_dim)).astype(np.float32),
         )
         for b in sizes
     }
+
+
+def step_costs(model: Path, sizes: list[int], repeats: int = 15) -> int:
+    """The model's step alone: ms per frame at each batch size, sizes interleaved so
+    that a busy host weighs on all of them alike."""
+    runtime = ScottiRuntime(model)
+    inputs = step_inputs(runtime, sizes)
     for frames, past in inputs.values():  # onnxruntime plans each new shape once
         runtime.step_batch(frames, past)
     per_frame: dict[int, list[float]] = {b: [] for b in sizes}
