@@ -42,25 +42,24 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 from pydantic import BaseModel, ValidationError
-from scotti.daemon.input.recording import Recorder, RecordingError
+from scotti.daemon.mqtt.control_recording import ControlRecordings, Outcome
 from scotti.daemon.mqtt.publisher import explain
 from scotti.daemon.mqtt.schemas import (
     CONTENT_TYPES,
     REQUESTS,
-    Event,
     EventMark,
     RecordStart,
     Reply,
 )
-from scotti.daemon.outputs import OutputError
-from scotti.daemon.outputs.event_mcap import McapRecording, mcap_missing
+from scotti.daemon.outputs.event_mcap import mcap_missing
 from scotti.daemon.settings.mqtt import MqttSettings
 from scotti.daemon.waiting import Backoff, wait_event
-from scotti.firmware_protocol.session import EventRecord
 
 if TYPE_CHECKING:
     from scotti.daemon.frames.pipeline import Pipeline, Prediction
     from scotti.daemon.mqtt.schemas import Status
+
+__all__ = ["Control", "ControlStats", "mcap_missing"]  # mcap_missing: tests ask it here
 
 log = logging.getLogger(__name__)
 
@@ -112,15 +111,6 @@ def _bounded_queue(stats: ControlStats) -> type[asyncio.Queue[aiomqtt.Message]]:
     return DroppingQueue
 
 
-@dataclass
-class _Recording:
-    """What ``record/start`` opened."""
-
-    session: Recorder
-    mcap: McapRecording | None
-    started_mono: float
-
-
 class Control:
     """One device's remote control; ``await control.run(stop)`` until ``stop``, then
     ``await control.close()`` once the pipeline no longer records. ``mcap_metadata``: the
@@ -142,9 +132,10 @@ class Control:
         self._own = f"{settings.topic_prefix}/"
         self._replies = settings.topic("reply/")
         self._v5 = settings.protocol == "5"
-        self._recording: _Recording | None = None
+        self._recordings = ControlRecordings(
+            settings.control_dir, device_id, pipeline, mcap_metadata
+        )
         self._last_seq: int | None = None
-        self._status: Status | None = None
         self._next_at = 0.0  # monotonic time the next request may be handled
         self._flood_limit = max(FLOOD_DROPS_MIN, round(2 * settings.control_rate))
         self._window = (time.monotonic(), 0)  # (start, dropped by then) of the flood window
@@ -170,13 +161,10 @@ class Control:
     # --- from the device (event loop, never blocks) ------------------------------
     def prediction(self, p: Prediction) -> None:
         self._last_seq = p.seq
-        if self._recording is not None and self._recording.mcap is not None:
-            self._recording.mcap.prediction(p)
+        self._recordings.prediction(p)
 
     def status(self, status: Status) -> None:
-        self._status = status
-        if self._recording is not None and self._recording.mcap is not None:
-            self._recording.mcap.status(status)
+        self._recordings.status(status)
 
     # --- the connection ------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
@@ -324,95 +312,29 @@ class Control:
         return self._ok(verb)
 
     async def _record_start(self, request: RecordStart) -> Reply:
-        verb = "record/start"
-        current = self.pipeline.recorder
-        if current is not None and current.is_open:
-            return self._fail(verb, f"already recording to {current.path}; record/stop first")
-        missing = mcap_missing()
-        if request.mcap is True and missing is not None:
-            return self._fail(verb, missing)
-        folder = self.settings.control_dir
-        target = folder / f"{request.name}.scotti" if request.name else folder
-        try:
-            session = await asyncio.to_thread(Recorder, target, device=self.device_id)
-        except RecordingError as exc:
-            return self._fail(verb, str(exc))
-        mcap: McapRecording | None = None
-        if request.mcap is not False and missing is None:
-            try:
-                mcap = await asyncio.to_thread(
-                    McapRecording,
-                    session.path.with_suffix(".mcap"),
-                    self.device_id,
-                    self.mcap_metadata,
-                )
-            except OutputError as exc:  # all or nothing: the session file goes too
-                await asyncio.to_thread(session.close)
-                session.path.unlink(missing_ok=True)
-                return self._fail(verb, str(exc).removeprefix("--record-mcap: "))
-            if self._status is not None:
-                mcap.status(self._status)  # the file starts with the device's state
-        self._recording = _Recording(session, mcap, time.monotonic())
-        self.pipeline.recorder = session
-        note = missing if request.mcap is None else None
-        return self._ok(
-            verb, session=str(session.path), mcap=str(mcap.path) if mcap else None, note=note
-        )
+        return self._reply("record/start", await self._recordings.start(request))
 
     async def _record_stop(self) -> Reply:
-        verb = "record/stop"
-        session = self.pipeline.recorder
-        ours = self._recording
-        if session is None:
-            return self._fail(verb, "nothing is recording")
-        self.pipeline.recorder = None
-        self._recording = None if ours is None or ours.session is session else ours
-        mcap = ours.mcap if ours is not None and ours.session is session else None
-        await asyncio.to_thread(session.close)
-        if mcap is not None:
-            await asyncio.to_thread(mcap.close)
-        if session.failed:  # the disk filled or the file went away while recording
-            return self._fail(verb, session.failed)
-        seconds = time.monotonic() - ours.started_mono if ours is not None else None
-        log.info("remote control: recording to %s stopped", session.path)
-        return self._ok(
-            verb,
-            session=str(session.path),
-            mcap=str(mcap.path) if mcap is not None else None,
-            seconds=round(seconds, 3) if seconds is not None else None,
-            events=session.events,
-        )
+        outcome = await self._recordings.stop()
+        if not isinstance(outcome, str):
+            log.info("remote control: recording to %s stopped", outcome["session"])
+        return self._reply("record/stop", outcome)
 
     async def _event_mark(self, request: EventMark) -> Reply:
-        mono, wall = time.monotonic_ns(), time.time_ns()
         # One seq for the files, the echo and the reply: predictions go on arriving
         # while the echo is being sent, and the reply must name the frame the mark was put at.
-        seq = self._last_seq
-        written: list[str] = []
-        session = self.pipeline.recorder
-        record = EventRecord(mono, request.label, request.detail, wall)
-        if session is not None and session.mark(record):
-            written.append(str(session.path))
-        ours = self._recording
-        if ours is not None and ours.mcap is not None and ours.mcap.event(record, seq):
-            written.append(str(ours.mcap.path))
-        event = Event(
-            label=request.label,
-            detail=request.detail,
-            seq=seq,
-            host_wall_ns=wall,
-            host_mono_ns=mono,
-            written_to=written,
-        )
+        event, fields = self._recordings.mark(request, self._last_seq)
         await self._send(self.settings.topic("event"), event, None)
-        note = None if written else "not recording: echoed on the event topic only"
-        return self._ok("event/mark", seq=seq, written_to=written, note=note)
+        return self._ok("event/mark", **fields)
 
     # --- answers -----------------------------------------------------------------------
     def _ok(self, verb: str, **fields: Any) -> Reply:
         self.stats.ok += 1
         fields.setdefault("seq", self._last_seq)
         return Reply(ok=True, verb=verb, host_wall_ns=time.time_ns(), **fields)
+
+    def _reply(self, verb: str, outcome: Outcome) -> Reply:
+        return self._fail(verb, outcome) if isinstance(outcome, str) else self._ok(verb, **outcome)
 
     def _fail(self, verb: str, reason: str) -> Reply:
         self.stats.refused += 1
@@ -446,14 +368,7 @@ class Control:
     # --- the end -----------------------------------------------------------------------
     async def close(self) -> None:
         """Close what ``record/start`` opened (the files' last bytes, the MCAP index)."""
-        ours, self._recording = self._recording, None
-        if ours is None:
-            return
-        if self.pipeline.recorder is ours.session:
-            self.pipeline.recorder = None
-        await asyncio.to_thread(ours.session.close)
-        if ours.mcap is not None:
-            await asyncio.to_thread(ours.mcap.close)
+        await self._recordings.close()
 
 
 def _parse(model: type[BaseModel], payload: Any, content_type: str | None) -> BaseModel:
