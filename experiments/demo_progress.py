@@ -1,4 +1,4 @@
-"""Does progress sweep 0 -> 1 and does the daemon count repetitions, on the demo's scene?
+"""Does progress sweep 0 -> 1, and how many repetitions does the daemon count, on the demo's scene?
 
     python experiments/demo_progress.py [--model models/scotti-default.onnx] [--scene demo]
         [--session FILE] [--high H --low L]
@@ -12,14 +12,21 @@ and, per repeated action of the script, prints:
 - how far the predicted progress sweeps (5th and 95th percentile, and the
   share of repetitions whose predictions reach below 0.2 and above 0.8);
 - progress MSE against the labels;
-- repetitions the daemon's counter (daemon/inference/repetitions.py, fed the predicted
-  action and progress like the pipeline; ``--high``/``--low`` try other
-  thresholds) completes, beside what the daemon's counter completes on the
-  labels.
+- repetitions counted the daemon's way: every prediction in time order through
+  ``daemon.inference.published.publish`` (the pipeline's own rule: a flagged
+  prediction is withheld and the counter neither counts nor forgets), the
+  counter started over where the window restarted; ``--high``/``--low`` try
+  other thresholds of the counter;
+- the same ignoring the flags (what this script printed before: not what the
+  daemon publishes);
+- what the daemon's counter completes on the labels (the label records of the
+  whole session in order);
+- the share of the predictions of that action (most likely action) that a
+  flag withheld.
 
-Then a strip of the first squats: predicted progress against the label, one
-character per frame. The demo scene is not in the training corpus (its own
-seed and subject).
+A repetition is credited to the action the counter was counting. Then a strip
+of the first squats: predicted progress against the label, one character per
+frame. The demo scene is not in the training corpus (its own seed and subject).
 """
 
 from __future__ import annotations
@@ -28,14 +35,20 @@ import argparse
 import subprocess
 import sys
 import tempfile
+from collections import Counter
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 from common import ROOT
+from scotti.daemon.inference.published import Published, publish
 from scotti.daemon.inference.repetitions import RepetitionCounter
 from scotti.daemon.input.simulated import resolve_scene
 from scotti.evaluation.replay import replay_session
+from scotti.evaluation.sampling import Prediction
+from scotti.firmware_protocol.session import LabelRecord, SessionReader
 from scotti.models import contract
+from scotti.models.ood import withheld
 from scotti.models.runtime import ScottiRuntime
 
 LEVELS = " .:-=+*#%@"  # 0..1 in ten steps
@@ -46,24 +59,63 @@ def strip(values: np.ndarray) -> str:
     return "".join(LEVELS[int(i)] for i in idx)
 
 
-def count(
-    actions: np.ndarray, progress: np.ndarray, counter: RepetitionCounter | None = None
-) -> int:
-    """Repetitions the daemon's counter completes over this stretch.
+def streams(made: Sequence[Prediction]) -> list[Sequence[Prediction]]:
+    """The predictions cut where the daemon's window restarted, its counter with it.
 
-    Every increment counts, also across a reset: the stretch joins the
-    script's sets of one action, and the counter starts over at each (the
-    action changed in between), so its value at the end would only be the
-    last set's.
-    """
-    counter = counter or RepetitionCounter()
-    completed, last = 0, 0
-    for a, p in zip(actions.tolist(), progress.tolist(), strict=True):
-        n = counter.update(int(a), float(p))
+    A restart leaves at least T-1 frames without a prediction while the window
+    warms up again, so a break in the predictions' seqs is where one happened
+    (the replay keeps no other mark of it). Pairs without a seq would break it
+    too, and the daemon counts through those: the script prints the restarts
+    beside the stretches, equal where there were none."""
+    cuts = [i for i in range(1, len(made)) if made[i].ext != made[i - 1].ext + 1]
+    return [made[a:b] for a, b in zip([0, *cuts], [*cuts, len(made)], strict=True)]
+
+
+def published(
+    made: Sequence[Prediction], *, flags: bool = True, high: float = 0.55, low: float = 0.3
+) -> list[Published]:
+    """What the daemon publishes for each of a replay's predictions, in order: each through
+    ``publish`` with the counter started over at every restart (``flags=False``: as if no
+    flag withheld anything)."""
+    out: list[Published] = []
+    for stream in streams(made):
+        counter = RepetitionCounter(high, low)
+        for m in stream:
+            out.append(
+                publish(int(np.argmax(m.probs)), m.progress, m.flags if flags else (), counter)
+            )
+    return out
+
+
+def completed(stream: Iterable[Published]) -> Counter[int]:
+    """Repetitions completed per action over a published stream.
+
+    Every increment counts, also across the counter starting over: a session
+    holds several sets of one action, and the count the counter ends with would
+    only be the last set's. The counter counts only while the published action is
+    the one it counts, so each repetition is credited to that action."""
+    done: Counter[int] = Counter()
+    last = 0
+    for p in stream:
+        if p.withheld is not None:
+            continue  # the counter neither counted nor forgot
+        n = max(p.repetition, 0)  # -1: standing, the next action counts from 0
         if n > last:
-            completed += n - last
-        last = max(n, 0)
-    return completed
+            done[p.action] += n - last
+        last = n
+    return done
+
+
+def labelled(labels: Sequence[LabelRecord]) -> Counter[int]:
+    """What the daemon's counter completes on the labels of the whole session."""
+    counter = RepetitionCounter()
+    return completed(publish(lb.action, lb.progress, (), counter) for lb in labels)
+
+
+def withheld_share(made: Sequence[Prediction], action: int) -> float:
+    """Share of the predictions whose most likely action is ``action`` that a flag withheld."""
+    of = [m for m in made if int(np.argmax(m.probs)) == action]
+    return sum(withheld(m.flags) is not None for m in of) / len(of) if of else float("nan")
 
 
 def reaches(progress: np.ndarray, truth: np.ndarray) -> float:
@@ -74,6 +126,11 @@ def reaches(progress: np.ndarray, truth: np.ndarray) -> float:
         return float("nan")
     ok = [progress[i].min() < 0.2 and progress[i].max() > 0.8 for i in pieces]
     return float(np.mean(ok))
+
+
+def read_labels(path: Path) -> list[LabelRecord]:
+    with SessionReader(path) as reader:
+        return [r for r in reader if isinstance(r, LabelRecord)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.session is not None:
         name = args.session.name
         replay = replay_session(args.session, runtime)
+        labels = read_labels(args.session)
     else:
         scene = resolve_scene(args.scene)
         name = scene.name
@@ -104,17 +162,23 @@ def main(argv: list[str] | None = None) -> int:
                 stdout=subprocess.DEVNULL,
             )
             replay = replay_session(session, runtime)
+            labels = read_labels(session)
     default = RepetitionCounter()
     high = default.high if args.high is None else args.high
     low = default.low if args.low is None else args.low
+    daemon = completed(published(replay.made, high=high, low=low))
+    unflagged = completed(published(replay.made, flags=False, high=high, low=low))
+    truth_count = labelled(labels)
     f = replay.frames
     progress = np.where(np.isfinite(f.progress_pred), f.progress_pred, np.nan)
     print(
-        f"{args.model.name} on {name}: {len(f.action_true)} frames scored;"
-        f" counter high {high}, low {low}"
+        f"{args.model.name} on {name}: {len(replay.made)} predictions"
+        f" ({replay.window_restarts} window restarts, {len(streams(replay.made))} stretches),"
+        f" {len(f.action_true)} scored; counter high {high}, low {low}"
     )
     print(
-        "action            frames  p5    p95   reps reaching <0.2 and >0.8  MSE    counted / labels"
+        "action            frames  p5    p95   reach <0.2 and >0.8  MSE    "
+        "counted: daemon  no flags  labels  withheld"
     )
     for a in sorted(contract.REPEATED_ACTIONS):
         rows = np.flatnonzero(f.action_true == a)
@@ -125,13 +189,10 @@ def main(argv: list[str] | None = None) -> int:
         ok = np.isfinite(truth) & np.isfinite(pred)
         mse = float(np.mean((pred[ok] - truth[ok]) ** 2)) if ok.any() else float("nan")
         p5, p95 = np.nanpercentile(pred, [5, 95]) if np.isfinite(pred).any() else (np.nan,) * 2
-        counted = count(
-            f.action_pred[rows], np.nan_to_num(pred, nan=0.5), RepetitionCounter(high, low)
-        )
-        labelled = count(f.action_true[rows], np.nan_to_num(truth, nan=0.5))
         print(
             f"{contract.ACTIONS[a]:17s} {rows.size:6d}  {p5:.2f}  {p95:.2f}  "
-            f"{reaches(pred, truth):24.0%}     {mse:.4f} {counted:5d} / {labelled}"
+            f"{reaches(pred, truth):17.0%}     {mse:.4f} {daemon[a]:14d} {unflagged[a]:9d}"
+            f" {truth_count[a]:7d} {withheld_share(replay.made, a):9.1%}"
         )
     squat = np.flatnonzero(f.action_true == contract.ACTIONS.index("squat"))[:240]
     if squat.size:

@@ -27,6 +27,7 @@ from scotti.daemon.inference.engine import (
     InferenceResult,
     InferenceWorker,
 )
+from scotti.daemon.inference.published import publish
 from scotti.daemon.inference.repetitions import RepetitionCounter
 from scotti.daemon.inference.window import Window
 from scotti.daemon.input.recording import Recorder
@@ -35,9 +36,8 @@ from scotti.daemon.service.counters import Counters
 from scotti.firmware_protocol.frame_path import FramePath, FrameWatch
 from scotti.firmware_protocol.packets import BoardStatus
 from scotti.firmware_protocol.pairing import PairedFrame, PairingConfig
-from scotti.models.contract import FRAME_RATE_HZ, NO_ACTION, has_progress
+from scotti.models.contract import FRAME_RATE_HZ
 from scotti.models.kv_streaming import StepModel
-from scotti.models.ood import withheld
 
 log = logging.getLogger(__name__)
 
@@ -262,17 +262,9 @@ class Pipeline:
         pair = result.job.frame
         now_mono = time.monotonic_ns()
         last_byte = pair.last_byte_mono_ns
-        action = int(np.argmax(probs))
-        held_back = withheld(model_flags)
-        if held_back is not None:
-            # Nobody there, not a pressure map, or unlike anything learnt: no action, no
-            # progress, and the repetition counter neither counts nor forgets.
-            action, progress = NO_ACTION, float("nan")
-            repetition = -1
-        else:
-            if not has_progress(action):
-                progress = float("nan")  # the progress head says nothing while standing
-            repetition = self.repetitions.update(action, progress)
+        action, progress, repetition, held_back = publish(
+            int(np.argmax(probs)), progress, model_flags, self.repetitions
+        )
         left_clock, right_clock = pair.clocks
         prediction = _frozen(Prediction, {
             "seq": result.job.seq,
