@@ -19,8 +19,7 @@ and, per repeated action of the script, prints:
   other thresholds of the counter;
 - the same ignoring the flags (what this script printed before: not what the
   daemon publishes);
-- what the daemon's counter completes on the labels (the label records of the
-  whole session in order);
+- what the daemon's counter completes on the labels of the times predicted for;
 - the share of the predictions of that action (most likely action) that a
   flag withheld.
 
@@ -44,9 +43,9 @@ from common import ROOT
 from scotti.daemon.inference.published import Published, publish
 from scotti.daemon.inference.repetitions import RepetitionCounter
 from scotti.daemon.input.simulated import resolve_scene
+from scotti.evaluation.frames import FrameSet
 from scotti.evaluation.replay import replay_session
 from scotti.evaluation.sampling import Prediction
-from scotti.firmware_protocol.session import LabelRecord, SessionReader
 from scotti.models import contract
 from scotti.models.ood import withheld
 from scotti.models.runtime import ScottiRuntime
@@ -72,7 +71,7 @@ def streams(made: Sequence[Prediction]) -> list[Sequence[Prediction]]:
 
 
 def published(
-    made: Sequence[Prediction], *, flags: bool = True, high: float = 0.55, low: float = 0.3
+    made: Sequence[Prediction], *, high: float, low: float, flags: bool = True
 ) -> list[Published]:
     """What the daemon publishes for each of a replay's predictions, in order: each through
     ``publish`` with the counter started over at every restart (``flags=False``: as if no
@@ -106,10 +105,12 @@ def completed(stream: Iterable[Published]) -> Counter[int]:
     return done
 
 
-def labelled(labels: Sequence[LabelRecord]) -> Counter[int]:
-    """What the daemon's counter completes on the labels of the whole session."""
+def labelled(frames: FrameSet) -> Counter[int]:
+    """What the daemon's counter completes on the labels of the times predicted for
+    (the window's warm-up has none: the daemon could not count there)."""
     counter = RepetitionCounter()
-    return completed(publish(lb.action, lb.progress, (), counter) for lb in labels)
+    steps = zip(frames.action_true.tolist(), frames.progress_true.tolist(), strict=True)
+    return completed(publish(a, p, (), counter) for a, p in steps)
 
 
 def withheld_share(made: Sequence[Prediction], action: int) -> float:
@@ -128,11 +129,6 @@ def reaches(progress: np.ndarray, truth: np.ndarray) -> float:
     return float(np.mean(ok))
 
 
-def read_labels(path: Path) -> list[LabelRecord]:
-    with SessionReader(path) as reader:
-        return [r for r in reader if isinstance(r, LabelRecord)]
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python experiments/demo_progress.py")
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "scotti-default.onnx")
@@ -149,7 +145,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.session is not None:
         name = args.session.name
         replay = replay_session(args.session, runtime)
-        labels = read_labels(args.session)
     else:
         scene = resolve_scene(args.scene)
         name = scene.name
@@ -162,13 +157,12 @@ def main(argv: list[str] | None = None) -> int:
                 stdout=subprocess.DEVNULL,
             )
             replay = replay_session(session, runtime)
-            labels = read_labels(session)
     default = RepetitionCounter()
     high = default.high if args.high is None else args.high
     low = default.low if args.low is None else args.low
     daemon = completed(published(replay.made, high=high, low=low))
     unflagged = completed(published(replay.made, flags=False, high=high, low=low))
-    truth_count = labelled(labels)
+    truth_count = labelled(replay.frames)
     f = replay.frames
     progress = np.where(np.isfinite(f.progress_pred), f.progress_pred, np.nan)
     print(

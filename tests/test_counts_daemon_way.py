@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import math
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,7 @@ ONE_REP = [0.05, 0.2, 0.4, 0.6, 0.8, 0.9, 0.5, 0.2, 0.05]  # up through 0.55, do
 TOP = [i for i, p in enumerate(ONE_REP) if p >= 0.55]
 
 
-def run(steps: list[tuple[int, float, tuple[str, ...]]]) -> list[Published]:
+def run(steps: Iterable[tuple[int, float, tuple[str, ...]]]) -> list[Published]:
     counter = RepetitionCounter()
     return [publish(a, p, flags, counter) for a, p, flags in steps]
 
