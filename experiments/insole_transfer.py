@@ -32,7 +32,7 @@ import hashlib
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -248,6 +248,43 @@ def pct(x: float) -> str:
 # --- the command --------------------------------------------------------------------
 
 
+def sensor_figures(
+    model: Path, every: int, only: Sequence[str] | None = None
+) -> Iterator[dict[str, Any]]:
+    """Each sensor of ``sensors()`` (or those named in ``only``): the model's figures over
+    the three people read through it (``pooled``), with the sensor's name and what differs,
+    the drawn sensors of the ``drawn`` row, and the seconds it took. The people must have
+    been simulated (``main`` does it)."""
+    people = sorted(PEOPLE.glob("subject-*.ses"))
+    if not people:
+        raise ExperimentError(f"{PEOPLE}: no simulated sessions")
+    for entry in sensors():
+        if only is not None and entry.name not in only:
+            continue
+        t0 = time.monotonic()
+        results = []
+        for i, source in enumerate(people):
+            sensor = sensor_for(entry, i)
+            path = source if sensor is None else rendered(source, sensor, entry.name)
+            results.append(score_file(path, model, every))
+        drawn = [sensor_for(entry, i) for i in range(len(people))] if entry.per_person else []
+        yield {
+            "sensor": entry.name,
+            "what": entry.what,
+            **pooled(results),
+            "drawn": [s.describe() for s in drawn if s is not None],
+            "seconds": time.monotonic() - t0,
+        }
+
+
+def simulate_people() -> None:
+    """The three people of the table, simulated once (kept under data/insole_transfer)."""
+    if not (PEOPLE / "manifest.json").is_file():
+        # No manifest: a render that was cut short; its files are made again.
+        cmd = scotti_command("sim", "corpus", "-o", PEOPLE, *CORPUS, "--force")
+        run(cmd, WORK / "sim.log")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python experiments/insole_transfer.py",
@@ -261,32 +298,15 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         started = time.monotonic()
-        if not (PEOPLE / "manifest.json").is_file():
-            # No manifest: a render that was cut short; its files are made again.
-            cmd = scotti_command("sim", "corpus", "-o", PEOPLE, *CORPUS, "--force")
-            run(cmd, WORK / "sim.log")
-        people = sorted(PEOPLE.glob("subject-*.ses"))
-        if not people:
-            raise ExperimentError(f"{PEOPLE}: no simulated sessions")
+        simulate_people()
         model = args.model.resolve()
         rows, report = [], []
-        for entry in sensors():
-            if args.only is not None and entry.name not in args.only:
-                continue
-            t0 = time.monotonic()
-            results = []
-            for i, source in enumerate(people):
-                sensor = sensor_for(entry, i)
-                path = source if sensor is None else rendered(source, sensor, entry.name)
-                results.append(score_file(path, model, args.every))
-            figures = pooled(results)
-            drawn = [sensor_for(entry, i) for i in range(len(people))] if entry.per_person else []
-            report.append({"sensor": entry.name, "what": entry.what, **figures})
-            report[-1]["drawn"] = [s.describe() for s in drawn if s is not None]
+        for figures in sensor_figures(model, args.every, args.only):
+            report.append(figures)
             rows.append(
                 [
-                    f"`{entry.name}`",
-                    entry.what,
+                    f"`{figures['sensor']}`",
+                    figures["what"],
                     pct(figures["accuracy"]),
                     f"{figures['app']:.3f}",
                     pct(figures["squat"]),
@@ -296,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
                     pct(figures["wrong_unflagged"]),
                 ]
             )
-            print(" | ".join(rows[-1]) + f"  ({time.monotonic() - t0:.0f} s)", flush=True)
+            print(" | ".join(rows[-1]) + f"  ({figures['seconds']:.0f} s)", flush=True)
         header = [
             "sensor", "what differs from ours", "accuracy", "APP", "squat", "walking",
             "standing", "unfamiliar", "wrong, unflagged",

@@ -1,0 +1,228 @@
+"""Judge a candidate model by the rule of docs/generalisation.md, in one command.
+
+    python experiments/wide_rule.py runs/v14-p1-wide6/models/scotti-ship.onnx \\
+        [--shipped models/scotti-default.onnx] [--every 8] [--json OUT]
+
+The rule was written before any figure of the wide recipe was seen: a
+candidate replaces the shipped model only if, on the same replays as the
+shipped graph,
+
+1. on partition p1's held-out people (experiments/partitions.json, the
+   session files under data/corpus7/realistic) it keeps the paper's bar (APP
+   >= 0.8952, progress MSE <= 0.0223) and loses at most 1 point of accuracy
+   and 0.01 of APP against the shipped model;
+2. on the real recordings (experiments/real_data.py, both feet present,
+   pooled) its walking share is higher and its share of confident wrong
+   answers that go out unflagged is not higher;
+3. through the foreign sensors of experiments/insole_transfer.py its mean
+   accuracy is higher, and no sensor has more than 5 % of predictions wrong
+   and unflagged;
+4. on `sim/scenes/squat.toml` its accuracy is higher.
+
+Each part runs what its own command runs (``scotti eval --json``, the
+experiments' functions) and prints the figures beside each other; the last
+line says whether the candidate ships and, if not, which lines failed. Exit 0
+either way (a measurement), 2 when something needed is missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import insole_transfer
+import real_data
+from common import ROOT, ExperimentError, scotti_command
+
+# The paper's bar (Table 2, real people) and the rule's margins against the shipped model.
+PAPER_APP: Final = 0.8952
+PAPER_PROGRESS_MSE: Final = 0.0223
+MAX_ACCURACY_LOSS: Final = 0.01
+MAX_APP_LOSS: Final = 0.01
+MAX_WRONG_UNFLAGGED: Final = 0.05
+PARTITION: Final = "p1"
+HELD_OUT_DIR: Final = ROOT / "data" / "corpus7" / "realistic"
+SQUAT_SCENE: Final = ROOT / "sim" / "scenes" / "squat.toml"
+WORK: Final = ROOT / "data" / "wide_rule"
+
+
+@dataclass
+class Line:
+    """One line of the rule: what was compared, both figures, and the verdict."""
+
+    rule: int
+    what: str
+    candidate: float
+    shipped: float
+    bar: str
+    passed: bool
+
+
+def held_out_sessions() -> list[Path]:
+    """Partition p1's test people, as session files of the corpus the partitions name."""
+    partitions = json.loads((ROOT / "experiments" / "partitions.json").read_text())
+    part = next(p for p in partitions["partitions"] if p["name"] == PARTITION)
+    files = [HELD_OUT_DIR / f"{s}.ses" for s in part["test"]]
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        msg = f"missing held-out sessions {', '.join(missing)} (export/TRAINING.md makes them)"
+        raise ExperimentError(msg)
+    return files
+
+
+def eval_json(sessions: Sequence[Path], models: Sequence[Path]) -> list[dict[str, Any]]:
+    """``scotti eval SESSIONS --model A --model B --json``: one report per model."""
+    cmd = scotti_command("eval", *sessions, *[a for m in models for a in ("--model", m)], "--json")
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False, cwd=ROOT)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["no message"])[-1]
+        raise ExperimentError(f"scotti eval exited {done.returncode}: {last}")
+    reports = json.loads(done.stdout)
+    return list(reports if isinstance(reports, list) else [reports])
+
+
+def held_out_lines(candidate: Path, shipped: Path) -> list[Line]:
+    cand, ship = (r["metrics"] for r in eval_json(held_out_sessions(), [candidate, shipped]))
+    return [
+        Line(1, "p1 held out: APP (paper's bar)", cand["app"], ship["app"],
+             f">= {PAPER_APP}", cand["app"] >= PAPER_APP),
+        Line(1, "p1 held out: progress MSE (paper's bar)", cand["progress_mse"],
+             ship["progress_mse"], f"<= {PAPER_PROGRESS_MSE}",
+             cand["progress_mse"] <= PAPER_PROGRESS_MSE),
+        Line(1, "p1 held out: accuracy", cand["action_accuracy"], ship["action_accuracy"],
+             f">= shipped - {MAX_ACCURACY_LOSS}",
+             cand["action_accuracy"] >= ship["action_accuracy"] - MAX_ACCURACY_LOSS),
+        Line(1, "p1 held out: APP against the shipped", cand["app"], ship["app"],
+             f">= shipped - {MAX_APP_LOSS}", cand["app"] >= ship["app"] - MAX_APP_LOSS),
+    ]  # fmt: skip
+
+
+def pooled_share(rows: Sequence[dict[str, Any]], key: str, weight: str) -> float:
+    """A share pooled over files, each weighted by its count (real_data's pooling)."""
+    kept = [r for r in rows if r.get(key) is not None and r.get(weight)]
+    total = sum(r[weight] for r in kept)
+    return sum(r[key] * r[weight] for r in kept) / total if total else float("nan")
+
+
+def real_lines(candidate: Path, shipped: Path) -> list[Line]:
+    if not real_data.REALDATA.is_dir():
+        raise ExperimentError(f"{real_data.REALDATA}: no such folder (see its README)")
+    both_feet = [r for r in real_data.RECORDINGS if not r.one_foot]
+    rows: list[dict[str, Any]] = []
+    for rec in both_feet:
+        session = real_data.import_file(rec, real_data.REALDATA, real_data.WORK)
+        rows += real_data.score_file(rec, session, [candidate, shipped])
+    mine = {m: [r for r in rows if r["model"] == real_data.label(m)] for m in (candidate, shipped)}
+    walk = {m: pooled_share(mine[m], "walking", "walking_windows") for m in mine}
+    key = "confident_wrong_unflagged"
+    unflagged = {m: pooled_share(mine[m], key, "predictions") for m in mine}
+    return [
+        Line(2, "real files: walking share", walk[candidate], walk[shipped],
+             "> shipped", walk[candidate] > walk[shipped]),
+        Line(2, "real files: confident wrong, unflagged", unflagged[candidate],
+             unflagged[shipped], "<= shipped", unflagged[candidate] <= unflagged[shipped]),
+    ]  # fmt: skip
+
+
+def sensor_lines(candidate: Path, shipped: Path, every: int) -> list[Line]:
+    insole_transfer.simulate_people()
+    figures = {m: list(insole_transfer.sensor_figures(m, every)) for m in (candidate, shipped)}
+    mean = {m: float(np.mean([f["accuracy"] for f in figures[m]])) for m in figures}
+    worst = {m: max(figures[m], key=lambda f: f["wrong_unflagged"]) for m in figures}
+    w_cand, w_ship = worst[candidate], worst[shipped]
+    return [
+        Line(3, "foreign sensors: mean accuracy", mean[candidate], mean[shipped],
+             "> shipped", mean[candidate] > mean[shipped]),
+        Line(3, f"foreign sensors: most wrong and unflagged ({w_cand['sensor']})",
+             w_cand["wrong_unflagged"], w_ship["wrong_unflagged"],
+             f"<= {MAX_WRONG_UNFLAGGED}", w_cand["wrong_unflagged"] <= MAX_WRONG_UNFLAGGED),
+    ]  # fmt: skip
+
+
+def squat_lines(candidate: Path, shipped: Path) -> list[Line]:
+    session = WORK / "squat.scotti"
+    if not session.is_file():
+        WORK.mkdir(parents=True, exist_ok=True)
+        cmd = scotti_command("sim", SQUAT_SCENE, "-o", session, "--force")
+        subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+    cand, ship = (r["metrics"] for r in eval_json([session], [candidate, shipped]))
+    return [
+        Line(4, "sim/scenes/squat.toml: accuracy", cand["action_accuracy"],
+             ship["action_accuracy"], "> shipped",
+             cand["action_accuracy"] > ship["action_accuracy"]),
+    ]  # fmt: skip
+
+
+def verdict(lines: Sequence[Line]) -> str:
+    failed = sorted({line.rule for line in lines if not line.passed})
+    if not failed:
+        return "SHIPS: every line of the rule holds"
+    return "DOES NOT SHIP: line " + ", ".join(map(str, failed)) + " of the rule fails"
+
+
+def show(line: Line) -> str:
+    def fmt(x: float) -> str:
+        return f"{x:.4f}"
+
+    mark = "kept" if line.passed else "FAILS"
+    figures = f"{fmt(line.candidate):>8s} {fmt(line.shipped):>8s}"
+    return f"{line.rule}  {line.what:55s} {figures}  {line.bar:22s} {mark}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/wide_rule.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("candidate", type=Path, help="the step graph that would ship")
+    parser.add_argument("--shipped", type=Path, default=ROOT / "models" / "scotti-default.onnx")
+    parser.add_argument("--every", type=int, default=8, help="insole_transfer's --every")
+    parser.add_argument("--json", type=Path, help="also write the lines here")
+    args = parser.parse_args(argv)
+    candidate, shipped = args.candidate.resolve(), args.shipped.resolve()
+    parts: list[Callable[[], list[Line]]] = [
+        lambda: held_out_lines(candidate, shipped),
+        lambda: real_lines(candidate, shipped),
+        lambda: sensor_lines(candidate, shipped, args.every),
+        lambda: squat_lines(candidate, shipped),
+    ]
+    try:
+        for path in (candidate, shipped):
+            if not path.is_file():
+                raise ExperimentError(f"{path}: no such model")
+        print(f"rule  {'what':55s} {'candidate':>8s} {'shipped':>8s}  {'bar':22s}", flush=True)
+        lines: list[Line] = []
+        for part in parts:
+            started = time.monotonic()
+            for line in part():
+                lines.append(line)
+                print(show(line), flush=True)
+            print(f"   ({time.monotonic() - started:.0f} s)", flush=True)
+        print(verdict(lines))
+        if args.json:
+            out = {
+                "candidate": str(candidate),
+                "shipped": str(shipped),
+                "lines": [asdict(line) for line in lines],
+                "verdict": verdict(lines),
+            }
+            args.json.write_text(json.dumps(out, indent=1) + "\n")
+    except ExperimentError as exc:
+        print(f"wide_rule: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
