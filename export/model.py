@@ -122,8 +122,9 @@ def normalise(counts: torch.Tensor) -> torch.Tensor:
 
 
 class FrameCNN(nn.Module):
-    """One tactile frame -> one embedding: two conv layers, each ReLU + 2x2 max pool,
-    a linear projection and a batch norm over the embedding.
+    """One tactile frame -> one embedding: two conv layers, each 2x2 max pool + ReLU
+    (the paper's ReLU + pool, the same function), a linear projection and a batch
+    norm over the embedding.
 
     Why the batch norm: a frame is mostly the foot's static pattern; what moves
     from frame to frame (the centre of pressure, the share of each foot) is a
@@ -145,8 +146,12 @@ class FrameCNN(nn.Module):
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         x = normalise(frames).unsqueeze(1)  # (N, 1, H, 2W)
-        x = F.max_pool2d(F.relu(self.conv1(x)), 2)  # (N, c1, H/2, W)
-        x = F.max_pool2d(F.relu(self.conv2(x)), 2)  # (N, c2, H/4, W/2)
+        # ReLU after the pool, not before: ReLU is monotone, so relu(maxpool(x)) equals
+        # maxpool(relu(x)) exactly (values and gradients), and after the pool it touches
+        # a quarter of the elements, forward and backward. The CNN is most of a CPU
+        # training step (export/TRAINING.md, "Speed").
+        x = F.relu(F.max_pool2d(self.conv1(x), 2))  # (N, c1, H/2, W)
+        x = F.relu(F.max_pool2d(self.conv2(x), 2))  # (N, c2, H/4, W/2)
         emb: torch.Tensor = self.norm(self.proj(x.flatten(1)))  # (N, E)
         return emb
 
