@@ -5,12 +5,15 @@ The sessions are replayed through the daemon's path with the progress head's
 output as it is (``scotti eval``'s replay), a monotone map per predicted action
 is fitted from output to label, and it goes into the metadata of the step
 graph and of the window graph beside it (``NAME.window.onnx``), replacing any
-earlier one. That is an edit of the model in place, not an output file
-written beside it, so the tools' overwrite rule (refused unless ``--force``)
-does not apply: the graphs keep their names, their weights and every other
-metadata entry. Sessions of subjects the model was trained on are refused (the
-card names them): a calibration fitted on training data would hide the very
-hedging it is there to undo. Use the validation subjects; keep the test
+earlier one. Either form: the paper form's step graph or the streaming-native
+one's (``scotti.graph`` = ``step_kv``, models/kv_streaming.py), opened as ``scotti
+eval`` and the daemon open it and replayed through that form's own step loop.
+That is an edit of the model in place, not an output file written beside it,
+so the tools' overwrite rule (refused unless ``--force``) does not apply: the
+graphs keep their names, their weights and every other metadata entry.
+Sessions of subjects the model was trained on are refused (the card names
+them): a calibration fitted on training data would hide the very hedging it
+is there to undo. Use the validation subjects; keep the test
 subjects for ``scotti eval``.
 """
 
@@ -29,6 +32,7 @@ from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.session import find_session_files
 from scotti.models.contract import META_PROGRESS_CALIBRATION
 from scotti.models.errors import ModelError
+from scotti.models.kv_streaming import open_step_model
 from scotti.models.progress_calibration import ProgressCalibration, fit
 from scotti.models.runtime import ScottiRuntime, window_graph_for
 
@@ -37,16 +41,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "model",
         type=Path,
-        help="the step graph (.onnx), edited in place with its window graph: an edit of "
-        "the model, not an output file, so no --force (copy the graphs first to keep them)",
+        help="the step graph (.onnx, either form), edited in place with its window graph: an "
+        "edit of the model, not an output file, so no --force (copy the graphs first to keep "
+        "them)",
     )
     parser.add_argument("sessions", nargs="+", type=Path, help="held-out subjects' sessions")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        runtime = ScottiRuntime(args.model, calibrate_progress=False)
-        if runtime.graph != "step":
+        runtime = open_step_model(args.model, calibrate_progress=False)
+        if runtime.graph == "window":
             msg = f"{args.model.name} is a {runtime.graph} graph; give the step graph"
             raise EvaluationError(msg)
         files = find_session_files(args.sessions)
@@ -71,8 +76,9 @@ def run(args: argparse.Namespace) -> int:
         if window.is_file():
             write_calibration(window, calibration)
             written.append(window)
-        for path in written:  # read back as the daemon will
-            ScottiRuntime(path)
+        open_step_model(args.model)  # read back as the daemon and scotti eval will
+        if window in written:
+            ScottiRuntime(window)
     except (EvaluationError, ModelError, SessionError, OSError) as exc:
         print(f"scotti calibrate: {exc}", file=sys.stderr)
         return 2

@@ -38,7 +38,7 @@ from scotti.models.kv_contract import (
     STEP_KIND_KV,
 )
 from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON, OodStats
-from scotti.models.progress_calibration import ProgressCalibration
+from scotti.models.progress_calibration import ProgressCalibration, ProgressMapping
 from scotti.models.runtime import ScottiRuntime, StepBatch, StepResult, softmax
 from scotti.models.window_checks import FrameChecks
 
@@ -97,7 +97,11 @@ class KvCache:
 class KvStepRuntime:
     """The streaming-native step graph in an onnxruntime CPU session."""
 
-    def __init__(self, path: str | Path, threads: int = 1) -> None:
+    def __init__(
+        self, path: str | Path, threads: int = 1, *, calibrate_progress: bool = True
+    ) -> None:
+        """``calibrate_progress`` False: the progress head's output as it is, as in
+        ``ScottiRuntime`` (what ``scotti calibrate`` fits a calibration on)."""
         self._path = Path(path)
         if threads < 1:
             msg = f"threads must be at least 1, got {threads}"
@@ -121,8 +125,7 @@ class KvStepRuntime:
             reads = self._window + layers * (self._window - 1)
             self._receptive_field = int(meta.get(META_RECEPTIVE_FIELD, str(reads)))
             self._ood = ood_stats(meta, self._embed_dim, True)
-            text = meta.get(c.META_PROGRESS_CALIBRATION)
-            self._calibration = ProgressCalibration.from_json(text) if text else None
+            self._progress = ProgressMapping.from_metadata(meta, switched_on=calibrate_progress)
         except (ModelContractError, ValueError) as exc:
             msg = f"{self._path.name}: {exc}"
             raise ModelContractError(msg) from None
@@ -198,11 +201,14 @@ class KvStepRuntime:
             return {"calibrated": False, "reason": f"not calibrated: {why}"}
         return {"calibrated": True, "threshold": self._ood.threshold, "summary": self._ood.summary}
 
+    @property
+    def progress_calibration(self) -> ProgressCalibration | None:
+        """The map applied to every progress output (None: the head's output as it is)."""
+        return self._progress.applied
+
     def progress_calibration_info(self) -> dict[str, Any]:
         """What ``info`` says about progress, as ``ScottiRuntime.progress_calibration_info``."""
-        if self._calibration is None:
-            return {"calibrated": False, "reason": "the model carries none"}
-        return {"calibrated": True, "summary": self._calibration.summary}
+        return self._progress.info()
 
     def run_steps(
         self, frames: npt.ArrayLike, past: npt.ArrayLike, valid: npt.ArrayLike
@@ -223,9 +229,7 @@ class KvStepRuntime:
         pose, logits, progress, present, pooled = self._session.run(list(KV_STEP_OUTPUTS), feeds)
         ood = self._ood
         score = ood.score(pooled) if ood is not None else None
-        cal = self._calibration
-        if cal is not None:
-            progress = cal.apply(progress, np.argmax(logits, axis=-1))
+        progress = self._progress(progress, logits)
         threshold = ood.threshold if ood is not None else None
         return StepBatch(pose, logits, softmax(logits), progress, present, pooled, score, threshold)
 
@@ -324,17 +328,20 @@ def push_many(
     return [w.accept(f, r, k) for w, f, r, k in zip(windows, arrays, rows, checks, strict=True)]
 
 
-def open_step_model(path: str | Path, threads: int = 1) -> ScottiRuntime | KvStepRuntime:
+def open_step_model(
+    path: str | Path, threads: int = 1, *, calibrate_progress: bool = True
+) -> ScottiRuntime | KvStepRuntime:
     """The runtime for the step graph at ``path``, by its metadata's ``scotti.graph``:
     ``KvStepRuntime`` for the streaming-native form, ``ScottiRuntime`` otherwise. The
-    paper form opens as it always did; only a graph it refuses has its metadata read."""
+    paper form opens as it always did; only a graph it refuses has its metadata read.
+    ``calibrate_progress`` False: either form's progress head as it is."""
     try:
-        return ScottiRuntime(path, threads)
+        return ScottiRuntime(path, threads, calibrate_progress=calibrate_progress)
     except ModelContractError:
         meta = open_session(Path(path), 1).get_modelmeta().custom_metadata_map
         if meta.get(c.META_GRAPH) != KV_GRAPH:
             raise
-    return KvStepRuntime(path, threads)
+    return KvStepRuntime(path, threads, calibrate_progress=calibrate_progress)
 
 
 # A step graph of either form, as the daemon serves it.

@@ -13,20 +13,26 @@ repetition counter's rising and falling, is kept.
 
 ``ProgressCalibration`` travels in the graphs' metadata
 (``contract.META_PROGRESS_CALIBRATION``) as JSON and is applied by the runtime
-(models/runtime.py) to every prediction, daemon and ``scotti eval`` alike; it
-is fitted by ``scotti calibrate`` (evaluation/calibrate_cli.py). A model
+of either form (``ProgressMapping``) to every prediction, daemon and ``scotti
+eval`` alike; it is fitted by ``scotti calibrate`` (evaluation/calibrate_cli.py). A model
 without it gives the network's own progress. Numpy only.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
-from scotti.models.contract import ACTIONS, NUM_ACTIONS, has_progress
+from scotti.models.contract import (
+    ACTIONS,
+    META_PROGRESS_CALIBRATION,
+    NUM_ACTIONS,
+    has_progress,
+)
 from scotti.models.errors import ModelContractError
 
 BINS: Final = 50  # quantile bins of the output per action: a smooth map from ~10^4 frames
@@ -77,6 +83,43 @@ class ProgressCalibration:
             msg = f"model metadata holds a malformed progress calibration ({exc})"
             raise ModelContractError(msg) from None
         return cls(knots, summary if isinstance(summary, dict) else {})
+
+
+@dataclass(frozen=True)
+class ProgressMapping:
+    """What a runtime of either form (models/runtime.py, models/kv_streaming.py) does with
+    the map its graph carries: applies it to every prediction, or, switched off, gives
+    the head's output as it is (what ``scotti calibrate`` fits a map on)."""
+
+    carried: ProgressCalibration | None = None
+    switched_on: bool = True
+
+    @classmethod
+    def from_metadata(cls, meta: Mapping[str, str], *, switched_on: bool = True) -> ProgressMapping:
+        """The map in a graph's metadata (ModelContractError if malformed), if any."""
+        text = meta.get(META_PROGRESS_CALIBRATION)
+        carried = ProgressCalibration.from_json(text) if text is not None else None
+        return cls(carried, switched_on)
+
+    @property
+    def applied(self) -> ProgressCalibration | None:
+        """The map applied to every progress output (None: the head's output as it is)."""
+        return self.carried if self.switched_on else None
+
+    def __call__(
+        self, progress: npt.NDArray[np.float32], logits: npt.NDArray[np.float32]
+    ) -> npt.NDArray[np.float32]:
+        """(B,) progress through the map of each row's predicted action."""
+        cal = self.applied
+        return progress if cal is None else cal.apply(progress, np.argmax(logits, axis=-1))
+
+    def info(self) -> dict[str, Any]:
+        """What ``info`` says about progress: calibrated (and on what) or why not."""
+        cal = self.applied
+        if cal is None:
+            why = "switched off" if self.carried is not None else "the model carries none"
+            return {"calibrated": False, "reason": why}
+        return {"calibrated": True, "summary": cal.summary}
 
 
 def fit(

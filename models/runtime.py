@@ -28,7 +28,7 @@ from scotti.models.graph_checks import (
     sha256_of,
 )
 from scotti.models.ood import UNFAMILIAR, OodStats
-from scotti.models.progress_calibration import ProgressCalibration
+from scotti.models.progress_calibration import ProgressCalibration, ProgressMapping
 
 F32 = npt.NDArray[np.float32]
 
@@ -147,8 +147,7 @@ class ScottiRuntime:
             self._graph, self._window, self._embed_dim, self._card = check_metadata(meta)
             self._has_pooled = check_io(self._session, self._graph, self._window, self._embed_dim)
             self._ood = ood_stats(meta, self._embed_dim, self._has_pooled)
-            text = meta.get(c.META_PROGRESS_CALIBRATION)
-            calibration = ProgressCalibration.from_json(text) if text is not None else None
+            progress = ProgressMapping.from_metadata(meta, switched_on=calibrate_progress)
         except ModelContractError as exc:
             msg = f"{self._path.name}: {exc}"
             raise ModelContractError(msg) from None
@@ -158,8 +157,7 @@ class ScottiRuntime:
         if self._has_pooled:
             self._outputs.append(c.OUTPUT_POOLED)
         self._frame_shape = (c.FRAME_ROWS, 2 * c.FRAME_COLS)
-        self._progress_calibration = calibration if calibrate_progress else None
-        self._carries_calibration = calibration is not None
+        self._progress = progress
 
     # --- what was loaded -----------------------------------------------------
 
@@ -204,15 +202,11 @@ class ScottiRuntime:
     @property
     def progress_calibration(self) -> ProgressCalibration | None:
         """The map applied to every progress output (None: the head's output as it is)."""
-        return self._progress_calibration
+        return self._progress.applied
 
     def progress_calibration_info(self) -> dict[str, Any]:
         """What ``info`` says about progress: calibrated (and on what) or not."""
-        cal = self._progress_calibration
-        if cal is None:
-            why = "switched off" if self._carries_calibration else "the model carries none"
-            return {"calibrated": False, "reason": why}
-        return {"calibrated": True, "summary": cal.summary}
+        return self._progress.info()
 
     def ood_info(self) -> dict[str, Any]:
         """What ``info`` says about the unfamiliar score: calibrated or why not."""
@@ -321,8 +315,7 @@ class ScottiRuntime:
         return WindowResult(pose, logits, softmax(logits), progress, pooled, score, threshold)
 
     def _calibrated(self, progress: F32, logits: F32) -> F32:
-        cal = self._progress_calibration
-        return progress if cal is None else cal.apply(progress, np.argmax(logits, axis=-1))
+        return self._progress(progress, logits)
 
     # --- files -------------------------------------------------------------------
 
