@@ -4,6 +4,7 @@
     python experiments/partition_runs.py p2 p3 --max-minutes 60             # goes on from there
     python experiments/partition_runs.py p1 --variant progress              # Table 3's variants
     python experiments/partition_runs.py p3 --arch E128-L2-T20              # the sweep's configs
+    python experiments/partition_runs.py p1 --form streaming                # streaming-native
 
 Per partition of experiments/partitions.json, in runs/GROUP-PARTITION[-VARIANT]:
 
@@ -24,6 +25,12 @@ Per partition of experiments/partitions.json, in runs/GROUP-PARTITION[-VARIANT]:
 instead of ``small`` (with that width's learning rate unless ``--lr`` says
 otherwise), into runs/GROUP-PARTITION-NAME; a model whose window is not the
 contract's 40 is calibrated and scored through experiments/any_window.py.
+``--form streaming`` trains the streaming-native form (``scotti train --arch
+streaming``: relative positions, causal attention, a key/value cache;
+docs/streaming-native.md) with the same recipe, into runs/GROUP-PARTITION[...]-streaming;
+it is exported, calibrated and scored by the same commands (``scotti export``,
+``calibrate`` and ``eval`` take either form). It combines with ``--arch NAME``, which
+picks the size, not the form.
 ``--max-crosstalk X`` trains with crosstalk added per chunk and foot
 (export/augment.py), into runs/GROUP-PARTITION[-VARIANT]-xtX.
 ``--precision bf16`` trains under bf16 autocast (validation and the exported
@@ -72,6 +79,7 @@ CORPUS = ROOT / "data" / "corpus7"
 EXTRA_VALIDATION = ("subject-031", "subject-032")
 # The shipped model's loss weights (pose, action, progress) and Table 3's single tasks.
 LOSS_WEIGHTS = {"multi": "0.01,1,3", "pose": "0.01,0,0", "action": "0,1,0", "progress": "0,0,1"}
+FORMS = ("paper", "streaming")  # scotti train --arch (export/model.py's ARCHES)
 
 
 @dataclass(frozen=True)
@@ -85,6 +93,7 @@ class PartitionRun:
     init: Path | None = None  # weights to start from (scotti train --init), else from scratch
     more: tuple[str, ...] = ()  # further corpus folders whose people all train (--more)
     beside: Path | None = None  # a further graph scored in the same replay (--beside)
+    form: str = "paper"  # scotti train --arch: the paper's encoder or the streaming-native one
 
     @property
     def validation(self) -> tuple[str, ...]:
@@ -111,8 +120,13 @@ class PartitionRun:
             "--loss-weights", LOSS_WEIGHTS[self.variant], "--threads", str(opts.threads),
             "--max-minutes", str(opts.max_minutes), "--cache", str(opts.cache),
             "--max-crosstalk", str(opts.max_crosstalk), "--ema", str(opts.ema),
-            "--precision", opts.precision, *resume,
+            "--precision", opts.precision, *self.form_args(), *resume,
         )  # fmt: skip
+
+    def form_args(self) -> list[str]:
+        """``scotti train --arch`` for the streaming-native form; nothing for the paper form,
+        so its commands stay as they were."""
+        return [] if self.form == "paper" else ["--arch", self.form]
 
     def eval_models(self, model: Path, before: Path) -> list[str | Path]:
         """``scotti eval``'s models, the calibrated graph first (partition_table takes it)."""
@@ -208,6 +222,8 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
         suffix += f"-{part}"
     if args.precision != "fp32":
         suffix += f"-{args.precision}"
+    if args.form != "paper":
+        suffix += f"-{args.form}"
     beside = _beside(args.beside, args.partitions)
     return [
         PartitionRun(
@@ -220,6 +236,7 @@ def plan(args: argparse.Namespace) -> list[PartitionRun]:
             args.init,
             tuple(args.more),
             beside.get(n),
+            args.form,
         )
         for n in args.partitions
     ]
@@ -259,6 +276,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--config", default="small", help="scotti train --config")
     parser.add_argument("--arch", choices=sorted(CONFIGS), help="instead of --config")
+    parser.add_argument(
+        "--form",
+        choices=FORMS,
+        default="paper",
+        help="scotti train --arch: paper (the shipped form) or streaming (the streaming-native "
+        "form, -streaming runs); the size comes from --config or --arch either way",
+    )
     parser.add_argument("--epochs", type=int, default=8, help="the cosine schedule's length")
     parser.add_argument("--stride", type=int, default=16)
     parser.add_argument("--lr", type=float, help="default 1e-3, or the --arch's width's")

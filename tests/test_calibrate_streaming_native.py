@@ -4,6 +4,7 @@ key/value step graph, the map goes into the metadata of its step and window grap
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +56,8 @@ def test_scotti_calibrate_writes_a_streaming_native_export_and_its_runtime_appli
     assert main(["calibrate", str(model), str(held_out)]) == 0
     assert "MSE" in capsys.readouterr().out
     text = _carried(model)
-    assert text is not None and _carried(window) == text  # the same map in both graphs
+    assert text is not None
+    assert _carried(window) == text  # the same map in both graphs
     step = open_step_model(model)
     assert isinstance(step, KvStepRuntime)
     cal = step.progress_calibration
@@ -84,3 +86,41 @@ def test_calibrate_refuses_the_window_graph_of_a_streaming_native_export(
     window = window_graph_for(kv_trained_on_s1)
     assert main(["calibrate", str(window), str(held_out)]) == 2
     assert "give the step graph" in capsys.readouterr().err
+
+
+def test_a_streaming_checkpoint_is_scored_as_partition_runs_scores_a_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """export --calibrate (the kv graphs, the unfamiliar score), calibrate, eval --json:
+    experiments/partition_runs.py's score() on a ``--form streaming`` run's best.pt."""
+    import torch
+    from scotti.export.model import Scotti
+    from scotti.models.contract import META_GRAPH
+    from scotti.models.kv_contract import KV_GRAPH
+
+    split = {"train_subjects": ["s1"], "validation_subjects": ["s9"]}
+    ckpt = tmp_path / "best.pt"
+    state = spread(Scotti(TINY_KV), 5).state_dict()
+    config = TINY_KV.to_dict()
+    torch.save({"config": config, "model": state, "training_data": {"split": split}}, ckpt)
+    sessions = tmp_path / "sessions"
+    sessions.mkdir()
+    trained = write_session(sessions / "s1.scotti", 400, subject="s1")
+    held_out = write_session(sessions / "s9.scotti", 1500, subject="s9")
+    test = write_session(tmp_path / "s7.scotti", 300, subject="s7")
+    model = tmp_path / "models" / "scotti-ship.onnx"
+    export = ["export", str(ckpt), "-o", str(model), "--calibrate", str(trained), str(held_out)]
+    assert main([*export, "--force"]) == 0
+    assert "unfamiliar score: threshold" in capsys.readouterr().out
+    meta = {p.key: p.value for p in onnx.load(str(model), load_external_data=False).metadata_props}
+    assert meta[META_GRAPH] == KV_GRAPH
+    step = open_step_model(model)
+    assert isinstance(step, KvStepRuntime)
+    assert step.ood is not None
+    assert main(["calibrate", str(model), str(held_out)]) == 0
+    assert open_step_model(model).progress_calibration_info()["summary"]["fitted_on"] == ["s9"]
+    capsys.readouterr()
+    assert main(["eval", str(test), "--model", str(model), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["model"]["step_kind"], report["subjects"]) == ("kv_cache", ["s7"])
+    assert report["model"]["ood"]["calibrated"] is True

@@ -549,3 +549,53 @@ def test_model_paths_named_from_another_folder_reach_scotti_as_absolute_paths(
     assert job.init.is_absolute()
     assert job.beside.read_bytes() == job.init.read_bytes() == b"graph"
     assert job.beside.resolve() == (tmp_path / "models" / "shipped.onnx").resolve()
+
+
+def test_a_streaming_run_asks_scotti_train_for_the_form_in_its_own_directory(
+    tmp_path: Path,
+) -> None:
+    import argparse
+    import dataclasses
+
+    from scotti.export import train_args
+    from scotti.export.model import ARCHES
+
+    assert partition_runs.FORMS == ARCHES  # the choices are scotti train's
+    parser = partition_runs.build_parser()
+    train = argparse.ArgumentParser()
+    train_args.add_arguments(train)
+    corpus = tmp_path / "corpus"
+    (corpus / "realistic").mkdir(parents=True)
+
+    def parsed(argv: list[str]) -> tuple[partition_runs.PartitionRun, argparse.Namespace]:
+        args = parser.parse_args(argv)
+        (job,) = partition_runs.plan(args)
+        for subject in job.train:
+            (corpus / "realistic" / f"{subject}.ses").write_bytes(b"")
+        moved = dataclasses.replace(job, run_dir=tmp_path / job.run_dir.name)
+        command = moved.train_command(corpus, args)
+        assert command[1:4] == ["-m", "scotti.cli.main", "train"]
+        return job, train.parse_args(command[4:])
+
+    job, streaming = parsed(["p1", "--form", "streaming", "--group", "v14"])
+    assert job.run_dir.name == "v14-p1-streaming"
+    assert (streaming.arch, streaming.config, job.window) == ("streaming", "small", 40)
+    # --arch picks the size from experiments/configs.py, --form the form: both reach train.
+    job, sized = parsed(["p3", "--arch", "E128-L2-T20", "--form", "streaming"])
+    assert job.run_dir.name == "v9-p3-E128-L2-T20-streaming"
+    assert (sized.arch, json.loads(sized.config), job.window) == (
+        "streaming",
+        configs.CONFIGS["E128-L2-T20"],
+        20,
+    )
+    # The paper form (the default) keeps its directory and its command: no --arch.
+    job, paper = parsed(["p1", "--group", "v14"])
+    assert (job.run_dir.name, paper.arch) == ("v14-p1", None)
+    job, named = parsed(["p1", "--group", "v14", "--form", "paper"])
+    assert (job.run_dir.name, named.arch) == ("v14-p1", None)
+    # Scoring exports the run's own best.pt (scotti export routes a streaming checkpoint to
+    # the key/value graphs itself: tests/test_calibrate_streaming_native.py) into the run.
+    job, _ = parsed(["p1", "--form", "streaming"])
+    export = partition_runs.export_command(job, corpus, corpus)
+    model = job.run_dir / "models" / "scotti-ship.onnx"
+    assert export[:5] == ["export", job.run_dir / "best.pt", "-o", model, "--calibrate"]
