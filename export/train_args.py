@@ -116,6 +116,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument("--max-minutes", type=float, default=0.0, help="0 = no time limit")
     parser.add_argument(
+        "--save-minutes",
+        type=float,
+        default=d.save_minutes,
+        metavar="N",
+        help="also write last.pt every N minutes of training, so a run killed without "
+        "warning loses at most that much (0 = only at epoch ends and stops; SIGTERM or "
+        "Ctrl-C always finish the step and write last.pt)",
+    )
+    parser.add_argument(
         "--test-subjects", nargs="*", default=None, help="subjects held out, never trained on"
     )
     parser.add_argument("--test-fraction", type=float, default=0.2)

@@ -1,7 +1,8 @@
 """``scotti train SESSIONS_OR_DIRS... -o runs/NAME``: train SCOTTI on labelled session files.
 
-Writes runs/NAME/last.pt after every epoch (and when --max-minutes runs
-out), runs/NAME/best.pt at the best validation loss, runs/NAME/history.jsonl,
+Writes runs/NAME/last.pt after every epoch, every --save-minutes, and when
+--max-minutes runs out or SIGTERM/SIGINT stops the run (after the step in
+hand; exit status 0), runs/NAME/best.pt at the best validation loss, runs/NAME/history.jsonl,
 and at the end runs/NAME/test.json (best.pt on the test subjects).
 ``--resume`` continues from runs/NAME/last.pt exactly where it stopped. A
 run directory that holds a run is refused unless ``--resume``, or ``--force``
@@ -32,6 +33,7 @@ from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.run_data import RunData, load_sessions, prepare
 from scotti.export.run_dir import check_run_dir, clear_run
+from scotti.export.stop_signals import stop_on_signals
 from scotti.export.subnormals import flushing_denormals
 from scotti.export.test_report import write_test_report
 from scotti.export.throughput import measure_precisions, measure_throughput
@@ -111,6 +113,9 @@ def _options(args: argparse.Namespace) -> TrainOptions:
     if not (args.ema == 0.0 or 0.0 < args.ema < 1.0):  # also catches NaN
         msg = f"--ema must be 0 (off) or a decay between 0 and 1, got {args.ema}"
         raise TrainCliError(msg)
+    if not args.save_minutes >= 0.0:  # also catches NaN
+        msg = f"--save-minutes must be at least 0 (0 = off), got {args.save_minutes}"
+        raise TrainCliError(msg)
     if not args.min_delta >= 0.0:
         msg = f"--min-delta must be at least 0, got {args.min_delta}"
         raise TrainCliError(msg)
@@ -128,6 +133,7 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         loss_weights=parse_loss_weights(args.loss_weights),
         seed=args.seed,
         max_minutes=args.max_minutes,
+        save_minutes=args.save_minutes,
         progress_bar=not args.no_progress and sys.stderr.isatty(),
         freeze=tuple(args.freeze),
         precision=args.precision,
@@ -255,7 +261,8 @@ def train(
         ctx.world_size,
         opts.workers,
     )
-    status = trainer.fit()
+    with stop_on_signals() as stop:
+        status = trainer.fit(stop=stop)
     log.info("%s: %s after %d epochs, checkpoint %s", out, status, trainer.state.epoch, resume_from)
     if status != "stopped" and ctx.is_main:
         report = write_test_report(
@@ -345,7 +352,15 @@ def _frozen_note(freeze: tuple[str, ...]) -> str:
 
 def _warn_changed_options(before: dict[str, Any], now: dict[str, Any]) -> None:
     """Resuming with other batching or augmentation is allowed, but no longer exact."""
-    ignore = {"epochs", "max_minutes", "progress_bar", "workers", "patience", "min_delta"}
+    ignore = {
+        "epochs",
+        "max_minutes",
+        "save_minutes",
+        "progress_bar",
+        "workers",
+        "patience",
+        "min_delta",
+    }
     changed = sorted(k for k in now if k not in ignore and k in before and before[k] != now[k])
     if changed:
         log.warning(
