@@ -4,9 +4,11 @@ A long CPU run is stopped from outside: Ctrl-C, ``kill``, a session or job
 scheduler ending. Dying mid-step would lose everything since the last
 checkpoint; instead the first signal only sets a flag, the training loop
 sees it before its next step, writes ``last.pt`` and returns, and the
-process exits 0. The first signal also puts the previous handlers back, so
-a second one acts as it would have without us (SIGINT raises
-KeyboardInterrupt, SIGTERM ends the process at once).
+process exits 0. A signal also puts its own previous handler back, so the
+same signal again acts as it would have without us (a second Ctrl-C raises
+KeyboardInterrupt, a second SIGTERM ends the process at once). The other
+one stays caught: under torchrun a Ctrl-C reaches every rank as SIGINT and
+torchrun then sends each a SIGTERM, which must not cut the stop short.
 """
 
 from __future__ import annotations
@@ -45,18 +47,18 @@ def stop_on_signals() -> Iterator[StopRequest]:
         return
     previous: dict[int, Any] = {}
 
-    def restore() -> None:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        previous.clear()
+    def restore(*signums: int) -> None:
+        for signum in signums:
+            if signum in previous:
+                signal.signal(signum, previous.pop(signum))
 
     def handle(signum: int, _frame: FrameType | None) -> None:
-        request.signal_name = signal.Signals(signum).name
-        restore()  # a second signal is not caught: it stops the process at once
+        request.signal_name = request.signal_name or signal.Signals(signum).name
+        restore(signum)  # the same signal again is not caught: it stops the process at once
 
     for signum in STOP_SIGNALS:
         previous[signum] = signal.signal(signum, handle)
     try:
         yield request
     finally:
-        restore()
+        restore(*STOP_SIGNALS)

@@ -172,8 +172,10 @@ def test_a_stop_request_ends_fit_before_the_next_step(sessions_dir: Path, tmp_pa
         assert stop.signal_name == "SIGINT"
         assert trainer.fit(stop=stop) == "stopped"
         assert trainer.state.global_step == 3  # no step after the request
+        signal.raise_signal(signal.SIGTERM)  # another signal (torchrun's after Ctrl-C): caught
+        assert stop.signal_name == "SIGINT"
         with pytest.raises(KeyboardInterrupt):
-            signal.raise_signal(signal.SIGINT)  # the second one acts as usual
+            signal.raise_signal(signal.SIGINT)  # the same one again acts as usual
     assert load(tmp_path / "last.pt")["global_step"] == 3
     assert {s: signal.getsignal(s) for s in before} == before
 
