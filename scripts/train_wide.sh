@@ -3,7 +3,7 @@
 # the 18 extra people, and 48 more rendered through wide insoles with mixed effects,
 # trained by the shipped recipe plus sensor transfer, then exported and calibrated.
 #
-#   scripts/train_wide.sh                      # CPU: hours; data/corpus13, runs/v13-p1-wide
+#   scripts/train_wide.sh                      # CPU: ~75 min of training on 2 idle cores after the render
 #   DEVICE=cuda JOBS=16 scripts/train_wide.sh  # a GPU host: minutes
 #   SMOKE=1 scripts/train_wide.sh              # the whole chain on two tiny people first
 #   TRAIN_ONLY=1 RUN=runs/x scripts/train_wide.sh  # train (or resume) only: a GPU host's share
