@@ -264,6 +264,65 @@ def gait_of(path: Path, label: str | None) -> Gait:
     return measure(s.frames, runs_of(keep, s.segment), float(FRAME_RATE_HZ))
 
 
+# --- where the simulated feet are when their insoles read a load ------------------
+
+
+@dataclass(frozen=True)
+class Kinematic:
+    """A simulated person's walking: the share of frames each foot is loaded or down."""
+
+    loaded: float  # foot load above CONTACT x bw (mean of both feet)
+    down: float  # lowest foot keypoint (heel, toes) within CONTACT_FULL_M of the floor
+    near: float  # ... within CONTACT_NONE_M (where sim/loads.py's contact ramp ends)
+    both_loaded: float
+    both_down: float
+
+
+def kinematic_of(path: Path, label: str) -> Kinematic:
+    """The labelled keypoints beside the insole's loads (flat floor: walking only)."""
+    from scotti.export.data import load_session
+    from scotti.models.contract import ACTIONS, KP
+    from scotti.sim.loads import CONTACT_FULL_M, CONTACT_NONE_M
+
+    s = load_session(path, CACHE)
+    keep = s.frame_ok & (s.action == ACTIONS.index(label))
+    loads = foot_loads(loaded_kpa(s.frames[keep]))
+    on = loads > CONTACT * np.median(loads.sum(1))
+    kp = s.keypoints[keep]
+    parts = [
+        [KP[f"{side}_{p}"] for p in ("heel", "big_toe", "small_toe")] for side in ("left", "right")
+    ]
+    low = np.stack([kp[:, idx, 2].min(1) for idx in parts], 1)  # (N, 2) metres above z = 0
+    down, near = low <= CONTACT_FULL_M, low <= CONTACT_NONE_M
+    return Kinematic(
+        loaded=float(on.mean()),
+        down=float(down.mean()),
+        near=float(near.mean()),
+        both_loaded=float(on.all(1).mean()),
+        both_down=float(down.all(1).mean()),
+    )
+
+
+def kinematic_table(people: Sequence[Path]) -> list[str]:
+    from scotti.sim.loads import CONTACT_FULL_M, CONTACT_NONE_M
+
+    full, none = f"{CONTACT_FULL_M * 1000:g} mm", f"{CONTACT_NONE_M * 1000:g} mm"
+    header = [
+        "sim walking, ours",
+        "foot loaded %",
+        f"foot within {full} %",
+        f"foot within {none} %",
+        "both loaded %",
+        f"both within {full} %",
+    ]
+    rows = []
+    for p in people:
+        k = kinematic_of(p, "walking")
+        values = (k.loaded, k.down, k.near, k.both_loaded, k.both_down)
+        rows.append([p.stem.removeprefix("subject-"), *[f"{100 * v:.0f}" for v in values]])
+    return markdown_table(header, rows, "lrrrrr")
+
+
 # --- the table ----------------------------------------------------------------
 
 COLUMNS: Final = (
@@ -298,8 +357,9 @@ def row_of(group: str, name: str, gait: Gait) -> list[str]:
     return cells
 
 
-def render(rows: list[tuple[str, str, Gait]], command: str) -> str:
-    """Two markdown tables (timing and load; where and how much), one row per file or person."""
+def render(rows: list[tuple[str, str, Gait]], command: str, kinematic: Sequence[str]) -> str:
+    """Two markdown tables (timing and load; where and how much), one row per file or person,
+    then the simulated feet's keypoints beside their loads."""
     lines = [f"Written by `{command}`.", ""]
     half = 10
     for cols in (COLUMNS[:half], COLUMNS[half:]):
@@ -310,7 +370,7 @@ def render(rows: list[tuple[str, str, Gait]], command: str) -> str:
             body.append(full[:2] + [full[2 + COLUMNS.index(c)] for c in cols])
         lines += markdown_table(header, body, "ll" + "r" * len(cols))
         lines.append("")
-    return "\n".join(lines)
+    return "\n".join([*lines, *kinematic, ""])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -329,7 +389,8 @@ def main(argv: list[str] | None = None) -> int:
         for group, name, path, label in sources():
             rows.append((group, name, gait_of(path, label)))
             print(" | ".join(row_of(group, name, rows[-1][2])), flush=True)
-        text = render(rows, command.strip())
+        people = sorted((SIM_DIR / "people").glob("subject-*.ses"))
+        text = render(rows, command.strip(), kinematic_table(people))
         print(text)
         if args.write:
             write_between_markers(args.write, text, BEGIN, END)
