@@ -7,7 +7,7 @@ insole, no transport effects) for each of the people of
 ``experiments/insole_transfer.py`` (corpus seed 7, subjects 200, 201, ...;
 same bodies and styles, not their corpus sessions), decodes it with the
 project's reader (``scotti.export.data.load_session``) and prints the timing
-columns of real_vs_sim_gait's table plus the stance share of the stride.
+and load columns of real_vs_sim_gait's table plus the stance share of the stride.
 Writes nothing outside a temporary folder; a few seconds per person.
 """
 
@@ -102,37 +102,14 @@ def main(argv: list[str] | None = None) -> int:
         "--trim-s", type=float, default=0.0, help="leave out this much of each walk's ends"
     )
     args = parser.parse_args(argv)
-    header = [
-        "person",
-        "cadence /min",
-        "stance s",
-        "swing s",
-        "stance % of stride",
-        "double support %",
-        "peak / bw",
-        "heel share %",
-        "CoP start",
-        "CoP end",
-    ]
+    columns = gait.COLUMNS[:10]  # real_vs_sim_gait's timing-and-load table
+    header = ["person", *[c[0] for c in columns], "stance % of stride"]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(FIRST_SUBJECT, FIRST_SUBJECT + args.people):
             p = walking_phases(person_scene(i, args.steps), Path(tmp), args.trim_s)
-            g = p.gait
-            rows.append(
-                [
-                    str(i),
-                    f"{g.cadence:.0f}",
-                    f"{g.stance_s:.2f}",
-                    f"{g.swing_s:.2f}",
-                    f"{100 * p.stance_share:.0f}",
-                    f"{100 * g.double_support:.0f}",
-                    f"{g.peak_bw:.2f}",
-                    f"{100 * g.heel_share:.0f}",
-                    f"{g.cop_start:.2f}",
-                    f"{g.cop_end:.2f}",
-                ]
-            )
+            cells = gait.row_of("", str(i), p.gait)[1:]
+            rows.append([*cells[: 1 + len(columns)], f"{100 * p.stance_share:.0f}"])
             print(" | ".join(rows[-1]), flush=True)
     print("\n".join(markdown_table(header, rows, "l" + "r" * (len(header) - 1))))
     return 0
