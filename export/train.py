@@ -43,6 +43,7 @@ from scotti.export.evaluate import chunked_outputs, evaluate
 from scotti.export.finetune import FREEZE_GROUPS, freeze_parts, load_initial_weights
 from scotti.export.losses import LossWeights, ScottiTargets, scotti_loss
 from scotti.export.model import Scotti, ScottiOutputs
+from scotti.export.optimizer import adam, load_optimizer_state
 from scotti.export.prefetch import prefetched
 from scotti.export.stop_signals import StopRequest
 from scotti.export.throughput import measure_throughput, unfold_frames
@@ -57,9 +58,11 @@ __all__ = [
     "TrainOptions",
     "Trainer",
     "TrainingDivergedError",
+    "adam",
     "batch_tensors",
     "freeze_parts",
     "load_initial_weights",
+    "load_optimizer_state",
     "measure_throughput",
     "plan_epoch",
     "unfold_frames",
@@ -475,43 +478,3 @@ class Trainer:
         torch.set_rng_state(rng["torch"])
         if self.device.type == "cuda" and "cuda" in rng:
             torch.cuda.set_rng_state(rng["cuda"], self.device)
-
-
-ADAM_KERNEL_KEYS = ("fused", "foreach")  # how Adam steps, not what it has learned
-
-
-def adam(
-    params: list[torch.nn.Parameter],
-    device: torch.device,
-    *,
-    lr: float,
-    weight_decay: float,
-    fused: bool | None = None,
-) -> torch.optim.Adam:
-    """Adam, with torch's fused kernel on the CPU (None: where torch has one).
-
-    The default (foreach) kernel costs ~3 ms a step for the small model on one CPU
-    thread, the fused one ~0.75 ms. Both keep the same state, so a checkpoint of
-    either resumes with the other (``load_optimizer_state``).
-    """
-    if fused is None:
-        fused = device.type == "cpu"
-        if fused:
-            try:
-                return torch.optim.Adam(params, lr=lr, weight_decay=weight_decay, fused=True)
-            except RuntimeError:  # a torch without the fused CPU kernel (before 2.4)
-                fused = False
-    return torch.optim.Adam(params, lr=lr, weight_decay=weight_decay, fused=fused or None)
-
-
-def load_optimizer_state(optimizer: torch.optim.Optimizer, state: dict[str, Any]) -> None:
-    """``optimizer.load_state_dict(state)``, keeping this optimizer's kernel.
-
-    torch takes every key of the saved parameter groups, ``fused`` and ``foreach``
-    too; a checkpoint from a GPU or an older run would otherwise switch the kernel
-    this process chose (or ask for one this device has not got).
-    """
-    kernels = [{k: g.get(k) for k in ADAM_KERNEL_KEYS} for g in optimizer.param_groups]
-    optimizer.load_state_dict(state)
-    for group, kernel in zip(optimizer.param_groups, kernels, strict=True):
-        group.update(kernel)
