@@ -235,15 +235,7 @@ class Trainer:
                     if why is None and 0 < max_steps <= steps:
                         why = f"{max_steps} steps"
                     if why is not None:
-                        self.save("last.pt")
-                        if self.dist.is_main:
-                            log.info(
-                                "%s: stopped at epoch %d step %d, checkpoint %s",
-                                why,
-                                st.epoch + 1,
-                                st.step_in_epoch,
-                                self._last_pt(),
-                            )
+                        self._stop(why)
                         return "stopped"
                     if save_due:
                         self.save("last.pt")
@@ -284,8 +276,14 @@ class Trainer:
             return name or "a signal to another rank", False
         return None, save_due
 
-    def _last_pt(self) -> str:
-        return str(self.run_dir / "last.pt") if self.run_dir is not None else "not written"
+    def _stop(self, why: str) -> None:
+        """Write last.pt and say where the run stopped, and why."""
+        self.save("last.pt")
+        if self.dist.is_main:
+            st = self.state
+            where = self.run_dir / "last.pt" if self.run_dir is not None else "not written"
+            log.info("%s: stopped at epoch %d step %d, checkpoint %s", why, st.epoch + 1,
+                     st.step_in_epoch, where)  # fmt: skip
 
     @property
     def evaluated_model(self) -> Scotti:
