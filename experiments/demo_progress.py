@@ -17,8 +17,7 @@ and, per repeated action of the script, prints:
   prediction is withheld and the counter neither counts nor forgets), the
   counter started over where the window restarted; ``--high``/``--low`` try
   other thresholds of the counter;
-- the same ignoring the flags (what this script printed before: not what the
-  daemon publishes);
+- the same ignoring the flags (not what the daemon publishes);
 - what the daemon's counter completes on the labels of the times predicted for;
 - the share of the predictions of that action (most likely action) that a
   flag withheld.

@@ -173,10 +173,10 @@ def score_file(path: Path, model: Path, every: int) -> dict[str, Any]:
         return dict(json.loads(cached.read_text()))
     from scotti.evaluation.replay import replay_session_models
     from scotti.firmware_protocol.session import LabelRecord, SessionReader
-    from scotti.models.runtime import load_pair
+    from scotti.models.kv_streaming import open_step_model
 
-    step, window = load_pair(model)
-    replay = replay_session_models(path, [step], every=every, windows=[window])[0]
+    # Either form of the model; its window graph (``--every``) is the one beside it.
+    replay = replay_session_models(path, [open_step_model(model)], every=every)[0]
     with SessionReader(path) as reader:
         labels = [r for r in reader if isinstance(r, LabelRecord)]
     truth = _labels_by_ext(replay.made, labels)

@@ -108,10 +108,10 @@ def truth_at(rec: Recording, t: np.ndarray) -> np.ndarray:
 def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[str, Any]]:
     from scotti.evaluation.replay import replay_session_models
     from scotti.models.contract import ACTIONS
+    from scotti.models.kv_streaming import open_step_model
     from scotti.models.ood import withheld
-    from scotti.models.runtime import ScottiRuntime
 
-    runtimes = [ScottiRuntime(m, threads=1) for m in models]
+    runtimes = [open_step_model(m, threads=1) for m in models]  # either form of the model
     replays = replay_session_models(session, runtimes)
     rows = []
     walking, standing = ACTIONS.index("walking"), ACTIONS.index("standing")

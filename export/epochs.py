@@ -22,7 +22,7 @@ from scotti.export.sensor_transfer import ForeignSensor, draw_transfer, render
 from scotti.export.windows import Chunk, WindowDataset
 
 if TYPE_CHECKING:
-    from scotti.export.train import TrainOptions
+    from scotti.export.train_options import TrainOptions
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from scotti.export.model import Scotti, ScottiOutputs
 from scotti.export.windows import WindowDataset
 
 if TYPE_CHECKING:
-    from scotti.export.train import TrainOptions
+    from scotti.export.train_options import TrainOptions
 
 
 def measure_throughput(

@@ -27,7 +27,7 @@ import logging
 import math
 import time
 from contextlib import closing
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -41,11 +41,13 @@ from scotti.export.epochs import PlannedChunk, batch_tensors, plan_epoch, warmup
 from scotti.export.errors import ExportError
 from scotti.export.evaluate import chunked_outputs, evaluate
 from scotti.export.finetune import FREEZE_GROUPS, freeze_parts, load_initial_weights
-from scotti.export.losses import LossWeights, ScottiTargets, scotti_loss
+from scotti.export.losses import ScottiTargets, scotti_loss
 from scotti.export.model import Scotti, ScottiOutputs
+from scotti.export.optimizer import adam, load_optimizer_state
 from scotti.export.prefetch import prefetched
 from scotti.export.stop_signals import StopRequest
 from scotti.export.throughput import measure_throughput, unfold_frames
+from scotti.export.train_options import TrainOptions
 from scotti.export.windows import WindowDataset
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
@@ -57,9 +59,11 @@ __all__ = [
     "TrainOptions",
     "Trainer",
     "TrainingDivergedError",
+    "adam",
     "batch_tensors",
     "freeze_parts",
     "load_initial_weights",
+    "load_optimizer_state",
     "measure_throughput",
     "plan_epoch",
     "unfold_frames",
@@ -71,36 +75,6 @@ log = logging.getLogger(__name__)
 
 class TrainingDivergedError(ExportError):
     """The loss became NaN or infinite (learning rate too high, or broken labels)."""
-
-
-@dataclass(frozen=True)
-class TrainOptions:
-    epochs: int = 10  # at most; a validation plateau (patience) may end the run sooner
-    batch: int = 32  # windows per optimiser step and rank (a step may run up to chunk-1 over)
-    chunk: int = 8  # consecutive windows that share one pass of their frames through the CNN
-    stride: int = 2  # slots between the starts of windows in an epoch (random phase per epoch)
-    val_stride: int = 4  # the same for validation (fixed phase 0)
-    lr: float = 1e-4
-    weight_decay: float = 1e-4
-    warmup_fraction: float = 0.05  # of all steps, linear warmup before the cosine decay
-    grad_clip: float = 1.0  # max global gradient norm; 0 turns clipping off
-    max_shift: int = 2  # taxels, random shift of each foot per chunk (0 = no augmentation)
-    max_crosstalk: float = 0.0  # crosstalk added per chunk and foot, up to this (augment.py)
-    sensor_transfer: float = 0.0  # share of chunks read through a drawn foreign insole
-    seed: int = 0
-    max_minutes: float = 0.0  # stop (and checkpoint) after this much training; 0 = no limit
-    save_minutes: float = 10.0  # write last.pt after this much training since the last; 0 = off
-    progress_bar: bool = True
-    loss_weights: LossWeights = field(default_factory=LossWeights)
-    freeze: tuple[str, ...] = ()  # parts kept as they are (FREEZE_GROUPS), e.g. to fine-tune
-    precision: str = "fp32"  # or "bf16": autocast of the forward pass (devices.py)
-    workers: int = 1  # threads building batches ahead of the step; 0 = in the loop
-    patience: int = 4  # epochs without a validation improvement before stopping; 0 = never
-    min_delta: float = 1e-3  # what counts as an improvement of the validation loss
-    ema: float = 0.0  # decay of an exponential moving average of the weights; 0 = off
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 class ChunkedWindows(torch.nn.Module):
@@ -261,15 +235,7 @@ class Trainer:
                     if why is None and 0 < max_steps <= steps:
                         why = f"{max_steps} steps"
                     if why is not None:
-                        self.save("last.pt")
-                        if self.dist.is_main:
-                            log.info(
-                                "%s: stopped at epoch %d step %d, checkpoint %s",
-                                why,
-                                st.epoch + 1,
-                                st.step_in_epoch,
-                                self._last_pt(),
-                            )
+                        self._stop(why)
                         return "stopped"
                     if save_due:
                         self.save("last.pt")
@@ -310,8 +276,14 @@ class Trainer:
             return name or "a signal to another rank", False
         return None, save_due
 
-    def _last_pt(self) -> str:
-        return str(self.run_dir / "last.pt") if self.run_dir is not None else "not written"
+    def _stop(self, why: str) -> None:
+        """Write last.pt and say where the run stopped, and why."""
+        self.save("last.pt")
+        if self.dist.is_main:
+            st = self.state
+            where = self.run_dir / "last.pt" if self.run_dir is not None else "not written"
+            log.info("%s: stopped at epoch %d step %d, checkpoint %s", why, st.epoch + 1,
+                     st.step_in_epoch, where)  # fmt: skip
 
     @property
     def evaluated_model(self) -> Scotti:
@@ -475,43 +447,3 @@ class Trainer:
         torch.set_rng_state(rng["torch"])
         if self.device.type == "cuda" and "cuda" in rng:
             torch.cuda.set_rng_state(rng["cuda"], self.device)
-
-
-ADAM_KERNEL_KEYS = ("fused", "foreach")  # how Adam steps, not what it has learned
-
-
-def adam(
-    params: list[torch.nn.Parameter],
-    device: torch.device,
-    *,
-    lr: float,
-    weight_decay: float,
-    fused: bool | None = None,
-) -> torch.optim.Adam:
-    """Adam, with torch's fused kernel on the CPU (None: where torch has one).
-
-    The default (foreach) kernel costs ~3 ms a step for the small model on one CPU
-    thread, the fused one ~0.75 ms. Both keep the same state, so a checkpoint of
-    either resumes with the other (``load_optimizer_state``).
-    """
-    if fused is None:
-        fused = device.type == "cpu"
-        if fused:
-            try:
-                return torch.optim.Adam(params, lr=lr, weight_decay=weight_decay, fused=True)
-            except RuntimeError:  # a torch without the fused CPU kernel (before 2.4)
-                fused = False
-    return torch.optim.Adam(params, lr=lr, weight_decay=weight_decay, fused=fused or None)
-
-
-def load_optimizer_state(optimizer: torch.optim.Optimizer, state: dict[str, Any]) -> None:
-    """``optimizer.load_state_dict(state)``, keeping this optimizer's kernel.
-
-    torch takes every key of the saved parameter groups, ``fused`` and ``foreach``
-    too; a checkpoint from a GPU or an older run would otherwise switch the kernel
-    this process chose (or ask for one this device has not got).
-    """
-    kernels = [{k: g.get(k) for k in ADAM_KERNEL_KEYS} for g in optimizer.param_groups]
-    optimizer.load_state_dict(state)
-    for group, kernel in zip(optimizer.param_groups, kernels, strict=True):
-        group.update(kernel)

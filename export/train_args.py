@@ -10,7 +10,7 @@ from scotti.export.devices import DEVICES, PRECISIONS
 from scotti.export.finetune import FREEZE_GROUPS
 from scotti.export.model import ARCHES
 from scotti.export.run_dir import RUN_FILES
-from scotti.export.train import TrainOptions
+from scotti.export.train_options import TrainOptions
 from scotti.export.validation import VAL_FRACTION
 
 # Named model sizes. "paper" is the paper's E=512; "small" trains in hours on

@@ -21,19 +21,11 @@ from scotti.export.subnormals import flushing_denormals
 from scotti.export.train import Trainer, TrainOptions
 from scotti.export.windows import WindowDataset
 
-from tests.support.export_sessions import write_session
+from tests.support.export_sessions import TINY_MODEL, write_session
 
 pytestmark = pytest.mark.torch
 
-TINY: dict[str, Any] = {
-    "window": 8,
-    "embed_dim": 16,
-    "layers": 1,
-    "heads": 2,
-    "head_hidden": 16,
-    "conv_channels": [4, 4],
-    "dropout": 0.2,
-}
+TINY: dict[str, Any] = {**TINY_MODEL, "dropout": 0.2}
 
 
 @pytest.fixture(scope="module")

@@ -29,19 +29,11 @@ from scotti.export.train import (
 from scotti.export.windows import WindowDataset
 from scotti.models import contract
 
-from tests.support.export_sessions import PERIOD, write_session
+from tests.support.export_sessions import PERIOD, TINY_MODEL, write_session
 
 pytestmark = pytest.mark.torch
 
-TINY: dict[str, Any] = {
-    "window": 8,
-    "embed_dim": 16,
-    "layers": 1,
-    "heads": 2,
-    "head_hidden": 16,
-    "conv_channels": [4, 4],
-    "dropout": 0.0,
-}
+TINY: dict[str, Any] = TINY_MODEL
 
 
 @pytest.fixture(scope="module")

@@ -20,19 +20,11 @@ from scotti.export.train import Trainer, TrainOptions
 from scotti.export.validation import three_way_split
 from scotti.export.windows import WindowDataset
 
-from tests.support.export_sessions import write_session
+from tests.support.export_sessions import TINY_MODEL, write_session
 
 pytestmark = pytest.mark.torch
 
-TINY: dict[str, Any] = {
-    "window": 8,
-    "embed_dim": 16,
-    "layers": 1,
-    "heads": 2,
-    "head_hidden": 16,
-    "conv_channels": [4, 4],
-    "dropout": 0.0,
-}
+TINY: dict[str, Any] = TINY_MODEL
 SUBJECTS = [f"s{i:02d}" for i in range(10)]
 
 

@@ -27,19 +27,11 @@ from scotti.export.stop_signals import stop_on_signals
 from scotti.export.train import Trainer, TrainOptions
 from scotti.export.windows import WindowDataset
 
-from tests.support.export_sessions import write_session
+from tests.support.export_sessions import TINY_MODEL, write_session
 
 pytestmark = pytest.mark.torch
 
-TINY: dict[str, Any] = {
-    "window": 8,
-    "embed_dim": 16,
-    "layers": 1,
-    "heads": 2,
-    "head_hidden": 16,
-    "conv_channels": [4, 4],
-    "dropout": 0.1,  # on, so the restored RNG state matters
-}
+TINY: dict[str, Any] = {**TINY_MODEL, "dropout": 0.1}  # on, so the restored RNG state matters
 EPOCHS = 4
 EVERY_STEP = "0.00001"  # --save-minutes: well under a step, so last.pt is written before each
 

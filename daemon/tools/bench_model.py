@@ -1,5 +1,9 @@
 """The model's floor beside the daemon: its step's own CPU per frame, per batch size.
 
+The model is the one the daemon runs (``--model``), of either form
+(``open_step_model``): the paper form's step on frames and cached embeddings, the
+streaming-native form's on frames and warm key/value caches (``step_costs``).
+
 The daemon cannot cost less than the model it runs: at ``b`` frames a call the
 step takes ``ms(b)`` of CPU per frame, so a pair at 16 Hz needs at least
 ``16 * ms(b) / 1000`` of a core. The bench measures ``ms(b)`` in its own process
@@ -31,23 +35,24 @@ def model_cpu_ms(model: Path, sizes: list[int], seconds: float = 1.5) -> dict[in
     """CPU ms per frame of the model's step at each batch size: the median of rounds
     (sizes interleaved, so that a busy host weighs on all of them alike), about
     ``seconds`` of CPU in all."""
-    from scotti.daemon.tools.step_costs import step_inputs
-    from scotti.models.runtime import ScottiRuntime
+    from scotti.daemon.tools.step_costs import run_step, step_inputs
+    from scotti.models.kv_streaming import open_step_model
 
-    runtime = ScottiRuntime(model)
+    runtime = open_step_model(model)  # either form, as the daemon opens it
     sizes = sorted(set(sizes))
     inputs = step_inputs(runtime, sizes)
-    for frames, past in inputs.values():  # onnxruntime plans each new shape once
-        runtime.run_steps(frames, past)
+    for frames, *rest in inputs.values():  # onnxruntime plans each new shape once
+        run_step(runtime, frames, tuple(rest))
     per_frame: dict[int, list[float]] = {b: [] for b in sizes}
     started = time.process_time()
     rounds = 0
     while rounds < 5 or (time.process_time() - started < seconds and rounds < 200):
-        for b, (frames, past) in inputs.items():
+        for b, (frames, *rest) in inputs.items():
             calls = max(1, 32 // b)  # a few calls per size: the clock's tick is coarse
+            arrays = tuple(rest)
             t0 = time.process_time()
             for _ in range(calls):
-                runtime.run_steps(frames, past)
+                run_step(runtime, frames, arrays)
             per_frame[b].append((time.process_time() - t0) * 1e3 / (b * calls))
         rounds += 1
     return {b: float(np.median(v)) for b, v in per_frame.items()}

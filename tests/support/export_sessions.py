@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scotti.firmware_protocol import (
@@ -25,6 +26,17 @@ from scotti.models import contract
 ROWS, COLS = contract.FRAME_ROWS, contract.FRAME_COLS
 ROW_BLOCK = 8  # rows per packet, as the simulator sends them (4 packets per foot frame)
 PERIOD = 24  # frames per synthetic repetition
+# The model the training tests train: big enough to learn the synthetic stream, small
+# enough that a CPU trains it in seconds. Tests that need dropout copy it with their own.
+TINY_MODEL: dict[str, Any] = {
+    "window": 8,
+    "embed_dim": 16,
+    "layers": 1,
+    "heads": 2,
+    "head_hidden": 16,
+    "conv_channels": [4, 4],
+    "dropout": 0.0,
+}
 
 
 def foot_counts(k: int, foot: int) -> np.ndarray:
