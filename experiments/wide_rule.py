@@ -8,9 +8,9 @@ candidate replaces the shipped model only if, on the same replays as the
 shipped graph,
 
 1. on partition p1's held-out people (experiments/partitions.json, the
-   session files under data/corpus7/realistic) it keeps the paper's bar (APP
-   >= 0.8952, progress MSE <= 0.0223) and loses at most 1 point of accuracy
-   and 0.01 of APP against the shipped model;
+   session files under data/corpus7/realistic, or ``--held-out FOLDER``) it
+   keeps the paper's bar (APP >= 0.8952, progress MSE <= 0.0223) and loses
+   at most 1 point of accuracy and 0.01 of APP against the shipped model;
 2. on the real recordings (experiments/real_data.py, both feet present,
    pooled) its walking share is higher and its share of confident wrong
    answers that go out unflagged is not higher;
@@ -68,11 +68,12 @@ class Line:
     passed: bool
 
 
-def held_out_sessions() -> list[Path]:
-    """Partition p1's test people, as session files of the corpus the partitions name."""
+def held_out_sessions(folder: Path = HELD_OUT_DIR) -> list[Path]:
+    """Partition p1's test people, as session files of FOLDER (the corpus the partitions
+    name, or the same people rendered by a changed simulator)."""
     partitions = json.loads((ROOT / "experiments" / "partitions.json").read_text())
     part = next(p for p in partitions["partitions"] if p["name"] == PARTITION)
-    files = [HELD_OUT_DIR / f"{s}.ses" for s in part["test"]]
+    files = [folder / f"{s}.ses" for s in part["test"]]
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
         msg = f"missing held-out sessions {', '.join(missing)} (export/TRAINING.md makes them)"
@@ -91,8 +92,9 @@ def eval_json(sessions: Sequence[Path], models: Sequence[Path]) -> list[dict[str
     return list(reports if isinstance(reports, list) else [reports])
 
 
-def held_out_lines(candidate: Path, shipped: Path) -> list[Line]:
-    cand, ship = (r["metrics"] for r in eval_json(held_out_sessions(), [candidate, shipped]))
+def held_out_lines(candidate: Path, shipped: Path, folder: Path = HELD_OUT_DIR) -> list[Line]:
+    sessions = held_out_sessions(folder)
+    cand, ship = (r["metrics"] for r in eval_json(sessions, [candidate, shipped]))
     return [
         Line(1, "p1 held out: APP (paper's bar)", cand["app"], ship["app"],
              f">= {PAPER_APP}", cand["app"] >= PAPER_APP),
@@ -188,11 +190,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("candidate", type=Path, help="the step graph that would ship")
     parser.add_argument("--shipped", type=Path, default=ROOT / "models" / "scotti-default.onnx")
     parser.add_argument("--every", type=int, default=8, help="insole_transfer's --every")
+    parser.add_argument(
+        "--held-out",
+        type=Path,
+        default=HELD_OUT_DIR,
+        help="the folder holding p1's held-out sessions (another render of the same people "
+        "when the simulator changed; both models are scored on them)",
+    )
     parser.add_argument("--json", type=Path, help="also write the lines here")
     args = parser.parse_args(argv)
     candidate, shipped = args.candidate.resolve(), args.shipped.resolve()
     parts: list[Callable[[], list[Line]]] = [
-        lambda: held_out_lines(candidate, shipped),
+        lambda: held_out_lines(candidate, shipped, args.held_out.resolve()),
         lambda: real_lines(candidate, shipped),
         lambda: sensor_lines(candidate, shipped, args.every),
         lambda: squat_lines(candidate, shipped),

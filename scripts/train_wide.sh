@@ -7,6 +7,9 @@
 #   DEVICE=cuda JOBS=16 scripts/train_wide.sh  # a GPU host: minutes
 #   SMOKE=1 scripts/train_wide.sh              # the whole chain on two tiny people first
 #   TRAIN_ONLY=1 RUN=runs/x scripts/train_wide.sh  # train (or resume) only: a GPU host's share
+#   FORM=streaming scripts/train_wide.sh       # the streaming-native form (docs/streaming-native.md)
+#   HELD_OUT=1 scripts/train_wide.sh           # also render p1's held-out people into DATA/realistic
+#                                              # (for wide_rule.py --held-out after a simulator change)
 #
 # Every step is checkpointed: the people already rendered and decoded are not redone,
 # and training resumes from RUN/last.pt. Nothing here needs a GPU.
@@ -27,9 +30,12 @@ MORE=${MORE:-48}                   # people rendered through wide insoles (subje
 MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-}
 TRAIN_ONLY=${TRAIN_ONLY:-0}        # 1: stop after training (export and calibrate elsewhere)
 RENDER_ONLY=${RENDER_ONLY:-0}      # 1: stop after rendering and decoding
+FORM=${FORM:-paper}                # scotti train --arch streaming for the streaming-native form
+HELD_OUT=${HELD_OUT:-0}            # 1: render p1's held-out people too (not trained on)
 # p1 of experiments/partitions.json: training people; 011/012 and 031/032 validate.
 P1_TRAIN=(000 001 002 003 004 006 008 009 011 012)
 VALIDATION=(subject-011 subject-012 subject-031 subject-032)
+P1_TEST=(005 007 010 013 014)      # p1's held-out people (experiments/partitions.json)
 
 # One person a process, each in a folder of its own (corpus writes a manifest per call).
 render() {  # PART FIRST_INDEX MINUTES_PER_ACTION [corpus options...]
@@ -62,6 +68,11 @@ done
 if [[ ${SMOKE:-0} != 1 ]]; then
   for i in $(seq 15 32); do jobs+=("extra $i ${MINUTES_PER_ACTION:-2} --effects realistic"); done
 fi
+if [[ $HELD_OUT == 1 ]]; then
+  for i in "${P1_TEST[@]}"; do
+    jobs+=("realistic $((10#$i)) ${MINUTES_PER_ACTION:-4} --effects realistic")
+  done
+fi
 for i in $(seq 33 $((33 + MORE - 1))); do
   jobs+=("more $i ${MINUTES_PER_ACTION:-2} --effects mixed --insoles wide")
 done
@@ -88,13 +99,15 @@ if [[ $RENDER_ONLY == 1 ]]; then
 fi
 resume=()
 [[ -f $RUN/last.pt ]] && resume=(--resume)
+form=()
+[[ $FORM != paper ]] && form=(--arch "$FORM")
 transfer=()
 [[ $TRANSFER != 0 ]] && transfer=(--sensor-transfer "$TRANSFER")
 echo "train_wide: training $RUN on $DEVICE"
 "$SCOTTI" train "${files[@]}" -o "$RUN" --config small \
   --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
   --stride "$STRIDE" --val-stride 8 --lr 1e-3 --loss-weights 0.01,1,3 \
-  --max-crosstalk 0.03 --ema 0.999 "${transfer[@]}" \
+  --max-crosstalk 0.03 --ema 0.999 "${transfer[@]}" "${form[@]}" \
   --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" \
   --cache "$CACHE" --no-progress "${resume[@]}"
 

@@ -56,6 +56,18 @@ def test_the_held_out_people_are_partition_p1s_test_people() -> None:
     assert wide_rule.held_out_sessions() == expected
 
 
+def test_held_out_people_come_from_the_folder_given(tmp_path: Path) -> None:
+    import json
+
+    parts = json.loads((EXPERIMENTS / "partitions.json").read_text())["partitions"]
+    p1 = next(p for p in parts if p["name"] == "p1")
+    with pytest.raises(wide_rule.ExperimentError, match=str(tmp_path)):
+        wide_rule.held_out_sessions(tmp_path)
+    for subject in p1["test"]:
+        (tmp_path / f"{subject}.ses").write_bytes(b"")
+    assert wide_rule.held_out_sessions(tmp_path) == [tmp_path / f"{s}.ses" for s in p1["test"]]
+
+
 @pytest.mark.slow
 def test_the_squat_line_renders_the_scene_and_needs_a_higher_accuracy(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
