@@ -1,89 +1,47 @@
 """docs/coverage.md from the coverage grid's checkpoints: the headline (the worst
 cell), the goals, the unfamiliar flag as a detector of wrong predictions, the
 scene files as shipped, the accuracy table (parameter x value by action), a
-summary per parameter and the worst cells with every figure."""
+summary per parameter and the worst cells with every figure.
+
+This module puts the sections together; the rows and formatters are in
+experiments/coverage_doc_rows.py, the opening sections in
+experiments/coverage_doc_summary.py, the tables in experiments/coverage_doc_tables.py."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any
 
-from common import table
-from coverage_grid import EXTRA_VALUES, NOT_RANGE, SKIPPED, WITH, Parameter
-from coverage_score import CONFIDENT, Counts, detector
+from coverage_doc_rows import (
+    GOAL_CELL_ACCURACY,
+    GOAL_CELL_APP,
+    GOAL_SCENE_ACCURACY,
+    GOAL_SCENE_APP,
+    GOAL_WRONG_UNFLAGGED,
+    Row,
+    Summary,
+)
+from coverage_doc_summary import by_action, goals, headline, tally, unfamiliar_as_detector
+from coverage_doc_tables import (
+    WORST_SHOWN,
+    accuracy_grid,
+    declared_ranges,
+    per_parameter,
+    scene_files,
+    worst_cells,
+)
 
-GOAL_CELL_ACCURACY: Final = 0.90
-GOAL_CELL_APP: Final = 0.85
-GOAL_SCENE_ACCURACY: Final = 0.95
-GOAL_SCENE_APP: Final = 0.88
-GOAL_WRONG_UNFLAGGED: Final = 0.05
-WORST_SHOWN: Final = 25
-
-
-@dataclass(frozen=True)
-class Row:
-    """A cell's checkpoint, read for the doc."""
-
-    result: dict[str, Any]
-
-    @property
-    def action(self) -> str:
-        return str(self.result["action"])
-
-    @property
-    def path(self) -> str | None:
-        path = self.result["path"]
-        return None if path is None else str(path)
-
-    @property
-    def label(self) -> str:
-        return str(self.result["label"]).split(": ", 1)[-1]
-
-    @property
-    def unchanged(self) -> bool:
-        return bool(self.result.get("unchanged"))
-
-    @property
-    def error(self) -> str | None:
-        error = self.result.get("error")
-        return None if error is None else str(error)
-
-    @property
-    def counts(self) -> Counts:
-        return Counts.of(self.result["counts"]) if "counts" in self.result else Counts()
-
-    def metric(self, name: str) -> float | None:
-        value = self.result.get("metrics", {}).get(name)
-        return None if value is None else float(value)
-
-    @property
-    def accuracy(self) -> float | None:
-        return self.metric("action_accuracy") if self.counts.predictions else None
-
-    @property
-    def app(self) -> float | None:
-        return self.metric("app")
-
-
-@dataclass(frozen=True)
-class Summary:
-    """Everything the doc shows besides the rows."""
-
-    command: str
-    people: int
-    seconds: float
-    model: str
-    model_sha: str
-    commit: str
-    date: str
-    actions: tuple[str, ...]
-    parameters: tuple[Parameter, ...]
-    cpu_minutes: float
-    wall_minutes: float
-    jobs_left: int
-    jobs_run: int = 0  # cells and scene files scored by this invocation (the rest: cache)
+__all__ = [
+    "GOAL_CELL_ACCURACY",
+    "GOAL_CELL_APP",
+    "GOAL_SCENE_ACCURACY",
+    "GOAL_SCENE_APP",
+    "GOAL_WRONG_UNFLAGGED",
+    "WORST_SHOWN",
+    "Row",
+    "Summary",
+    "markdown",
+]
 
 
 def markdown(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, Any]]) -> str:
@@ -113,453 +71,14 @@ def markdown(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, A
             f"- **incomplete**: {summary.jobs_left} cells were not scored before "
             "--max-minutes; rerun the command to finish (scored cells are kept)"
         )
-    lines += ["", *_headline(scored), "", _tally(rows, scored)]
-    lines += ["", "## By action", "", *_by_action(summary, rows)]
-    lines += ["", "## Goals", "", *_goals(scored, scenes)]
+    lines += ["", *headline(scored), "", tally(rows, scored)]
+    lines += ["", "## By action", "", *by_action(summary, rows)]
+    lines += ["", "## Goals", "", *goals(scored, scenes)]
     lines += ["", "## The unfamiliar flag as a detector of wrong predictions", ""]
-    lines += _detector(scored)
-    lines += ["", "## Scene files as shipped", "", *_scenes(scenes)]
-    lines += ["", "## Accuracy by parameter and action", "", *_accuracy(summary, rows)]
-    lines += ["", "## Per parameter", "", *_per_parameter(summary, rows)]
-    lines += ["", f"## The {WORST_SHOWN} worst cells", "", *_worst(scored)]
-    lines += ["", "## What is not swept over the schema's range, and why", "", *_declared()]
+    lines += unfamiliar_as_detector(scored)
+    lines += ["", "## Scene files as shipped", "", *scene_files(scenes)]
+    lines += ["", "## Accuracy by parameter and action", "", *accuracy_grid(summary, rows)]
+    lines += ["", "## Per parameter", "", *per_parameter(summary, rows)]
+    lines += ["", f"## The {WORST_SHOWN} worst cells", "", *worst_cells(scored)]
+    lines += ["", "## What is not swept over the schema's range, and why", "", *declared_ranges()]
     return "\n".join(lines) + "\n"
-
-
-def _headline(scored: Sequence[Row]) -> list[str]:
-    if not scored:
-        return ["No cell scored yet."]
-    worst = min(scored, key=lambda r: _key(r.accuracy))
-    with_app = [r for r in scored if r.app is not None]
-    out = [
-        f"**Worst cell: {worst.action} with {worst.label}: accuracy "
-        f"{_pct(worst.accuracy)}, APP {_num(worst.app)}** ({_pct(worst.counts.share('flagged'))} "
-        "of its predictions flagged, so withheld by the daemon).",
-    ]
-    if with_app:
-        low = min(with_app, key=lambda r: _key(r.app))
-        out.append(
-            f"Lowest APP: {low.action} with {low.label}: APP {_num(low.app)} "
-            f"(accuracy {_pct(low.accuracy)})."
-        )
-    loud = max(scored, key=lambda r: r.counts.share("wrong_unflagged") or 0.0)
-    out.append(
-        f"Most wrong answers published (wrong and unflagged): {loud.action} with "
-        f"{loud.label}: {_pct(loud.counts.share('wrong_unflagged'))} of its predictions, "
-        f"{_pct(loud.counts.share('wrong_unflagged_confident'))} at a top probability "
-        f"above {CONFIDENT} (accuracy {_pct(loud.accuracy)})."
-    )
-    return [" ".join(out)]
-
-
-def _by_action(summary: Summary, rows: Sequence[Row]) -> list[str]:
-    body = []
-    for action in summary.actions:
-        mine = [r for r in rows if r.action == action and not r.unchanged]
-        scored = [r for r in mine if r.accuracy is not None]
-        base = next((r for r in mine if r.path is None), None)
-        if not scored or base is None:
-            continue
-        worst = min(scored, key=lambda r: _key(r.accuracy))
-        loud = max(scored, key=lambda r: r.counts.share("wrong_unflagged") or 0.0)
-        below = sum(_key(r.accuracy) < GOAL_CELL_ACCURACY for r in scored)
-        body.append(
-            [
-                action,
-                _pct(base.accuracy),
-                _num(base.app),
-                " ".join(_pct(a) for a in base.result.get("accuracy_per_person", [])),
-                f"{below} of {len(scored)}",
-                f"{_pct(worst.accuracy)} ({worst.label})",
-                f"{_pct(loud.counts.share('wrong_unflagged'))} ({loud.label})",
-            ]
-        )
-    return [
-        "The baseline (every field at the scene's default) per action, with each person's "
-        "accuracy, and the action's cells: how many fall below the goal, the worst, and the "
-        "one publishing most wrong answers (wrong and unflagged).",
-        "",
-        *table(
-            [
-                "action",
-                "baseline accuracy",
-                "baseline APP",
-                "per person",
-                f"cells below {100 * GOAL_CELL_ACCURACY:.0f} %",
-                "worst cell",
-                "most wrong and unflagged",
-            ],
-            body,
-        ),
-    ]
-
-
-def _tally(rows: Sequence[Row], scored: Sequence[Row]) -> str:
-    unchanged = sum(r.unchanged for r in rows)
-    silent = [r for r in rows if not r.unchanged and not r.error and r.accuracy is None]
-    refused = sum(bool(r.error) for r in rows)
-    text = (
-        f"{len(rows)} cells: {len(scored)} scored, {unchanged} left the action's motion as "
-        f"the baseline's (not simulated again)"
-    )
-    if refused:
-        text += f", {refused} refused by the simulator"
-    if silent:
-        names = "; ".join(f"{r.action}, {r.label}" for r in silent[:6])
-        more = f" and {len(silent) - 6} more" if len(silent) > 6 else ""
-        text += (
-            f", {len(silent)} without a single prediction (the daemon says nothing there, "
-            f"which is neither right nor wrong: {names}{more})"
-        )
-    return text + "."
-
-
-def _goals(scored: Sequence[Row], scenes: Sequence[dict[str, Any]]) -> list[str]:
-    rows = []
-    if scored:
-        worst = min(scored, key=lambda r: _key(r.accuracy))
-        below = sum(_key(r.accuracy) < GOAL_CELL_ACCURACY for r in scored)
-        rows.append(
-            [
-                f"worst cell accuracy >= {100 * GOAL_CELL_ACCURACY:.0f} %",
-                f"{_pct(worst.accuracy)} ({worst.action}, {worst.label}); "
-                f"{below} of {len(scored)} cells below",
-                _verdict(_key(worst.accuracy) >= GOAL_CELL_ACCURACY),
-            ]
-        )
-        with_app = [r for r in scored if r.app is not None]
-        if with_app:
-            low = min(with_app, key=lambda r: _key(r.app))
-            below = sum(_key(r.app) < GOAL_CELL_APP for r in with_app)
-            rows.append(
-                [
-                    f"worst cell APP >= {GOAL_CELL_APP}",
-                    f"{_num(low.app)} ({low.action}, {low.label}); "
-                    f"{below} of {len(with_app)} cells below",
-                    _verdict(_key(low.app) >= GOAL_CELL_APP),
-                ]
-            )
-        share = [(r.counts.share("wrong_unflagged") or 0.0, r) for r in scored]
-        top, top_row = max(share, key=lambda x: x[0])
-        over = sum(s > GOAL_WRONG_UNFLAGGED for s, _ in share)
-        rows.append(
-            [
-                f"no cell with > {100 * GOAL_WRONG_UNFLAGGED:.0f} % of predictions wrong "
-                "and unflagged",
-                f"{over} of {len(scored)} cells over; the most {_pct(top)} "
-                f"({top_row.action}, {top_row.label})",
-                _verdict(over == 0),
-            ]
-        )
-    if scenes:
-        failing = [
-            s["scene_file"]
-            for s in scenes
-            if _key(_scene_acc(s)) < GOAL_SCENE_ACCURACY
-            or _key(s["metrics"].get("app"), 1.0) < GOAL_SCENE_APP
-        ]
-        worst_scene = min(scenes, key=lambda s: _key(_scene_acc(s)))
-        rows.append(
-            [
-                f"every scene in sim/scenes: accuracy >= {100 * GOAL_SCENE_ACCURACY:.0f} %, "
-                f"APP >= {GOAL_SCENE_APP}",
-                f"{len(failing)} of {len(scenes)} fail"
-                + (f" ({', '.join(failing)})" if failing else "")
-                + f"; lowest accuracy {_pct(_scene_acc(worst_scene))} "
-                f"({worst_scene['scene_file']})",
-                _verdict(not failing),
-            ]
-        )
-    return table(["goal", "measured", ""], rows)
-
-
-def _detector(scored: Sequence[Row]) -> list[str]:
-    total = sum((r.counts for r in scored), Counts())
-    if not total.predictions:
-        return ["No predictions scored yet."]
-    unfamiliar, anyflag = detector(total, "unfamiliar"), detector(total, "flagged")
-    return [
-        f"Over every scored cell ({total.predictions} predictions with an action label), "
-        f"{_pct(total.share('wrong'))} are wrong. The daemon withholds a prediction that "
-        "carries a flag (`unloaded`, `out_of_range` or `unfamiliar`, models/ood.py); read "
-        "as a detector of wrong predictions:",
-        "",
-        *table(
-            [
-                "flag",
-                "fires on",
-                "precision (flagged that are wrong)",
-                "recall (wrong that are flagged)",
-            ],
-            [
-                [
-                    "unfamiliar",
-                    _pct(total.share("unfamiliar")),
-                    _pct(unfamiliar.precision),
-                    _pct(unfamiliar.recall),
-                ],
-                [
-                    "any flag",
-                    _pct(total.share("flagged")),
-                    _pct(anyflag.precision),
-                    _pct(anyflag.recall),
-                ],
-            ],
-        ),
-        "",
-        f"A flag fired at random has precision {_pct(unfamiliar.base_rate)} (the share "
-        "of wrong predictions). Of the wrong predictions, "
-        f"{_pct(_ratio(total.wrong_unflagged, total.wrong))} went out unflagged, "
-        f"{_pct(_ratio(total.wrong_unflagged_confident, total.wrong))} of them at a top "
-        f"probability above {CONFIDENT}. Per parameter: the last columns of the table "
-        "*Per parameter*.",
-    ]
-
-
-def _scene_acc(scene: dict[str, Any]) -> float | None:
-    value = scene["metrics"].get("action_accuracy")
-    return None if value is None or not scene["counts"]["predictions"] else float(value)
-
-
-def _scenes(scenes: Sequence[dict[str, Any]]) -> list[str]:
-    if not scenes:
-        return ["Not scored in this run (--no-scenes)."]
-    rows = []
-    for s in scenes:
-        c = Counts.of(s["counts"])
-        m = s["metrics"]
-        ok = (
-            _key(_scene_acc(s)) >= GOAL_SCENE_ACCURACY and _key(m.get("app"), 1.0) >= GOAL_SCENE_APP
-        )
-        rows.append(
-            [
-                f"`{s['scene_file']}`",
-                f"{m['frames'] / 16 / 60:.1f}",
-                _pct(_scene_acc(s)),
-                _num(m.get("app")),
-                _num(m.get("mpjpe_mm"), 1),
-                _pct(c.share("unloaded")),
-                _pct(c.share("out_of_range")),
-                _pct(c.share("unfamiliar")),
-                _pct(c.share("wrong_unflagged")),
-                _verdict(ok),
-            ]
-        )
-    return [
-        "Each file rendered as it is (`scotti sim FILE`) and replayed as `scotti eval` "
-        "does. Goal: accuracy >= 95 %, APP >= 0.88.",
-        "",
-        *table(
-            [
-                "scene",
-                "min",
-                "accuracy",
-                "APP",
-                "MPJPE mm",
-                "unloaded",
-                "out_of_range",
-                "unfamiliar",
-                "wrong, unflagged",
-                "",
-            ],
-            rows,
-        ),
-    ]
-
-
-def _accuracy(summary: Summary, rows: Sequence[Row]) -> list[str]:
-    by_cell = {(r.action, r.label): r for r in rows}
-    labels = ["baseline"] + [f"{p.path} = {_show(v)}" for p in summary.parameters for v in p.values]
-    body = []
-    for label in labels:
-        cells = [_acc_cell(by_cell.get((a, label))) for a in summary.actions]
-        body.append([label.replace("|", "/"), *cells])
-    return [
-        "Accuracy (%) of each cell, its people pooled; the baseline row is every field at "
-        "the scene's default (the people's own traits, the realistic insole, no effects). "
-        f"**Bold**: below {100 * GOAL_CELL_ACCURACY:.0f} %. `=`: the value leaves that "
-        "action's motion as the baseline's (a movement field the action does not read): "
-        "not simulated again. `n/p`: no prediction at all. `err`: the simulator refused "
-        "the scene (listed below the table). Empty: not scored yet.",
-        "",
-        *table(["parameter = value", *summary.actions], body),
-        *_errors(rows),
-    ]
-
-
-def _errors(rows: Sequence[Row]) -> list[str]:
-    refused = [r for r in rows if r.error]
-    if not refused:
-        return []
-    out = ["", "Scenes the schema accepts and the simulator refused:", ""]
-    return out + [f"- {r.action}, {r.label}: {r.error}" for r in refused]
-
-
-def _acc_cell(row: Row | None) -> str:
-    if row is None:
-        return ""
-    if row.unchanged:
-        return "="
-    if row.error:
-        return "err"
-    if row.accuracy is None:
-        return "n/p"
-    text = f"{100 * row.accuracy:.1f}"
-    return f"**{text}**" if row.accuracy < GOAL_CELL_ACCURACY else text
-
-
-def _per_parameter(summary: Summary, rows: Sequence[Row]) -> list[str]:
-    body = []
-    for p in summary.parameters:
-        mine = [r for r in rows if r.path == p.path and not r.unchanged]
-        scored = [r for r in mine if r.accuracy is not None]
-        if not scored:
-            continue
-        worst = min(scored, key=lambda r: _key(r.accuracy))
-        with_app = [r for r in scored if r.app is not None]
-        low = min(with_app, key=lambda r: _key(r.app)) if with_app else None
-        pooled = sum((r.counts for r in scored), Counts())
-        det = detector(pooled, "unfamiliar")
-        mpjpe = [r.metric("mpjpe_mm") for r in scored]
-        body.append(
-            [
-                p.path,
-                f"{len(scored)}",
-                f"{_pct(worst.accuracy)} ({worst.action}, {_show_value(worst)})",
-                f"{_num(low.app)} ({low.action}, {_show_value(low)})" if low else "-",
-                _num(max((x for x in mpjpe if x is not None), default=None), 0),
-                _pct(pooled.share("unloaded")),
-                _pct(pooled.share("out_of_range")),
-                _pct(pooled.share("unfamiliar")),
-                _pct(max((r.counts.share("wrong_unflagged") or 0.0) for r in scored)),
-                _pct(max((r.counts.share("wrong_unflagged_confident") or 0.0) for r in scored)),
-                _pct(det.base_rate),
-                _pct(det.precision),
-                _pct(det.recall),
-            ]
-        )
-    return [
-        "Cells scored per parameter (all its values and actions), the worst of them, and "
-        "their predictions pooled: flag shares, wrong predictions (the share among all; "
-        "the largest share of wrong-and-unflagged and of wrong, unflagged and confident "
-        f"(top probability > {CONFIDENT}) in one cell), and the unfamiliar flag as a "
-        "detector of wrong ones (precision, recall).",
-        "",
-        *table(
-            [
-                "parameter",
-                "cells",
-                "worst accuracy",
-                "worst APP",
-                "max MPJPE mm",
-                "unloaded",
-                "out_of_range",
-                "unfamiliar",
-                "max wrong unflagged",
-                "max wrong confident",
-                "wrong",
-                "unfamiliar precision",
-                "unfamiliar recall",
-            ],
-            body,
-        ),
-    ]
-
-
-def _worst(scored: Sequence[Row]) -> list[str]:
-    ranked = sorted(scored, key=lambda r: _key(r.accuracy))[:WORST_SHOWN]
-    body = []
-    for r in ranked:
-        c = r.counts
-        published = c.predictions - c.flagged
-        body.append(
-            [
-                r.action,
-                r.label,
-                _pct(r.accuracy),
-                _pct(_ratio(published - c.wrong_unflagged, published)),
-                _num(r.app),
-                _num(r.metric("mpjpe_mm"), 0),
-                _num(r.metric("progress_mse"), 4),
-                _pct(c.share("unloaded")),
-                _pct(c.share("out_of_range")),
-                _pct(c.share("unfamiliar")),
-                _pct(c.share("wrong_unflagged")),
-                _pct(c.share("wrong_unflagged_confident")),
-                " ".join(_pct(a) for a in r.result.get("accuracy_per_person", [])),
-            ]
-        )
-    return [
-        "Accuracy over every prediction (as `scotti eval`), and over the published ones "
-        "(those no flag withholds); shares of all predictions.",
-        "",
-        *table(
-            [
-                "action",
-                "parameter = value",
-                "accuracy",
-                "published accuracy",
-                "APP",
-                "MPJPE mm",
-                "progress MSE",
-                "unloaded",
-                "out_of_range",
-                "unfamiliar",
-                "wrong, unflagged",
-                "wrong, unflagged, confident",
-                "accuracy per person",
-            ],
-            body,
-        ),
-    ]
-
-
-def _declared() -> list[str]:
-    out = [f"- `{path}`: not swept: {why}" for path, why in SKIPPED.items()]
-    out += [
-        f"- `{path}`: swept at {', '.join(map(_show, values))}: {why}"
-        for path, (why, values) in NOT_RANGE.items()
-    ]
-    out += [
-        f"- `{path}`: also at {', '.join(map(_show, values))}: {why}"
-        for path, (why, values) in EXTRA_VALUES.items()
-    ]
-    out += [
-        f"- `{path}`: with {', '.join(f'{k} = {v}' for k, v in given.items())}: {why}"
-        for path, (why, given) in WITH.items()
-    ]
-    out.append(
-        "- An open bound (a value that must be greater than its minimum) is approached "
-        "to 0.01 % of the field's span; an extreme that is the field's default is the "
-        "baseline's cell (for an effect's parameter: the cell of that effect at its defaults)."
-    )
-    return out
-
-
-def _show_value(row: Row) -> str:
-    return row.label.split(" = ", 1)[-1]
-
-
-def _show(value: Any) -> str:
-    return f"{value:g}" if isinstance(value, float) else str(value)
-
-
-def _key(value: float | None, missing: float = -1.0) -> float:
-    """A figure for sorting: a missing one sorts first (the worst) unless told otherwise."""
-    return missing if value is None or not math.isfinite(value) else value
-
-
-def _ratio(a: int, b: int) -> float | None:
-    return a / b if b else None
-
-
-def _pct(value: float | None) -> str:
-    return "-" if value is None else f"{100 * value:.1f} %"
-
-
-def _num(value: float | None, digits: int = 3) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
-
-
-def _verdict(ok: bool) -> str:
-    return "pass" if ok else "**fail**"

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The generalisation recipe (docs/generalisation.md): partition p1's training people,
+# The generalisation recipe (docs/generalisation.md): a partition's training people (p1 unless PARTITION),
 # the 18 extra people, and 48 more rendered through wide insoles with mixed effects,
 # trained by the shipped recipe plus sensor transfer, then exported and calibrated.
 #
@@ -8,7 +8,8 @@
 #   SMOKE=1 scripts/train_wide.sh              # the whole chain on two tiny people first
 #   TRAIN_ONLY=1 RUN=runs/x scripts/train_wide.sh  # train (or resume) only: a GPU host's share
 #   FORM=streaming scripts/train_wide.sh       # the streaming-native form (docs/streaming-native.md)
-#   HELD_OUT=1 scripts/train_wide.sh           # also render p1's held-out people into DATA/realistic
+#   PARTITION=p2 RUN=runs/x-p2 scripts/train_wide.sh  # another partition's people (default p1)
+#   HELD_OUT=1 scripts/train_wide.sh           # also render the partition's held-out people into DATA/realistic
 #                                              # (for wide_rule.py --held-out after a simulator change)
 #
 # Every step is checkpointed: the people already rendered and decoded are not redone,
@@ -31,11 +32,25 @@ MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-}
 TRAIN_ONLY=${TRAIN_ONLY:-0}        # 1: stop after training (export and calibrate elsewhere)
 RENDER_ONLY=${RENDER_ONLY:-0}      # 1: stop after rendering and decoding
 FORM=${FORM:-paper}                # scotti train --arch streaming for the streaming-native form
-HELD_OUT=${HELD_OUT:-0}            # 1: render p1's held-out people too (not trained on)
-# p1 of experiments/partitions.json: training people; 011/012 and 031/032 validate.
-P1_TRAIN=(000 001 002 003 004 006 008 009 011 012)
-VALIDATION=(subject-011 subject-012 subject-031 subject-032)
-P1_TEST=(005 007 010 013 014)      # p1's held-out people (experiments/partitions.json)
+HELD_OUT=${HELD_OUT:-0}            # 1: render the partition's held-out people too (not trained on)
+PARTITION=${PARTITION:-p1}        # experiments/partitions.json: whose people train, whose are held out
+# The partition's training and held-out people (three-digit indices); like
+# experiments/partition_runs.py, its last two training people and 031/032 validate.
+partition_people() {  # train|test
+  python - "$PARTITION" "$1" <<'PY'
+import json, sys
+parts = json.load(open("experiments/partitions.json"))["partitions"]
+part = next((p for p in parts if p["name"] == sys.argv[1]), None)
+if part is None:
+    sys.exit(f"train_wide: no partition {sys.argv[1]!r} in experiments/partitions.json")
+print(" ".join(s.removeprefix("subject-") for s in part[sys.argv[2]]))
+PY
+}
+train_people=$(partition_people train)  # an unknown partition stops the script here
+test_people=$(partition_people test)
+read -r -a P_TRAIN <<< "$train_people"
+read -r -a P_TEST <<< "$test_people"
+VALIDATION=("subject-${P_TRAIN[-2]}" "subject-${P_TRAIN[-1]}" subject-031 subject-032)
 
 # One person a process, each in a folder of its own (corpus writes a manifest per call).
 render() {  # PART FIRST_INDEX MINUTES_PER_ACTION [corpus options...]
@@ -58,18 +73,18 @@ jobs=()
 if [[ ${SMOKE:-0} == 1 ]]; then
   DATA=$DATA-smoke CACHE=$CACHE-smoke RUN=$RUN-smoke EPOCHS=1
   MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-0.2}
-  P1_TRAIN=(011 012) VALIDATION=(subject-011 subject-012) MORE=1
+  P_TRAIN=(011 012) VALIDATION=(subject-011 subject-012) MORE=1
 fi
 export DATA
 mkdir -p "$DATA"/{realistic,extra,more}
-for i in "${P1_TRAIN[@]}"; do
+for i in "${P_TRAIN[@]}"; do
   jobs+=("realistic $((10#$i)) ${MINUTES_PER_ACTION:-4} --effects realistic")
 done
 if [[ ${SMOKE:-0} != 1 ]]; then
   for i in $(seq 15 32); do jobs+=("extra $i ${MINUTES_PER_ACTION:-2} --effects realistic"); done
 fi
 if [[ $HELD_OUT == 1 ]]; then
-  for i in "${P1_TEST[@]}"; do
+  for i in "${P_TEST[@]}"; do
     jobs+=("realistic $((10#$i)) ${MINUTES_PER_ACTION:-4} --effects realistic")
   done
 fi
@@ -81,7 +96,7 @@ printf '%s\n' "${jobs[@]}" | xargs -P "$JOBS" -L 1 bash -c 'render "$@"' _
 
 shopt -s nullglob
 files=()
-for i in "${P1_TRAIN[@]}"; do files+=("$DATA/realistic/subject-$i.ses"); done
+for i in "${P_TRAIN[@]}"; do files+=("$DATA/realistic/subject-$i.ses"); done
 files+=("$DATA"/extra/subject-*.ses "$DATA"/more/subject-*.ses)
 echo "train_wide: decoding ${#files[@]} sessions into $CACHE"
 python - "$CACHE" "$JOBS" "${files[@]}" <<'EOF'

@@ -333,7 +333,8 @@ def test_gather_waits_for_a_due_device_and_runs_both_in_one_call(runtime: Scotti
     assert engine.gathered >= 1
     stats = engine.stats()
     assert stats["frames"] == 4
-    assert stats["frames_per_call"] == pytest.approx(4 / stats["model_calls"])
+    # stats() rounds to 2 decimals: 3 calls (a busy host split the first round) say 1.33.
+    assert stats["frames_per_call"] == pytest.approx(4 / stats["model_calls"], abs=0.005)
 
 
 def test_gather_never_waits_for_a_silent_device_or_for_one_alone(runtime: ScottiRuntime) -> None:
