@@ -19,7 +19,6 @@ cd "$(dirname "$0")/.."
 SCOTTI=${SCOTTI:-scotti}
 DATA=${DATA:-data/corpus13}
 CACHE=${CACHE:-data/cache13}
-RUN=${RUN:-runs/v13-p1-wide}
 JOBS=${JOBS:-$(nproc)}
 DEVICE=${DEVICE:-auto}
 EPOCHS=${EPOCHS:-6}
@@ -34,6 +33,7 @@ RENDER_ONLY=${RENDER_ONLY:-0}      # 1: stop after rendering and decoding
 FORM=${FORM:-paper}                # scotti train --arch streaming for the streaming-native form
 HELD_OUT=${HELD_OUT:-0}            # 1: render the partition's held-out people too (not trained on)
 PARTITION=${PARTITION:-p1}        # experiments/partitions.json: whose people train, whose are held out
+RUN=${RUN:-runs/v13-$PARTITION-wide}  # per partition, so that p2 never resumes p1's last.pt
 # The partition's training and held-out people (three-digit indices); like
 # experiments/partition_runs.py, its last two training people and 031/032 validate.
 partition_people() {  # train|test

@@ -14,6 +14,8 @@ from scotti.importers.timebase import box_average
 from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS, MAX_COUNT
 from scotti.models.insole import DEFAULT_TRANSFER, Transfer, counts_from_kpa, insole_mask
 
+from tests.support.export_sessions import TINY_MODEL
+
 RAIL = DEFAULT_TRANSFER.saturation_counts
 
 
@@ -264,17 +266,6 @@ def sessions_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return d
 
 
-TINY = {
-    "window": 8,
-    "embed_dim": 16,
-    "layers": 1,
-    "heads": 2,
-    "head_hidden": 16,
-    "conv_channels": [4, 4],
-    "dropout": 0.0,
-}
-
-
 @pytest.mark.torch
 def test_the_loader_renders_planned_chunks_through_their_sensors(sessions_dir: Path) -> None:
     pytest.importorskip("torch")
@@ -319,7 +310,7 @@ def test_scotti_train_takes_the_flag_and_records_it(
 
     torch.set_num_threads(1)
     run = tmp_path / "run"
-    args = [str(sessions_dir), "-o", str(run), "--config", json.dumps(TINY), "--epochs", "1"]
+    args = [str(sessions_dir), "-o", str(run), "--config", json.dumps(TINY_MODEL), "--epochs", "1"]
     args += ["--batch", "8", "--chunk", "4", "--stride", "2", "--val-subjects", "b"]
     args += ["--test-fraction", "0", "--no-progress", "--device", "cpu"]
     assert main(["train", *args, "--sensor-transfer", "0.5"]) == 0
