@@ -50,10 +50,31 @@ _HEEL: Final = (KP["left_heel"], KP["right_heel"])
 _BIG_TOE: Final = (KP["left_big_toe"], KP["right_big_toe"])
 _SMALL_TOE: Final = (KP["left_small_toe"], KP["right_small_toe"])
 
-# A foot keypoint is on the floor below CONTACT_FULL_M and off above
-# CONTACT_NONE_M (linear in between, which softens touch-down and lift-off).
-CONTACT_FULL_M: Final = 0.005
-CONTACT_NONE_M: Final = 0.020
+# A foot keypoint carries load only while it touches the floor: fully at or
+# below CONTACT_FULL_M, not at all above CONTACT_NONE_M, linearly in between.
+# The kinematics put a standing foot's keypoints exactly on the surface
+# (z - ground = 0), so the ramp is not a tolerance for hovering feet: it
+# stands for the sole's compression as the load builds, the first few
+# millimetres of heel pad and shoe sole squeezed at touch-down and released
+# at lift-off (the heel pad alone deforms by several millimetres under body
+# weight: Aerts et al. 1995, "The mechanical properties of the human heel
+# pad", J Biomech 28:1299-1308). It spreads a touch-down over a few
+# milliseconds of the internal rate, no more. A wider ramp (load from
+# 20 mm up) would let a foot still in the air take part of the weight, so
+# every step lands early and lifts off late: 36-45 % double support against
+# 22-32 % in real gaitpdb walking (docs/real-data.md). What a foot in the
+# air does not carry goes to the foot on the floor (the sharing below
+# normalises over the feet in contact).
+CONTACT_FULL_M: Final = 0.001
+CONTACT_NONE_M: Final = 0.004
+# Where along a loaded foot the load goes is a separate, wider weighting of
+# its two ends: an end within SOLE_FULL_M of the floor bears its part fully,
+# one above SOLE_NONE_M none (linear in between). The keypoints describe a
+# rigid sole; the real one compresses and bends, so a heel a few millimetres
+# up (a flat landing pitched a degree toes-down) still bears once the foot is
+# loaded. These are the bounds the COP calibration below was made with.
+SOLE_FULL_M: Final = 0.005
+SOLE_NONE_M: Final = 0.020
 # COP along the foot (0 heel, 1 hallux tip) for heel-only and flat contact.
 # The flat foot's COP follows the COM's projection within (0.30, 0.72): in
 # walking it thus leaves the heel once the heel rocker is done and reaches
@@ -65,11 +86,13 @@ _COP_HEEL: Final = 0.10
 _COP_FLAT_RANGE: Final = (0.30, 0.72)
 # A foot coming down flat (heel and forefoot touching together, a midfoot
 # strike or a side step) first bears load on the middle of its sole, not
-# under a COM that is still behind it: while neither end is fully down the
-# flat COP is kept at least this far along (a strike index of about one half,
-# Cavanagh & Lafortune 1980), easing back to the COM's projection as the
-# foot settles.
+# under a COM that is still behind it: at touch-down the flat COP is kept at
+# least this far along (a strike index of about one half, Cavanagh &
+# Lafortune 1980), easing back to the COM's projection over _LANDING_S, the
+# start of weight acceptance (our choice: about the time a foot coming down
+# at 0.3-0.4 m/s takes over the sole's 15 mm weighting band above).
 _COP_FLAT_LANDING: Final = 0.55
+_LANDING_S: Final = 0.05
 # Both feet flat (standing, squatting, a jump's crouch): nothing is rolling
 # over a heel or forefoot rocker, so the COP follows the COM back towards the
 # heel pad, down to this far along. With the walking floor (0.30) a squat's
@@ -129,9 +152,28 @@ class FootLoads:
         )
 
 
-def _ramp_down(z: np.ndarray) -> np.ndarray:
-    """1 at/below CONTACT_FULL_M, 0 at/above CONTACT_NONE_M."""
-    return np.clip((CONTACT_NONE_M - z) / (CONTACT_NONE_M - CONTACT_FULL_M), 0.0, 1.0)
+def _ramp_down(
+    z: np.ndarray, full: float = CONTACT_FULL_M, none: float = CONTACT_NONE_M
+) -> np.ndarray:
+    """1 at/below ``full``, 0 at/above ``none``, linear in between."""
+    return np.clip((none - z) / (none - full), 0.0, 1.0)
+
+
+def flat_landing(contact: np.ndarray, flat: np.ndarray, rate_hz: float) -> np.ndarray:
+    """(N, 2): 1 at the touch-down of a foot that lands flat, easing to 0 over _LANDING_S.
+
+    ``contact`` (N, 2) > 0 while a foot touches; ``flat`` (N, 2) how flat it
+    is (1: both ends bear) -- taken at the touch-down sample. A foot already
+    down at the first sample did not land.
+    """
+    touched = contact > 0
+    before = np.concatenate([touched[:1], touched[:-1]])
+    index = np.arange(len(contact))[:, None]
+    last = np.maximum.accumulate(np.where(touched & ~before, index, -1), axis=0)
+    since_s = (index - last) / rate_hz
+    at_touch = np.take_along_axis(flat, np.maximum(last, 0), axis=0)
+    easing = np.clip(1.0 - since_s / _LANDING_S, 0.0, 1.0)
+    return np.where(touched & (last >= 0), at_touch * easing, 0.0)
 
 
 def vertical_acceleration(com_z: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -164,8 +206,10 @@ def foot_loads(
     toe = 0.5 * (kp[:, _BIG_TOE, :] + kp[:, _SMALL_TOE, :])  # (N, 2, 3)
     toe_z = np.minimum(kp[:, _BIG_TOE, 2], kp[:, _SMALL_TOE, 2]) - ground
     heel_z = heel[..., 2] - ground
-    c_heel, c_toe = _ramp_down(heel_z), _ramp_down(toe_z)
-    contact = np.maximum(c_heel, c_toe)
+    contact = _ramp_down(np.minimum(heel_z, toe_z))  # whether the foot carries load
+    # Which end bears it (the sole's wider weighting, see SOLE_FULL_M).
+    c_heel = _ramp_down(heel_z, SOLE_FULL_M, SOLE_NONE_M)
+    c_toe = _ramp_down(toe_z, SOLE_FULL_M, SOLE_NONE_M)
 
     # Foot axis on the floor, heel -> toes, and the medial direction:
     # to the right of the left foot, to the left of the right foot.
@@ -177,7 +221,7 @@ def foot_loads(
 
     rel = com[:, None, :2] - heel[..., :2]  # (N, 2, 2)
     u_com = np.einsum("nfk,nfk->nf", rel, fwd) / length
-    settling = 1.0 - np.maximum(c_heel, c_toe)  # 1 at first touch of a flat foot, 0 once down
+    settling = flat_landing(contact, c_heel * c_toe, rate_hz)  # 1 at a flat touch-down
     both_flat = np.minimum(c_heel, c_toe).min(axis=1, keepdims=True)  # (N, 1), 1: both down flat
     floor_still = _COP_FLAT_RANGE[0] - (_COP_FLAT_RANGE[0] - _COP_BOTH_FLAT_FLOOR) * both_flat
     floor_u = floor_still + (_COP_FLAT_LANDING - floor_still) * settling

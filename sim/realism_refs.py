@@ -198,3 +198,27 @@ REFERENCES: Final[tuple[Reference, ...]] = (
 )
 
 BY_KEY: Final = {r.key: r for r in REFERENCES}
+
+# The phases of the gait cycle in steady level walking at a self-selected
+# speed, healthy adults, as shares of the cycle (one stride): each foot
+# stands ~60-62 % and swings ~38-40 %; both feet are down twice per cycle
+# (loading response and pre-swing) for ~10-12 % each, ~20-24 % in all.
+# Measured from rendered pressure frames (tests/test_sim_gait_phases.py,
+# experiments/sim_walking_gait.py), not by ``scotti sim realism``.
+_GAIT_CYCLE: Final = (
+    "Perry & Burnfield 2010, Gait Analysis, 2nd ed., ch. 1 (stance 60 %, swing 40 %, "
+    "two double supports of ~10 %); Whittle 2007, Gait Analysis: an Introduction, 4th ed., "
+    "ch. 2 (stance ~60-62 %, double support ~10-12 % twice at self-selected speed)"
+)
+WALKING_PHASES: Final[tuple[Reference, ...]] = (
+    Reference("walking_stance_share", "walking: stance per foot", 0.60, 0.62, "cycle", _GAIT_CYCLE),
+    Reference("walking_swing_share", "walking: swing per foot", 0.38, 0.40, "cycle", _GAIT_CYCLE),
+    Reference(
+        "walking_double_support_share",
+        "walking: both feet down, in all",
+        0.20,
+        0.24,
+        "cycle",
+        _GAIT_CYCLE,
+    ),
+)
