@@ -12,7 +12,12 @@ What the export changed, and how it is undone:
 - the pooling weights are stored as their softmax: their logarithm has the
   same softmax;
 - the attention and feed-forward matrices are stored transposed, as MatMul
-  initialisers in the order the layers use them.
+  initialisers in the order the layers use them;
+- the streaming-native form (export/model_streaming.py) has no pooling logits in
+  the graph, only the softmax's weights of the T frames (the output token's is
+  one minus their sum), and each layer's relative bias ``rel_bias[h, offset]``
+  is spread into the (1, h, T+1, T+1) bias the window's tokens add: the output
+  token's row, the last, holds every offset 0..T once.
 
 Because the last point depends on how torch's exporter names and orders
 things, the rebuilt model is always run beside the window graph on the same
@@ -65,10 +70,13 @@ def _load(path: Path) -> tuple[dict[str, np.ndarray], list[np.ndarray], dict[str
         raise GraphWeightsError(
             f"{path}: not a readable ONNX graph ({type(exc).__name__})"
         ) from None
-    named = {i.name: numpy_helper.to_array(i) for i in graph.graph.initializer}
+    found = {i.name: numpy_helper.to_array(i) for i in graph.graph.initializer}
+    # Keyed in the order the nodes first use them: graph order is the layers' order.
+    named = {n: found[n] for node in graph.graph.node for n in node.input if n in found}
+    named |= found
     matmuls = [
         named[name]
-        for node in graph.graph.node  # graph order is the order the layers run in
+        for node in graph.graph.node
         if node.op_type == "MatMul"
         for name in node.input
         if name in named and named[name].ndim == 2 and not name.startswith("model.")
@@ -99,19 +107,27 @@ def _state(path: Path) -> tuple[ScottiConfig, dict[str, torch.Tensor]]:
     state["cnn.norm.running_mean"] = torch.zeros(e)
     state["cnn.norm.running_var"] = torch.full((e,), 1.0 - eps)
     state["cnn.norm.num_batches_tracked"] = own["cnn.norm.num_batches_tracked"]
-    pools = [
-        a for n, a in named.items() if n.startswith("softmax") and a.shape == (cfg.window + 1,)
-    ]
-    if len(pools) != 1:
+    pooling = _pooling(named, cfg) if cfg.arch == "streaming" else _paper_pooling(named, cfg)
+    if pooling is None:
         raise GraphWeightsError(f"{path}: cannot find its pooling weights")
-    state["pool_weights"] = torch.from_numpy(np.log(pools[0].astype(np.float64)).astype(np.float32))
+    state["pool_weights"] = torch.from_numpy(np.log(pooling).astype(np.float32))
     if len(matmuls) != PER_LAYER * cfg.layers:
         msg = f"{path}: {len(matmuls)} MatMul weights where {PER_LAYER * cfg.layers} were expected"
         raise GraphWeightsError(msg)
+    layer = "streaming.layers.{}" if cfg.arch == "streaming" else "encoder.{}"
     names = ("attn.qkv", "attn.out", "mlp.0", "mlp.2")
     for i in range(cfg.layers):
         for name, array in zip(names, matmuls[PER_LAYER * i : PER_LAYER * (i + 1)], strict=True):
-            state[f"encoder.{i}.{name}.weight"] = torch.from_numpy(array.T.copy())
+            state[f"{layer.format(i)}.{name}.weight"] = torch.from_numpy(array.T.copy())
+    if cfg.arch == "streaming":
+        t = cfg.window
+        biases = [a for a in named.values() if a.shape == (1, cfg.heads, t + 1, t + 1)]
+        if len(biases) != cfg.layers:
+            msg = f"{path}: {len(biases)} attention biases where {cfg.layers} were expected"
+            raise GraphWeightsError(msg)
+        for i, bias in enumerate(biases):  # the output token's row: key T - offset
+            rel = bias[0, :, t, ::-1].copy()
+            state[f"streaming.layers.{i}.attn.rel_bias"] = torch.from_numpy(rel)
     missing = sorted(set(own) - set(state))
     if missing:
         raise GraphWeightsError(f"{path}: no weights found for {', '.join(missing[:4])}")
@@ -120,6 +136,27 @@ def _state(path: Path) -> tuple[ScottiConfig, dict[str, torch.Tensor]]:
             msg = f"{path}: {key} is {tuple(value.shape)}, the model's {tuple(own[key].shape)}"
             raise GraphWeightsError(msg)
     return cfg, state
+
+
+def _paper_pooling(named: dict[str, np.ndarray], cfg: ScottiConfig) -> np.ndarray | None:
+    """The paper form's softmax of the pooling weights, a (T+1,) initialiser."""
+    pools = [
+        a for n, a in named.items() if n.startswith("softmax") and a.shape == (cfg.window + 1,)
+    ]
+    return pools[0].astype(np.float64) if len(pools) == 1 else None
+
+
+def _pooling(named: dict[str, np.ndarray], cfg: ScottiConfig) -> np.ndarray | None:
+    """The streaming-native form's softmax of the pooling weights: the T frames' share is
+    a (T,) initialiser of positive weights summing below 1, the output token's the rest."""
+    frames = [
+        a.astype(np.float64)
+        for a in named.values()
+        if a.shape == (cfg.window,) and a.dtype == np.float32 and (a > 0).all() and a.sum() < 1
+    ]
+    if len(frames) != 1:
+        return None
+    return np.concatenate([[1.0 - frames[0].sum()], frames[0]])
 
 
 def compare(

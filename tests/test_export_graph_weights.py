@@ -51,6 +51,36 @@ def test_the_rebuilt_model_computes_what_the_exported_one_did(graph: Path) -> No
     assert max(rebuilt["parity"].values()) < 1e-4
 
 
+def test_a_streaming_native_export_reads_back_with_its_relative_biases(tmp_path: Path) -> None:
+    """The streaming form (the shipped default's) keeps no pooling logits and spreads
+    each layer's rel_bias into a bias matrix; both come back, and so does the model."""
+    from scotti.export.onnx_export import Checkpoint, export_model
+
+    from tests.test_export_streaming_native import TINY_KV, spread
+
+    original = spread(Scotti(TINY_KV), 5)
+    out = tmp_path / "kv.onnx"
+    export_model(Checkpoint(model=original), out)
+    rebuilt = checkpoint_from_graph(out)
+    assert rebuilt["config"]["arch"] == "streaming"
+    own = original.state_dict()
+    for i in range(TINY_KV.layers):
+        name = f"streaming.layers.{i}.attn.rel_bias"
+        np.testing.assert_allclose(rebuilt["model"][name], own[name], atol=1e-6, err_msg=name)
+    # Logits come back up to a constant: their softmax is what the model computes.
+    np.testing.assert_allclose(
+        rebuilt["model"]["pool_weights"].softmax(0), own["pool_weights"].softmax(0), atol=1e-6
+    )
+    frames = np.random.default_rng(8).integers(0, 600, (3, TINY_KV.window, *TINY_KV.frame_shape))
+    frames = frames.astype(np.float32)
+    for ours, theirs in zip(
+        _outputs(rebuilt["model"], TINY_KV, frames),
+        _outputs(own, TINY_KV, frames),
+        strict=True,
+    ):
+        np.testing.assert_allclose(ours, theirs, atol=1e-4)
+
+
 def test_a_step_graph_without_its_window_graph_is_refused(tmp_path: Path) -> None:
     alone = tmp_path / "scotti-tiny.onnx"
     shutil.copy(TINY_STEP, alone)
