@@ -3,7 +3,9 @@
     python experiments/measure.py MODEL.onnx [MODEL.onnx ...] [--steps 400] [--threads 1 2]
 
 Latency: the daemon's own call, ``ScottiRuntime.step`` (one new frame + the
-cached embeddings, batch 1), timed per call after a warm-up; and, for the
+cached embeddings, batch 1; for the streaming-native form one ``KvStepRuntime``
+step on warm key/value caches, the graph's own rows, and its result row), timed
+per call after a warm-up; and, for the
 comparison, one call of the window graph over all T frames (what recomputing
 the whole window every frame would cost). Models take turns call by call, so
 that load from other processes on a shared machine hits them alike.
@@ -26,7 +28,9 @@ import numpy as np
 import onnx
 from any_window import with_window
 from onnx import shape_inference
+from scotti.daemon.tools.step_costs import step_inputs, step_rows
 from scotti.models.contract import MAX_COUNT, META_WINDOW, WINDOW_INPUT_FRAMES
+from scotti.models.kv_streaming import KvStepRuntime, open_step_model
 from scotti.models.runtime import ScottiRuntime, window_graph_for
 
 
@@ -91,13 +95,17 @@ def latency(models: list[Path], threads: int, steps: int) -> dict[str, dict[str,
     calls: dict[str, Any] = {}
     for path in models:
         with_window(_window_of(path))  # see any_window.py: T=20 models are outside the contract
-        step = ScottiRuntime(path, threads=threads)
+        step = open_step_model(path, threads=threads)
         window = ScottiRuntime(window_graph_for(path), threads=threads)
-        frame = rng.uniform(0, MAX_COUNT, step.frame_shape).astype(np.float32)
-        past = rng.normal(size=(step.window - 1, step.embed_dim)).astype(np.float32)
+        if isinstance(step, KvStepRuntime):  # batch 1 on warm caches, as the daemon steps it
+            one, *rest = step_inputs(step, [1])[1]
+            calls[f"{path}|step"] = lambda s=step, f=one, r=tuple(rest): step_rows(s, f, r)
+        else:
+            frame = rng.uniform(0, MAX_COUNT, step.frame_shape).astype(np.float32)
+            past = rng.normal(size=(step.window - 1, step.embed_dim)).astype(np.float32)
+            calls[f"{path}|step"] = lambda s=step, f=frame, p=past: s.step(f, p)
         frames = rng.uniform(0, MAX_COUNT, (1, step.window, *step.frame_shape)).astype(np.float32)
         session = window._session  # the raw call, no batching loop around it
-        calls[f"{path}|step"] = lambda s=step, f=frame, p=past: s.step(f, p)
         calls[f"{path}|window"] = lambda s=session, x=frames: s.run(None, {WINDOW_INPUT_FRAMES: x})
     for call in calls.values():  # warm-up
         for _ in range(20):
