@@ -24,7 +24,7 @@ from typing import Any, Final
 from common import ROOT, from_root
 from coverage_grid import Cell, digest
 from coverage_score import same_motion, score_scenes
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.kv_streaming import StepModel, open_step_model
 from scotti.sim import SimError
 from scotti.sim.scene import Scene
 
@@ -96,7 +96,7 @@ class Outcome:
     wall_s: float = 0.0
 
 
-_RUNTIMES: dict[str, ScottiRuntime] = {}  # per worker process: the model, loaded once
+_RUNTIMES: dict[str, StepModel] = {}  # per worker process: the model, loaded once
 
 
 def run_job(job: Job, model: str, workdir: str, keep: bool) -> dict[str, Any]:
@@ -106,7 +106,7 @@ def run_job(job: Job, model: str, workdir: str, keep: bool) -> dict[str, Any]:
     if job.baselines is not None and same_motion(job.scenes, job.baselines):
         return out | {"unchanged": True, "cpu_s": round(time.process_time() - started, 3)}
     if model not in _RUNTIMES:
-        _RUNTIMES[model] = ScottiRuntime(model, threads=1)
+        _RUNTIMES[model] = open_step_model(model, threads=1)  # either form
     scenes = [Scene.model_validate(raw) for raw in job.scenes]
     try:
         result = score_scenes(scenes, _RUNTIMES[model], Path(workdir) / job.key, keep=keep)

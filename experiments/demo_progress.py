@@ -46,8 +46,8 @@ from scotti.evaluation.frames import FrameSet
 from scotti.evaluation.replay import replay_session
 from scotti.evaluation.sampling import Prediction
 from scotti.models import contract
+from scotti.models.kv_streaming import open_step_model
 from scotti.models.ood import withheld
-from scotti.models.runtime import ScottiRuntime
 
 LEVELS = " .:-=+*#%@"  # 0..1 in ten steps
 
@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         "--low", type=float, help="the counter's counting threshold (default: the daemon's)"
     )
     args = parser.parse_args(argv)
-    runtime = ScottiRuntime(args.model, threads=1)
+    runtime = open_step_model(args.model, threads=1)  # either form, as the daemon
     if args.session is not None:
         name = args.session.name
         replay = replay_session(args.session, runtime)

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from scotti.evaluation.replay import replay_session
 from scotti.models import contract
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.kv_streaming import open_step_model
 
 ENDS = (0.1, 0.9)  # a label below the first or above the second is at the sawtooth's ends
 
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--model", type=Path, default=Path("models/scotti-default.onnx"))
     args = parser.parse_args(argv)
-    runtime = ScottiRuntime(args.model, threads=1)
+    runtime = open_step_model(args.model, threads=1)  # either form, as the daemon
     truths, preds, actions = [], [], []
     for path in args.sessions:
         f = replay_session(path, runtime).frames

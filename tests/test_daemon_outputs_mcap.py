@@ -196,3 +196,18 @@ def test_an_existing_output_is_refused_unless_force(
     assert out.read_bytes() == b"yesterday's export"
     assert scotti([*args, "--force"]) == 0
     assert out.read_bytes().endswith(b"\x89MCAP0\r\n")
+
+
+def test_export_with_the_shipped_model_of_either_form(tmp_path: Path) -> None:
+    """No --model: the shipped default, opened as the daemon opens it (the streaming-native
+    form's step graph as well as the paper form's)."""
+    from scotti.daemon.settings import default_model_path
+    from scotti.models.kv_streaming import open_step_model
+
+    session = write_synthetic_session(tmp_path / "s.scotti", frames=FRAMES)
+    out = tmp_path / "s.mcap"
+    assert scotti(["session", "export", str(session.path), "--mcap", str(out)]) == 0
+    messages, _, metadata = read_mcap(out)
+    assert len(messages["/action"]) > 0
+    shipped = open_step_model(default_model_path())
+    assert metadata[0].metadata["model_sha256"] == shipped.sha256

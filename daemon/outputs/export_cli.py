@@ -87,9 +87,9 @@ async def export_mcap(
     """Replay ``session`` through the daemon's path into the MCAP file ``out``."""
     from scotti.daemon.outputs.foxglove_out import FoxgloveOutput
     from scotti.daemon.settings import default_model_path
-    from scotti.models.runtime import ScottiRuntime
+    from scotti.models.kv_streaming import open_step_model
 
-    runtime = ScottiRuntime(model or default_model_path(), threads=threads)
+    runtime = open_step_model(model or default_model_path(), threads=threads)
     started = time.perf_counter()
     packets = session.packets
     # The session's first moment: a label may be stamped before the bytes of its frame.

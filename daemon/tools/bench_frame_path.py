@@ -204,9 +204,9 @@ def time_serial(records: Records, runtime: Any) -> tuple[float, int]:
 def measure(workloads: dict[str, Records], passes: int) -> dict[str, list[float]]:
     """Microseconds of CPU per pair-frame, per workload and pass."""
     from scotti.daemon.settings import default_model_path
-    from scotti.models.runtime import ScottiRuntime
+    from scotti.models.kv_streaming import open_step_model
 
-    runtime = ScottiRuntime(default_model_path())
+    runtime = open_step_model(default_model_path())
     out: dict[str, list[float]] = {}
     for _ in range(passes):
         for name, records in workloads.items():

@@ -40,7 +40,7 @@ from scotti.daemon.inference.engine import InferenceEngine, InferenceJob, Infere
 from scotti.daemon.inference.window import Window
 from scotti.firmware_protocol.pairing import PairedFrame
 from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.kv_streaming import StepModel, open_step_model
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "scotti-default.onnx"
 
@@ -98,7 +98,7 @@ def random_frames(count: int = 640, seed: int = 0) -> npt.NDArray[np.uint16]:
 
 
 def measure(
-    runtime: ScottiRuntime,
+    runtime: StepModel,
     frames: npt.NDArray[np.uint16],
     devices: int,
     *,
@@ -151,7 +151,7 @@ def measure(
 
 
 def run_here(args: argparse.Namespace) -> dict[str, list[tuple[float, float]]]:
-    runtime = ScottiRuntime(args.model)
+    runtime = open_step_model(args.model)  # either form, as the daemon
     kinds: dict[str, Callable[[], npt.NDArray[np.uint16]]] = {
         "sim": sim_frames,
         "random": random_frames,

@@ -39,7 +39,7 @@ from scotti.daemon.tools.generated import GeneratedBoard
 from scotti.daemon.tools.local_broker import BrokerError, Mosquitto
 from scotti.models.contract import FRAME_RATE_HZ
 from scotti.models.errors import ModelError
-from scotti.models.runtime import ScottiRuntime
+from scotti.models.kv_streaming import StepModel, open_step_model
 
 DAY_FRAMES: Final = round(24 * 3600 * FRAME_RATE_HZ)  # 1,382,400
 _YIELD_EVERY: Final = 32  # frames between turns given to the event loop
@@ -119,7 +119,7 @@ class ReportTable:
 class SoakDaemon(Daemon):
     """The real daemon, reading the generated day instead of a port."""
 
-    def __init__(self, settings: Settings, runtime: ScottiRuntime, source: DaySource) -> None:
+    def __init__(self, settings: Settings, runtime: StepModel, source: DaySource) -> None:
         super().__init__(settings, runtime)
         self._day = source
 
@@ -129,7 +129,7 @@ class SoakDaemon(Daemon):
 
 def run(args: argparse.Namespace) -> int:
     model = args.model or default_model_path()
-    runtime = ScottiRuntime(model, threads=1)
+    runtime = open_step_model(model, threads=1)  # either form, as the daemon
     report = ReportTable()
     budget = args.max_minutes * 60 if args.max_minutes > 0 else float("inf")
     source = DaySource(args.frames, args.every, report, time.monotonic() + budget)
