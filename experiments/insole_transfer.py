@@ -116,14 +116,23 @@ def sensor_for(entry: Sensor, person: int) -> ForeignSensor | None:
 # --- rendering whole sessions ---------------------------------------------------
 
 
+def render_path(source: Path, sensor: ForeignSensor, name: str) -> Path:
+    """Where ``source`` through ``sensor`` is kept: keyed by the sensor and by the source
+    file as it is now (size and modification time), so that people rendered again (a
+    simulator change) are never read through another render's copies."""
+    st = source.stat()
+    ident = f"{json.dumps(sensor.as_dict(), sort_keys=True)}|{st.st_size}|{st.st_mtime_ns}"
+    key = hashlib.sha256(ident.encode()).hexdigest()[:10]
+    return WORK / name / f"{source.stem}.{key}.ses"
+
+
 def rendered(source: Path, sensor: ForeignSensor, name: str) -> Path:
     """``source`` through ``sensor``, as an imported session file (reused when there)."""
     from scotti.export.data import load_session
     from scotti.importers.session_out import ImportedFrames, write_imported
     from scotti.models.contract import FRAME_COLS, FRAME_RATE_HZ, FRAME_ROWS
 
-    key = hashlib.sha256(json.dumps(sensor.as_dict(), sort_keys=True).encode()).hexdigest()[:10]
-    out = WORK / name / f"{source.stem}.{key}.ses"
+    out = render_path(source, sensor, name)
     if out.is_file():
         return out
     s = load_session(source, WORK / "cache")

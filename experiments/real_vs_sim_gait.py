@@ -31,9 +31,7 @@ It trains and replays nothing.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import itertools
-import json
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -228,8 +226,7 @@ def _rendered(kind: str, subject: str) -> Path:
 
     (entry,) = [s for s in insole_transfer.sensors() if s.name == kind]
     assert entry.sensor is not None
-    key = hashlib.sha256(json.dumps(entry.sensor.as_dict(), sort_keys=True).encode()).hexdigest()
-    return SIM_DIR / kind / f"{subject}.{key[:10]}.ses"
+    return insole_transfer.render_path(SIM_DIR / "people" / f"{subject}.ses", entry.sensor, kind)
 
 
 def sources() -> list[tuple[str, str, Path, str | None]]:
