@@ -24,8 +24,14 @@ import numpy as np
 import pytest
 from scotti.models.contract import FRAME_COLS, MAX_COUNT, WINDOW
 from scotti.models.input_checks import OUT_OF_RANGE, UNLOADED
+from scotti.models.kv_streaming import (
+    KvStepRuntime,
+    KvStreamingWindow,
+    StepModel,
+    open_step_model,
+)
 from scotti.models.ood import UNFAMILIAR, withheld
-from scotti.models.runtime import ScottiRuntime, StepResult
+from scotti.models.runtime import StepResult
 from scotti.models.streaming import StreamingWindow
 from scotti.sim.corpus import render_scene, subject_scene
 from scotti.sim.subjects import draw_subjects
@@ -37,8 +43,8 @@ REAL_FRAMES = 200  # 161 predictions per real-stream case
 
 
 @pytest.fixture(scope="module")
-def shipped() -> ScottiRuntime:
-    runtime = ScottiRuntime(SHIPPED)
+def shipped() -> StepModel:
+    runtime = open_step_model(SHIPPED)  # either form, as the daemon opens it
     assert runtime.ood is not None, "the shipped model must carry its OOD statistics"
     return runtime
 
@@ -63,8 +69,12 @@ def real(tmp_path_factory: pytest.TempPathFactory) -> np.ndarray:
     return frames[start : start + REAL_FRAMES]
 
 
-def stream(runtime: ScottiRuntime, frames: np.ndarray) -> list[StepResult]:
-    window = StreamingWindow(runtime)
+def stream(runtime: StepModel, frames: np.ndarray) -> list[StepResult]:
+    window: StreamingWindow | KvStreamingWindow
+    if isinstance(runtime, KvStepRuntime):
+        window = KvStreamingWindow(runtime)
+    else:
+        window = StreamingWindow(runtime)
     results = [window.push(f) for f in frames]
     return [r for r in results if r is not None]
 
@@ -85,14 +95,14 @@ def repeated(frame: np.ndarray, n: int = WINDOW + 4) -> np.ndarray:
     return np.repeat(frame[None].astype(np.float32), n, axis=0)
 
 
-def test_all_zero_is_unloaded(shipped: ScottiRuntime) -> None:
+def test_all_zero_is_unloaded(shipped: StepModel) -> None:
     results = stream(shipped, repeated(np.zeros(shipped.frame_shape)))
     assert_withheld_and_finite(results, UNLOADED)
     assert all(withheld(r.flags) == UNLOADED for r in results)
 
 
 @pytest.mark.parametrize("case", ["saturated", "hot_taxel", "uniform_noise"])
-def test_implausible_maps_are_out_of_range(shipped: ScottiRuntime, case: str) -> None:
+def test_implausible_maps_are_out_of_range(shipped: StepModel, case: str) -> None:
     shape = shipped.frame_shape
     if case == "saturated":
         frames = repeated(np.full(shape, MAX_COUNT))
@@ -107,7 +117,7 @@ def test_implausible_maps_are_out_of_range(shipped: ScottiRuntime, case: str) ->
 
 
 def test_the_real_stream_is_not_flagged_by_the_input_rules(
-    shipped: ScottiRuntime, real: np.ndarray
+    shipped: StepModel, real: np.ndarray
 ) -> None:
     results = stream(shipped, real)
     assert len(results) == REAL_FRAMES - WINDOW + 1
@@ -116,7 +126,7 @@ def test_the_real_stream_is_not_flagged_by_the_input_rules(
 
 
 @pytest.mark.parametrize("foot", ["left", "right"])
-def test_one_foot_zero_is_out_of_range(shipped: ScottiRuntime, real: np.ndarray, foot: str) -> None:
+def test_one_foot_zero_is_out_of_range(shipped: StepModel, real: np.ndarray, foot: str) -> None:
     frames = real.copy()
     frames[..., slice(0, FRAME_COLS) if foot == "left" else slice(FRAME_COLS, None)] = 0.0
     assert_withheld_and_finite(stream(shipped, frames), OUT_OF_RANGE)
@@ -124,7 +134,7 @@ def test_one_foot_zero_is_out_of_range(shipped: ScottiRuntime, real: np.ndarray,
 
 @pytest.mark.parametrize("foot", ["left", "right"])
 def test_a_mirrored_foot_is_caught_by_the_rules_or_the_unfamiliar_score(
-    shipped: ScottiRuntime, real: np.ndarray, foot: str
+    shipped: StepModel, real: np.ndarray, foot: str
 ) -> None:
     """Medial and lateral swapped (an insole in the other shoe): no rule names it,
     but the map spills outside the outline and the window is unlike the training data.
