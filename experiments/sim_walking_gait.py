@@ -58,12 +58,7 @@ def person_scene(subject_index: int, steps: int, seed: int = 1) -> Scene:
     return Scene(
         name=f"walking-{subject_index}",
         seed=seed,
-        subject=SubjectModel(
-            height_m=subject.height_m,
-            mass_kg=subject.mass_kg,
-            foot_length_m=subject.foot_length,
-            style_seed=subject.style_seed,
-        ),
+        subject=SubjectModel.of(subject),
         script=[ScriptEntry(action="walking", reps=steps, stand_s=1.0)],
     )
 

@@ -76,12 +76,7 @@ def subject_scene(
             f"{minutes_per_action} min in sets, standing and transitions between"
         ),
         seed=seed,
-        subject=SubjectModel(
-            height_m=subject.height_m,
-            mass_kg=subject.mass_kg,
-            foot_length_m=subject.foot_length,
-            style_seed=subject.style_seed,
-        ),
+        subject=SubjectModel.of(subject),
         session=SessionModel(
             actions=list(EXERCISES),
             minutes_per_action=minutes_per_action,

@@ -91,12 +91,7 @@ def measuring_scene(subject: Subject, seed: int) -> Scene:
     return Scene(
         name="realism",
         seed=seed,
-        subject=SubjectModel(
-            height_m=subject.height_m,
-            mass_kg=subject.mass_kg,
-            foot_length_m=subject.foot_length,
-            style_seed=subject.style_seed,
-        ),
+        subject=SubjectModel.of(subject),
         script=[ScriptEntry(action=a, reps=n, stand_s=2.0) for a, n in _SCRIPT],
     )
 

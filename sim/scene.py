@@ -109,6 +109,16 @@ class SubjectModel(_Strict):
         default=None, ge=BALL_WIDTH_RANGE[0], le=BALL_WIDTH_RANGE[1]
     )
 
+    @classmethod
+    def of(cls, subject: Subject) -> SubjectModel:
+        """A drawn person's body and style seed (their traits are drawn again from it)."""
+        return cls(
+            height_m=subject.height_m,
+            mass_kg=subject.mass_kg,
+            foot_length_m=subject.foot_length,
+            style_seed=subject.style_seed,
+        )
+
     def subject(self) -> Subject:
         given = {n: getattr(self, n) for n in TRAIT_NAMES if getattr(self, n) is not None}
         return Subject(
