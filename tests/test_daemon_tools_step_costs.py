@@ -15,27 +15,14 @@ from scotti.daemon.tools.bench import main as bench_main
 from scotti.daemon.tools.bench_model import model_cpu_ms
 from scotti.daemon.tools.bench_table import COLUMNS, HEADER
 from scotti.daemon.tools.step_costs import run_step, step_costs, step_inputs, warm_kv_caches
-from scotti.export.onnx_export import Checkpoint, export_model
 from scotti.models.contract import MAX_COUNT
 from scotti.models.errors import ModelInputError
 from scotti.models.kv_streaming import KvStepRuntime, KvStreamingWindow, open_step_model
 from scotti.models.runtime import ScottiRuntime
 
-from tests.test_export_streaming_native import TINY_KV, spread
-
 pytestmark = pytest.mark.torch
 
 SIZES = [1, 3]
-
-
-@pytest.fixture(scope="module")
-def kv_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A tiny streaming-native export (T = 40, E = 32, 2 layers: S = 5)."""
-    from scotti.export.model import Scotti
-
-    out = tmp_path_factory.mktemp("kv-bench") / "kv.onnx"
-    export_model(Checkpoint(model=spread(Scotti(TINY_KV), 4)), out)
-    return out
 
 
 def _table(out: str) -> dict[int, tuple[float, float]]:

@@ -19,7 +19,6 @@ from scotti.evaluation import segments
 from scotti.evaluation.evaluation import SessionReplay, evaluate_sessions, replay_session
 from scotti.evaluation.kv_segments import KvSegmentTrack
 from scotti.evaluation.sampling import Prediction
-from scotti.export.onnx_export import Checkpoint, export_model
 from scotti.firmware_protocol.frame_path import FramePath, PairSeq, stream_pairs
 from scotti.firmware_protocol.packets import Foot
 from scotti.firmware_protocol.session import PacketRecord, SessionReader
@@ -31,21 +30,11 @@ from scotti.models.runtime import ScottiRuntime, window_graph_for
 
 from tests.support.export_sessions import write_session
 from tests.support.sessions import synthetic_counts, write_synthetic_session
-from tests.test_export_streaming_native import TINY_KV, spread
+from tests.test_export_streaming_native import TINY_KV
 
 pytestmark = pytest.mark.torch
 
 POSE_ATOL = 1e-4
-
-
-@pytest.fixture(scope="module")
-def kv_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A tiny streaming-native export (T = 40, 2 layers: receptive field 118 frames)."""
-    from scotti.export.model import Scotti
-
-    out = tmp_path_factory.mktemp("kv-eval") / "kv.onnx"
-    export_model(Checkpoint(model=spread(Scotti(TINY_KV), 4)), out)
-    return out
 
 
 @pytest.fixture

@@ -14,10 +14,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("torch")
-from scotti.export.onnx_export import Checkpoint, export_model
 from scotti.models.kv_streaming import KvStepRuntime, open_step_model
-
-from tests.test_export_streaming_native import TINY_KV, spread
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "experiments"))
@@ -28,16 +25,6 @@ import ship_default  # noqa: E402
 pytestmark = pytest.mark.torch
 
 LATENCY_KEYS = {"step_median_ms", "step_p99_ms", "window_median_ms", "window_p99_ms"}
-
-
-@pytest.fixture(scope="module")
-def kv_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A tiny streaming-native export (T = 40, E = 32, 2 layers)."""
-    from scotti.export.model import Scotti
-
-    out = tmp_path_factory.mktemp("kv-ship") / "kv.onnx"
-    export_model(Checkpoint(model=spread(Scotti(TINY_KV), 4)), out)
-    return out
 
 
 @pytest.mark.parametrize("form", ["paper", "kv"])

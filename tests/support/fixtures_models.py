@@ -57,3 +57,18 @@ def standing_model_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A step graph that always says standing (see ``always_standing``)."""
     out = tmp_path_factory.mktemp("standing") / "scotti-standing.onnx"
     return always_standing(TINY_STEP, out)
+
+
+@pytest.fixture(scope="session")
+def kv_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny streaming-native export (T = 40, E = 32, 2 layers: S = 5, receptive field
+    118 frames), made once per run; needs torch (tests that use it are torch tests)."""
+    pytest.importorskip("torch")
+    from scotti.export.model import Scotti
+    from scotti.export.onnx_export import Checkpoint, export_model
+
+    from tests.test_export_streaming_native import TINY_KV, spread
+
+    out = tmp_path_factory.mktemp("kv-model") / "kv.onnx"
+    export_model(Checkpoint(model=spread(Scotti(TINY_KV), 4)), out)
+    return out
