@@ -107,7 +107,9 @@ def _state(path: Path) -> tuple[ScottiConfig, dict[str, torch.Tensor]]:
     state["cnn.norm.running_mean"] = torch.zeros(e)
     state["cnn.norm.running_var"] = torch.full((e,), 1.0 - eps)
     state["cnn.norm.num_batches_tracked"] = own["cnn.norm.num_batches_tracked"]
-    pooling = _pooling(named, cfg) if cfg.arch == "streaming" else _paper_pooling(named, cfg)
+    pooling = (
+        _streaming_pooling(named, cfg) if cfg.arch == "streaming" else _paper_pooling(named, cfg)
+    )
     if pooling is None:
         raise GraphWeightsError(f"{path}: cannot find its pooling weights")
     state["pool_weights"] = torch.from_numpy(np.log(pooling).astype(np.float32))
@@ -146,7 +148,7 @@ def _paper_pooling(named: dict[str, np.ndarray], cfg: ScottiConfig) -> np.ndarra
     return pools[0].astype(np.float64) if len(pools) == 1 else None
 
 
-def _pooling(named: dict[str, np.ndarray], cfg: ScottiConfig) -> np.ndarray | None:
+def _streaming_pooling(named: dict[str, np.ndarray], cfg: ScottiConfig) -> np.ndarray | None:
     """The streaming-native form's softmax of the pooling weights: the T frames' share is
     a (T,) initialiser of positive weights summing below 1, the output token's the rest."""
     frames = [
