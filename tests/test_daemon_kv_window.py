@@ -35,8 +35,8 @@ from tests.test_evaluation_kv_segments import FLAG_FRAMES, _counts
 
 pytestmark = pytest.mark.torch
 
-# The tiny streaming-native export of evaluation's tests, its OOD-calibrated copy.
-kv_model = kv_eval.kv_model
+# Evaluation's OOD-calibrated copy of the tiny streaming-native export (kv_model, the
+# shared fixture of tests/support/fixtures_models.py).
 calibrated_kv = kv_eval.calibrated_kv
 
 POSE_ATOL = 1e-4
