@@ -25,7 +25,7 @@ import numpy.typing as npt
 from scotti.models import contract as c
 from scotti.models.errors import ModelContractError, ModelError, ModelInputError
 from scotti.models.graph_checks import check_metadata, ood_stats, open_session, sha256_of
-from scotti.models.input_checks import FrameCheck, check_frames
+from scotti.models.input_checks import FrameCheck, FrameCode, frame_codes
 from scotti.models.kv_contract import (
     KV_GRAPH,
     KV_INPUT_PAST,
@@ -40,6 +40,7 @@ from scotti.models.kv_contract import (
 from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON, OodStats
 from scotti.models.progress_calibration import ProgressCalibration, ProgressMapping
 from scotti.models.runtime import ScottiRuntime, StepBatch, StepResult, softmax
+from scotti.models.streaming import stack_frames
 from scotti.models.window_checks import FrameChecks
 
 F32 = npt.NDArray[np.float32]
@@ -300,11 +301,31 @@ class KvStreamingWindow:
             return result
         return dataclasses.replace(result, flags=(*verdict.flags, *result.flags))
 
+    def accept_row(self, batch: StepBatch, row: int, code: FrameCode) -> StepResult | None:
+        """Row ``row`` of a step run on ``past()`` into the cache and its frame's input
+        checks (``frame_codes``) into the window's, as ``StreamingWindow.accept_row``:
+        no result is made for a warming window, and a warm one's flags go in as it is made."""
+        self._cache.push(batch.embedding[row])
+        verdict = self._checks.push_code(*code)
+        self._seen += 1
+        if self.warming:
+            return None
+        result = batch.row(row, verdict.flags)
+        if UNFAMILIAR in result.flags:
+            self.reasons = (*verdict.reasons, UNFAMILIAR_REASON)
+        else:
+            self.reasons = verdict.reasons
+        return result
+
 
 def push_many(
-    windows: Sequence[KvStreamingWindow], frames: Sequence[npt.ArrayLike]
+    windows: Sequence[KvStreamingWindow], frames: Sequence[npt.ArrayLike] | npt.NDArray[Any]
 ) -> list[StepResult | None]:
-    """One frame into each of several windows on one runtime, in ONE step-graph call."""
+    """One frame into each of several windows on one runtime, in ONE step-graph call.
+
+    As ``models.streaming.push_many``: the input checks of every frame in a few numpy
+    calls (``frame_codes``), a result made only for a warm window; best fed the wire's
+    uint16 counts. A frame of the wrong shape raises and leaves every window as it was."""
     if len(windows) != len(frames):
         msg = f"{len(windows)} windows but {len(frames)} frames"
         raise ModelInputError(msg)
@@ -314,18 +335,21 @@ def push_many(
     if any(w.runtime is not runtime for w in windows):
         msg = "push_many needs windows on one runtime"
         raise ModelError(msg)
-    arrays = [np.asarray(f, dtype=np.float32) for f in frames]
-    wrong = [a.shape for a in arrays if a.shape != runtime.frame_shape]
-    if wrong:
-        msg = f"frame must be {runtime.frame_shape}, got {wrong[0]}"
-        raise ModelInputError(msg)
-    stacked = np.stack(arrays)
-    past = np.stack([w.past() for w in windows])  # (B, T-1, S, E)
-    valid = np.stack([w.valid() for w in windows])  # (B, T-1)
+    stacked = stack_frames(frames, runtime.frame_shape)  # (B, H, 2W), uint16 as it came
+    # The checks first, while the stacking has the frames in cache (as models/streaming.py).
+    codes = frame_codes(stacked)
+    # Each window's cache copied into one batch array (what np.stack does, without its
+    # per-array expand_dims and concatenate: this runs on every turn of the engine).
+    first = windows[0]
+    past = np.empty((len(windows), *first.past().shape), dtype=np.float32)  # (B, T-1, S, E)
+    valid = np.empty((len(windows), *first.valid().shape), dtype=np.float32)  # (B, T-1)
+    for i, w in enumerate(windows):
+        past[i] = w.past()
+        valid[i] = w.valid()
     batch = runtime.run_steps(stacked, past, valid)
-    checks = check_frames(stacked)
-    rows = [batch.row(i) for i in range(len(windows))]
-    return [w.accept(f, r, k) for w, f, r, k in zip(windows, arrays, rows, checks, strict=True)]
+    return [
+        w.accept_row(batch, i, code) for i, (w, code) in enumerate(zip(windows, codes, strict=True))
+    ]
 
 
 def open_step_model(

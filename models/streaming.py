@@ -173,7 +173,7 @@ def push_many(
     if any(w.runtime is not runtime for w in windows):
         msg = "push_many needs windows on one runtime"
         raise ModelError(msg)
-    stacked = _stacked(frames, runtime.frame_shape)  # (B, H, 2W)
+    stacked = stack_frames(frames, runtime.frame_shape)  # (B, H, 2W)
     # The checks first: they read the frames while the stacking has them in cache.
     codes = frame_codes(stacked)
     past = np.stack([w.past() for w in windows])  # (B, T-1, E)
@@ -183,11 +183,12 @@ def push_many(
     ]
 
 
-def _stacked(
+def stack_frames(
     frames: Sequence[npt.ArrayLike] | npt.NDArray[Any], shape: tuple[int, int]
 ) -> npt.NDArray[Any]:
-    """B frames as one (B, H, 2W) array in their own dtype; ModelInputError naming the
-    first frame of another shape."""
+    """B frames as one (B, H, 2W) array in their own dtype (the wire's uint16 stays
+    uint16, which the input checks read as it is); ModelInputError naming the first
+    frame of another shape. Either form's ``push_many`` takes its frames through it."""
     if isinstance(frames, np.ndarray):
         if frames.ndim == 3 and frames.shape[1:] == shape:
             return frames

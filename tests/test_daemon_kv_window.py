@@ -51,11 +51,19 @@ def _pairs(path: Path) -> list[PairedFrame]:
 
 
 def _frame_by_frame(runtime: KvStepRuntime, pairs: list[PairedFrame]) -> list[StepResult | None]:
+    return [result for result, _ in _frame_by_frame_with_reasons(runtime, pairs)]
+
+
+def _frame_by_frame_with_reasons(
+    runtime: KvStepRuntime, pairs: list[PairedFrame]
+) -> list[tuple[StepResult | None, tuple[str, ...]]]:
+    """Each frame pushed on its own (float copies: the input checks' cleaning path)."""
     window, made = KvStreamingWindow(runtime), []
     for pair in pairs:
         if pair.restart:
             window.reset()
-        made.append(window.push(pair.counts))
+        result = window.push(pair.counts.astype(np.float32))
+        made.append((result, window.reasons if result is not None else ()))
     return made
 
 
@@ -101,12 +109,15 @@ def test_the_engine_batches_kv_windows_and_predicts_as_frame_by_frame(
     assert engine.calls == max(len(p) for p in sessions)  # both devices in each call
     assert windows[1].restarts == 1
     flags: set[str] = set()
+    reasons: set[str] = set()
     for got, pairs in zip(results, sessions, strict=True):
-        want = _frame_by_frame(runtime, pairs)
+        want = _frame_by_frame_with_reasons(runtime, pairs)
         assert len(got) == len(want)
-        for have, expected in zip(got, want, strict=True):
+        for have, (expected, expected_reasons) in zip(got, want, strict=True):
             assert have.error is None
             assert have.output is not None
+            assert have.output.reasons == expected_reasons
+            reasons.update(expected_reasons)
             result = have.output.result
             assert (result is None) == (expected is None)
             if result is None or expected is None:
@@ -116,6 +127,7 @@ def test_the_engine_batches_kv_windows_and_predicts_as_frame_by_frame(
             assert result.flags == expected.flags
             flags.update(result.flags)
     assert {UNLOADED, OUT_OF_RANGE, UNFAMILIAR} <= flags  # the flags were exercised
+    assert len(reasons) >= 3  # and the reasons each flag gives
     warm = [r for r in results[1] if r.output is not None and r.output.warming]
     assert len(warm) == 2 * (runtime.window - 1)  # from the start, and again after the restart
 
