@@ -14,7 +14,10 @@ less CPU (a step costs 0.41 ms a frame at 16 frames a call, 1.10 alone:
 docs/performance.md). ``--jobs J`` (default: the
 cores the process may use) steps J such groups side by side on threads while
 the next frames are decoded, again the same predictions (docs/evaluation.md,
-"How fast it runs").
+"How fast it runs"). ``--processes P`` replays whole sessions in P worker
+processes instead (``evaluation.processes``): the Python between the model's
+calls holds the interpreter's lock, so several sessions run faster on several
+processes than on threads; the same report.
 A streaming-native export (``scotti train --arch streaming``: its step graph says
 ``scotti.graph`` = ``step_kv``) is stepped through its own graph with a key/value
 cache per segment (``evaluation.kv_segments``), the same report.
@@ -80,6 +83,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "predictions (default: the cores this process may use; 1: one thread)",
     )
     parser.add_argument(
+        "--processes",
+        type=int,
+        default=1,
+        metavar="P",
+        help="replay whole sessions in P worker processes, each on one thread (--jobs "
+        "unused), the same report; several sessions on several cores run faster so "
+        "than on threads (default 1: this process)",
+    )
+    parser.add_argument(
         "--every",
         type=int,
         default=1,
@@ -118,8 +130,17 @@ def run(args: argparse.Namespace) -> int:
         if args.plots is not None:  # before the replay: a refusal costs nothing
             refuse_existing(plot_paths(args.plots, models), force=args.force)
         runtimes = [open_step_model(m, threads=args.threads) for m in models]
+        if args.processes < 1:
+            msg = f"--processes must be at least 1, got {args.processes}"
+            raise EvaluationError(msg)
         reports = evaluate_models(
-            files, runtimes, every=args.every, batch=args.batch, jobs=jobs, on_session=_progress
+            files,
+            runtimes,
+            every=args.every,
+            batch=args.batch,
+            jobs=jobs,
+            processes=args.processes,
+            on_session=_progress,
         )
         for report, runtime in zip(reports, runtimes, strict=True):
             report["model"]["ood"] = runtime.ood_info()
@@ -154,8 +175,13 @@ def rate_line(rate: dict[str, Any]) -> str:
         f"{rate['frames_per_cpu_s'] or 0:.0f} frames/s); "
         f"model {rate['model_cpu_seconds']:.2f} CPU s of it, "
         f"without the model {rate['without_model_frames_per_cpu_s'] or 0:.0f} frames per CPU s; "
-        f"peak RSS {rate['peak_rss_mb']} MB; {rate['jobs']} job(s)"
+        f"peak RSS {rate['peak_rss_mb']} MB; " + _workers(rate)
     )
+
+
+def _workers(rate: dict[str, Any]) -> str:
+    processes = rate.get("processes", 1)
+    return f"{processes} processes" if processes > 1 else f"{rate['jobs']} job(s)"
 
 
 def _progress(done: int, total: int, path: Path, seconds: float) -> None:

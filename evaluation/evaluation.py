@@ -17,6 +17,7 @@ from typing import Any
 
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet
+from scotti.evaluation.processes import ProcessReplays, peak_rss_children_mb
 from scotti.evaluation.replay import (
     SessionReplay,
     replay_session,
@@ -70,6 +71,7 @@ def evaluate_models(
     every: int = 1,
     batch: int = BATCH,
     jobs: int = 1,
+    processes: int = 1,
     on_session: Callable[[int, int, Path, float], None] | None = None,
 ) -> list[dict[str, Any]]:
     """``evaluate_sessions`` for several models over one replay of each session.
@@ -77,6 +79,8 @@ def evaluate_models(
     ``jobs`` > 1: each session's segments stepped in that many groups side by side,
     on threads (``replay_session_models``), two sessions replayed at a time; the
     reports are the same as with one thread, sessions in the order given.
+    ``processes`` > 1: whole sessions in that many worker processes instead, each on
+    one thread (``evaluation.processes``; ``jobs`` is not used), the same reports.
     ``on_session(done, total, path, seconds)`` after each session, in that order: a
     long run's progress.
     """
@@ -85,6 +89,9 @@ def evaluate_models(
         raise EvaluationError(msg)
     if jobs < 1:
         msg = f"--jobs must be at least 1, got {jobs}"
+        raise EvaluationError(msg)
+    if processes < 1:
+        msg = f"--processes must be at least 1, got {processes}"
         raise EvaluationError(msg)
     windows = window_graphs(runtimes) if every > 1 else None
 
@@ -97,8 +104,14 @@ def evaluate_models(
             replay.drop_predictions()  # memory stays that of a session or two, however many
         return replays, time.perf_counter() - started
 
-    per_session = []
     began, began_cpu = time.perf_counter(), time.process_time()
+    if processes > 1:
+        workers = ProcessReplays(runtimes, processes, pairing, every, batch)
+        per_session = list(workers.replays(paths, on_session))
+        seconds = time.perf_counter() - began
+        cpu_seconds = time.process_time() - began_cpu + workers.cpu_seconds
+        return _reports(runtimes, per_session, every, windows, seconds, cpu_seconds, processes)
+    per_session = []
     # With jobs > 1, two sessions at a time: one decodes while the other's last chunk is
     # stepped and scored, so that the threads stepping segments seldom wait for work.
     in_flight = SESSIONS_IN_FLIGHT if jobs > 1 else 1
@@ -119,6 +132,20 @@ def evaluate_models(
                 future.cancel()
     seconds = time.perf_counter() - began
     cpu_seconds = time.process_time() - began_cpu
+    return _reports(runtimes, per_session, every, windows, seconds, cpu_seconds, 1, jobs)
+
+
+def _reports(
+    runtimes: Sequence[StepModel],
+    per_session: list[list[SessionReplay]],
+    every: int,
+    windows: list[ScottiRuntime] | None,
+    seconds: float,
+    cpu_seconds: float,
+    processes: int,
+    jobs: int = 1,
+) -> list[dict[str, Any]]:
+    """One report per model, with the replay's rate (shared by the models)."""
     reports = [
         _report(
             runtime, [replays[i] for replays in per_session], every, windows[i] if windows else None
@@ -126,11 +153,15 @@ def evaluate_models(
         | {"rate": rate(per_session, i, seconds, cpu_seconds)}
         for i, runtime in enumerate(runtimes)
     ]
-    # The process's peak so far, scoring included (its pooled frames are the largest part).
+    # The peak so far, scoring included (its pooled frames are the largest part): this
+    # process's, or with workers the larger of it and the largest worker's.
     peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)  # Linux: kB
+    if processes > 1:
+        peak_rss_mb = max(peak_rss_mb, peak_rss_children_mb())
     for report in reports:
         report["rate"]["peak_rss_mb"] = peak_rss_mb
         report["rate"]["jobs"] = jobs
+        report["rate"]["processes"] = processes
     return reports
 
 
