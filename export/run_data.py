@@ -4,9 +4,10 @@ checkpoint records about them (``training_data``)."""
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any
 
 from scotti.export.data import SessionArrays, find_sessions, load_session
@@ -39,6 +40,25 @@ class RunData:
             "train_targets": self.train.target_counts(),  # windows per action: no balancing
             "problems": sum_counters(self.sessions),
         }
+
+
+def same_session_files(recorded: dict[str, Any], now: dict[str, Any]) -> bool:
+    """Whether two ``training_data`` records name the same session files, wherever the
+    data lies now: the same paths below the files' common folder (a corpus moved or
+    copied to another folder, or another machine, keeps its layout) and the same
+    number of decoded frames (a file rendered again to another length is not the same)."""
+    return _below_common_folder(recorded.get("files", [])) == _below_common_folder(
+        now.get("files", [])
+    ) and recorded.get("frames") == now.get("frames")
+
+
+def _below_common_folder(files: Sequence[str]) -> list[str]:
+    """Each path relative to the folder that holds them all, sorted."""
+    paths = [PurePath(f) for f in files]
+    if not paths:
+        return []
+    root = PurePath(os.path.commonpath([p.parent for p in paths]))
+    return sorted(p.relative_to(root).as_posix() for p in paths)
 
 
 def load_sessions(paths: Sequence[Path], cache: Path) -> list[SessionArrays]:

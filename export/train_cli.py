@@ -17,6 +17,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -31,7 +32,7 @@ from scotti.export.errors import ExportError
 from scotti.export.graph_weights import checkpoint_from_graph
 from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
-from scotti.export.run_data import RunData, load_sessions, prepare
+from scotti.export.run_data import RunData, load_sessions, prepare, same_session_files
 from scotti.export.run_dir import check_run_dir, clear_run
 from scotti.export.stop_signals import stop_on_signals
 from scotti.export.subnormals import flushing_denormals
@@ -211,11 +212,13 @@ def train(
         training_data["init"] = str(
             ckpt["training_data"].get("init", args.init) if ckpt else args.init
         )
-    if ckpt is not None and sorted(ckpt["training_data"]["files"]) != sorted(
-        training_data["files"]
-    ):
+    if ckpt is not None and not same_session_files(ckpt["training_data"], training_data):
         msg = f"--resume with other session files than {resume_from} was trained on"
         raise TrainCliError(msg)
+    if ckpt is not None and sorted(ckpt["training_data"]["files"]) != sorted(
+        training_data["files"]
+    ):  # the same files in another folder: the checkpoints from here on record this one
+        log.info("resuming on the same session files, moved: %s", _folder(training_data))
 
     torch.manual_seed(opts.seed)
     model = Scotti(cfg)
@@ -367,3 +370,9 @@ def _warn_changed_options(before: dict[str, Any], now: dict[str, Any]) -> None:
             "resuming with changed %s: the run will not match an uninterrupted one",
             ", ".join(changed),
         )
+
+
+def _folder(training_data: dict[str, Any]) -> str:
+    """The folder that holds a run's session files now (for the log)."""
+    files = training_data.get("files") or []
+    return os.path.commonpath([str(Path(f).parent) for f in files]) if files else "-"

@@ -289,3 +289,40 @@ def test_a_diverged_loss_stops_with_one_line(sessions_dir: Path) -> None:
     trainer = Trainer(model, ds, None, replace_progress(TrainOptions(epochs=1, batch=8)))
     with pytest.raises(TrainingDivergedError, match="lower --lr"):
         trainer.fit()
+
+
+def test_resume_follows_the_same_files_moved_and_refuses_other_files(
+    sessions_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run trained on one machine and resumed on another finds its corpus in another
+    folder: the same files below it, the same frames, so it goes on; other files do not."""
+    import shutil
+
+    first = tmp_path / "machine-a" / "corpus"
+    shutil.copytree(sessions_dir, first)
+    run = tmp_path / "run"
+    opts = ["-o", str(run), "--config", json.dumps(TINY), "--batch", "8", "--chunk", "4"]
+    opts += ["--stride", "4", "--val-subjects", "b", "--test-fraction", "0", "--no-progress"]
+    assert main(["train", str(first), *opts, "--epochs", "1"]) == 0
+    moved = tmp_path / "machine-b" / "data" / "corpus"
+    moved.parent.mkdir(parents=True)
+    shutil.move(first, moved)
+    assert main(["train", str(moved), *opts, "--epochs", "2", "--resume"]) == 0
+    ckpt = torch.load(run / "last.pt", weights_only=True)
+    assert ckpt["epoch"] == 2
+    assert all(f.startswith(str(moved)) for f in ckpt["training_data"]["files"])
+    # Another set of files (one more) is refused, and so is a file of the same name
+    # that holds other frames.
+    more = tmp_path / "more"
+    shutil.copytree(moved, more)
+    write_session(more / "c.scotti", 70, subject="c")
+    capsys.readouterr()
+    assert main(["train", str(more), *opts, "--epochs", "3", "--resume"]) == 2
+    assert "other session files" in capsys.readouterr().err
+    longer = tmp_path / "longer"
+    longer.mkdir()
+    write_session(longer / "a.scotti", 130, subject="a", first_seq=65500)
+    shutil.copy(moved / "b.scotti", longer / "b.scotti")
+    assert main(["train", str(longer), *opts, "--epochs", "3", "--resume"]) == 2
+    assert "other session files" in capsys.readouterr().err
+    assert torch.load(run / "last.pt", weights_only=True)["epoch"] == 2
