@@ -83,6 +83,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "predictions (default: the cores this process may use; 1: one thread)",
     )
     parser.add_argument(
+        "--no-progress-calibration",
+        action="store_true",
+        help="score the progress head's output as it is, without the calibration the "
+        "model carries (what it costs or buys: run both)",
+    )
+    parser.add_argument(
         "--processes",
         type=int,
         default=1,
@@ -129,7 +135,10 @@ def run(args: argparse.Namespace) -> int:
         models = args.model or [default_model_path()]
         if args.plots is not None:  # before the replay: a refusal costs nothing
             refuse_existing(plot_paths(args.plots, models), force=args.force)
-        runtimes = [open_step_model(m, threads=args.threads) for m in models]
+        calibrate = not args.no_progress_calibration
+        runtimes = [
+            open_step_model(m, threads=args.threads, calibrate_progress=calibrate) for m in models
+        ]
         if args.processes < 1:
             msg = f"--processes must be at least 1, got {args.processes}"
             raise EvaluationError(msg)
@@ -144,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
         )
         for report, runtime in zip(reports, runtimes, strict=True):
             report["model"]["ood"] = runtime.ood_info()
+            report["model"]["progress_calibration"] = runtime.progress_calibration_info()
         if args.plots is not None and reports[0]["scored"]:  # no figure without labels
             for report in reports:
                 where = args.plots if len(reports) == 1 else args.plots / _stem(report)

@@ -81,6 +81,8 @@ def evaluate_models(
     reports are the same as with one thread, sessions in the order given.
     ``processes`` > 1: whole sessions in that many worker processes instead, each on
     one thread (``evaluation.processes``; ``jobs`` is not used), the same reports.
+    The workers are spawned and import the main module: a script that calls this
+    with ``processes`` > 1 keeps its work under ``if __name__ == "__main__":``.
     ``on_session(done, total, path, seconds)`` after each session, in that order: a
     long run's progress.
     """

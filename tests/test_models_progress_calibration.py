@@ -114,6 +114,24 @@ def test_scotti_calibrate_writes_both_graphs_and_the_runtime_applies_it(
         "calibrated": False,
         "reason": "switched off",
     }
+    # scotti eval scores it either way, in this process or in a worker: the report says
+    # which, and the progress figures differ by what the map does.
+    capsys.readouterr()
+    reports = {}
+    for flags in (
+        [],
+        ["--no-progress-calibration"],
+        ["--no-progress-calibration", "--processes", "2"],
+    ):
+        assert main(["eval", str(held_out), "--model", str(model), "--json", *flags]) == 0
+        reports[len(flags)] = json.loads(capsys.readouterr().out)
+    assert reports[0]["model"]["progress_calibration"]["calibrated"] is True
+    assert reports[1]["model"]["progress_calibration"] == {
+        "calibrated": False,
+        "reason": "switched off",
+    }
+    assert reports[0]["metrics"]["progress_mse"] != reports[1]["metrics"]["progress_mse"]
+    assert reports[3]["metrics"] == reports[1]["metrics"]  # the worker opened it switched off
     # An edit of the model in place, not an output: a second fit replaces the first,
     # no --force asked (the help says why).
     capsys.readouterr()
