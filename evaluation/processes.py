@@ -20,9 +20,11 @@ import resource
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 
+from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.replay import SessionReplay, replay_session_models, window_graphs
 from scotti.firmware_protocol.pairing import PairingConfig
 from scotti.models.kv_streaming import StepModel, open_step_model
@@ -107,7 +109,17 @@ class ProcessReplays:
             ]
             try:
                 for i, (p, future) in enumerate(zip(paths, futures, strict=True)):
-                    done = future.result()
+                    try:
+                        done = future.result()
+                    except BrokenProcessPool:
+                        # A worker that could not open the graphs, or died (memory): say
+                        # so in one line; the worker's own error went to stderr.
+                        msg = (
+                            f"a worker process ended while replaying {Path(p).name}: it could "
+                            "not open the model, or was killed (out of memory?); "
+                            "--processes 1 replays in this process"
+                        )
+                        raise EvaluationError(msg) from None
                     self.cpu_seconds += done.cpu_seconds
                     if on_session is not None:
                         on_session(i + 1, len(paths), Path(p), done.seconds)

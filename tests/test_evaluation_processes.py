@@ -93,3 +93,19 @@ def test_cli_processes_and_its_mistakes(
     assert code == 2
     assert "Traceback" not in err
     assert "broken.ses" in err
+
+
+def test_a_worker_that_cannot_open_the_model_is_one_error(
+    tmp_path: Path, tiny_model_path: Path
+) -> None:
+    import shutil
+
+    from scotti.evaluation.errors import EvaluationError
+
+    model = tmp_path / "scotti-tiny.onnx"
+    shutil.copy(tiny_model_path, model)
+    runtime = open_step_model(model)  # opened here, then gone before the workers open it
+    model.unlink()
+    paths = [write_session(tmp_path / f"s{n}.ses", n) for n in (120, 130)]
+    with pytest.raises(EvaluationError, match="worker process ended while replaying s120"):
+        evaluate_models(paths, [runtime], processes=2)
