@@ -57,7 +57,10 @@ def _below_common_folder(files: Sequence[str]) -> list[str]:
     paths = [PurePath(f) for f in files]
     if not paths:
         return []
-    root = PurePath(os.path.commonpath([p.parent for p in paths]))
+    try:
+        root = PurePath(os.path.commonpath([p.parent for p in paths]))
+    except ValueError:  # absolute and relative paths mixed: no common folder, compare as given
+        return sorted(p.as_posix() for p in paths)
     return sorted(p.relative_to(root).as_posix() for p in paths)
 
 

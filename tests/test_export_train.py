@@ -326,3 +326,17 @@ def test_resume_follows_the_same_files_moved_and_refuses_other_files(
     assert main(["train", str(longer), *opts, "--epochs", "3", "--resume"]) == 2
     assert "other session files" in capsys.readouterr().err
     assert torch.load(run / "last.pt", weights_only=True)["epoch"] == 2
+
+
+def test_the_same_files_are_told_apart_by_their_layout_and_frames() -> None:
+    from scotti.export.run_data import same_session_files
+
+    here = {"files": ["/a/c/realistic/s1.ses", "/a/c/extra/s2.ses"], "frames": 10}
+    moved = {"files": ["/b/d/c/extra/s2.ses", "/b/d/c/realistic/s1.ses"], "frames": 10}
+    assert same_session_files(here, moved)
+    assert not same_session_files(here, {**moved, "frames": 11})
+    flat = {"files": ["/b/s1.ses", "/b/s2.ses"], "frames": 10}  # the layout below differs
+    assert not same_session_files(here, flat)
+    mixed = {"files": ["rel/s1.ses", "/abs/s2.ses"], "frames": 10}  # no common folder
+    assert same_session_files(mixed, mixed)
+    assert not same_session_files(mixed, here)
