@@ -139,9 +139,6 @@ def run(args: argparse.Namespace) -> int:
         runtimes = [
             open_step_model(m, threads=args.threads, calibrate_progress=calibrate) for m in models
         ]
-        if args.processes < 1:
-            msg = f"--processes must be at least 1, got {args.processes}"
-            raise EvaluationError(msg)
         reports = evaluate_models(
             files,
             runtimes,

@@ -15,7 +15,6 @@ window graph has the paper form's I/O and loads in ``ScottiRuntime``.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -25,7 +24,7 @@ import numpy.typing as npt
 from scotti.models import contract as c
 from scotti.models.errors import ModelContractError, ModelError, ModelInputError
 from scotti.models.graph_checks import check_metadata, ood_stats, open_session, sha256_of
-from scotti.models.input_checks import FrameCheck, FrameCode, frame_codes
+from scotti.models.input_checks import FrameCode, frame_codes
 from scotti.models.kv_contract import (
     KV_GRAPH,
     KV_INPUT_PAST,
@@ -37,7 +36,7 @@ from scotti.models.kv_contract import (
     META_STEP_KIND,
     STEP_KIND_KV,
 )
-from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON, OodStats
+from scotti.models.ood import OodStats, window_reasons
 from scotti.models.progress_calibration import ProgressCalibration, ProgressMapping
 from scotti.models.runtime import ScottiRuntime, StepBatch, StepResult, softmax
 from scotti.models.streaming import stack_frames
@@ -271,35 +270,16 @@ class KvStreamingWindow:
         return self._cache.valid()
 
     def push(self, frame: npt.ArrayLike) -> StepResult | None:
-        """One frame (H, 2W) of raw counts; a prediction once the window is full."""
-        f = np.asarray(frame, dtype=np.float32)
-        if f.shape != self._runtime.frame_shape:
-            msg = f"frame must be {self._runtime.frame_shape}, got {f.shape}"
-            raise ModelInputError(msg)
-        batch = self._runtime.run_steps(f[None], self.past()[None], self.valid()[None])
-        return self.accept(f, batch.row(0))
+        """One frame (H, 2W) of raw counts; a prediction once the window is full (the
+        batch path with one window, as ``StreamingWindow.push``). A frame of the wrong
+        shape raises ModelInputError and leaves the window as it was."""
+        return push_many([self], [frame])[0]
 
     def reset(self) -> None:
         self._cache.reset()
         self._checks.reset()
         self._seen = 0
         self.reasons = ()
-
-    def accept(
-        self, frame: npt.ArrayLike, result: StepResult, check: FrameCheck | None = None
-    ) -> StepResult | None:
-        """Take one step's result (its ``embedding`` is the frame's cache row)."""
-        self._cache.push(result.embedding)
-        verdict = self._checks.push(frame) if check is None else self._checks.push_check(check)
-        self._seen += 1
-        if self.warming:
-            return None
-        self.reasons = verdict.reasons
-        if UNFAMILIAR in result.flags:
-            self.reasons += (UNFAMILIAR_REASON,)
-        if not verdict.flags:
-            return result
-        return dataclasses.replace(result, flags=(*verdict.flags, *result.flags))
 
     def accept_row(self, batch: StepBatch, row: int, code: FrameCode) -> StepResult | None:
         """Row ``row`` of a step run on ``past()`` into the cache and its frame's input
@@ -311,10 +291,7 @@ class KvStreamingWindow:
         if self.warming:
             return None
         result = batch.row(row, verdict.flags)
-        if UNFAMILIAR in result.flags:
-            self.reasons = (*verdict.reasons, UNFAMILIAR_REASON)
-        else:
-            self.reasons = verdict.reasons
+        self.reasons = window_reasons(verdict.reasons, result.flags)
         return result
 
 

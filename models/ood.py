@@ -37,6 +37,14 @@ UNFAMILIAR: Final = "unfamiliar"
 UNFAMILIAR_REASON: Final = "unfamiliar: input unlike the training data (score above threshold)"
 # Every flag that withholds the action, progress and repetition count, in order of precedence.
 OOD_FLAGS: Final = (UNLOADED, OUT_OF_RANGE, UNFAMILIAR)
+
+
+def window_reasons(input_reasons: tuple[str, ...], flags: tuple[str, ...]) -> tuple[str, ...]:
+    """A window's reasons for its last prediction: its input checks', then the unfamiliar
+    score's when that flag is among the prediction's ``flags``."""
+    return (*input_reasons, UNFAMILIAR_REASON) if UNFAMILIAR in flags else input_reasons
+
+
 F32 = npt.NDArray[np.float32]
 _ROWS_PER_PRODUCT: Final = 8
 

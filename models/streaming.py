@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from scotti.models.errors import ModelError, ModelInputError
 from scotti.models.input_checks import FrameCode, frame_codes
-from scotti.models.ood import UNFAMILIAR, UNFAMILIAR_REASON
+from scotti.models.ood import window_reasons
 from scotti.models.runtime import ScottiRuntime, StepBatch, StepResult
 from scotti.models.window_checks import FrameChecks
 
@@ -142,10 +142,7 @@ class StreamingWindow:
         if self._seen < self._runtime.window:
             return None
         result = batch.row(row, verdict.flags)
-        if UNFAMILIAR in result.flags:
-            self.reasons = (*verdict.reasons, UNFAMILIAR_REASON)
-        else:
-            self.reasons = verdict.reasons
+        self.reasons = window_reasons(verdict.reasons, result.flags)
         return result
 
 

@@ -19,6 +19,7 @@ A measurement, not a test: run it on the host the daemon will run on.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -103,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     result = measure(works, args.gaps_ms, args.calls)
     print(
         f"after idle gaps, {args.calls} calls each, medians ({args.model.name}; "
-        f"load average {_load():.1f})"
+        f"load average {os.getloadavg()[0]:.1f})"
     )
     print("| work | gap ms | CPU ms | wall ms | CPU vs no gap |")
     print("|---|---|---|---|---|")
@@ -114,13 +115,6 @@ def main(argv: list[str] | None = None) -> int:
             ratio = f"{cpu / base:.1f}x" if base > 0 else "-"
             print(f"| {name} | {gap:g} | {cpu:.3f} | {wall:.3f} | {ratio} |")
     return 0
-
-
-def _load() -> float:
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except OSError:
-        return float("nan")
 
 
 if __name__ == "__main__":
