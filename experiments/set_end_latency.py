@@ -15,7 +15,8 @@ the shipped model (or ``--model``). Per person it reads, frame by frame:
 - the same counted from the last movement of the set (no keypoint faster than
   ``STILL_SPEED_MPS``, the convention's "still");
 - the longest still pause inside the set, which the convention labels as the
-  set however long it is.
+  set however long it is;
+- how many of the wrong frames are the standing after the set.
 
 Why: `sim/scenes/squat.toml` stands 1.5 s after its last squat, 24 frames
 labelled standing, and every error of its replay is there; a causal model can
@@ -36,7 +37,7 @@ import numpy as np
 from common import ROOT, from_root, table, utc_now, write_section
 from coverage_grid import Cell, people
 from scotti.evaluation.replay import replay_session
-from scotti.models.contract import ACTIONS, STANDING, STILL_SPEED_MPS, has_progress
+from scotti.models.contract import ACTIONS, NO_ACTION, STANDING, STILL_SPEED_MPS, has_progress
 from scotti.models.errors import ModelError
 from scotti.models.kv_streaming import StepModel, open_step_model
 from scotti.models.set_edges import frame_speeds
@@ -57,6 +58,8 @@ class SetEnd:
     lag_frames: int | None  # from the label's switch to the first standing prediction
     lag_from_still: int | None  # the same from the set's last movement
     longest_pause: int  # the longest still run inside the set's label, in frames
+    wrong: int = 0  # scored frames with an action label whose action is wrong
+    wrong_after: int = 0  # of them, the standing frames after the set
 
 
 def set_end(action: str, scene: Scene, model: StepModel, workdir: Path) -> SetEnd:
@@ -80,6 +83,8 @@ def set_end(action: str, scene: Scene, model: StepModel, workdir: Path) -> SetEn
     still = frame_speeds(frames.pose_true, RATE_HZ) < STILL_SPEED_MPS
     moving = np.flatnonzero(~still[: switch + 1])
     last_move = int(moving[-1]) if moving.size else None
+    labelled = truth != NO_ACTION  # transitions are not scored
+    wrong = labelled & (said != truth)
     return SetEnd(
         action,
         int(after.size),
@@ -88,6 +93,8 @@ def set_end(action: str, scene: Scene, model: StepModel, workdir: Path) -> SetEn
         _longest_run(
             still[in_set[0] : in_set[-1] + 1] & (truth[in_set[0] : in_set[-1] + 1] == index)
         ),
+        int(wrong.sum()),
+        int(wrong[after].sum()),
     )
 
 
@@ -114,6 +121,7 @@ def markdown(results: list[SetEnd], args: argparse.Namespace, model: Path) -> st
                 _frames_and_s(lags),
                 _frames_and_s(from_still),
                 f"{max(r.longest_pause for r in mine) / RATE_HZ:.1f} s",
+                f"{sum(r.wrong_after for r in mine)} of {sum(r.wrong for r in mine)}",
                 str(never),
             ]
         )
@@ -123,6 +131,7 @@ def markdown(results: list[SetEnd], args: argparse.Namespace, model: Path) -> st
         "model names the set after its label ends: median (max) frames, s",
         "after its last movement",
         "longest still pause inside a set",
+        "wrong frames: standing after the set, of all",
         "never said standing",
     ]
     lines = [

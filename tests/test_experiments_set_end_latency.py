@@ -42,6 +42,8 @@ def test_a_model_that_says_standing_switches_at_the_label(
     model = open_step_model(standing_model_path)
     end = set_end_latency.set_end("squat", _squat_then_still(), model, tmp_path)
     assert end.lag_frames == 0
+    assert end.wrong_after == 0  # it said standing on every standing frame after the set
+    assert end.wrong > 0  # and standing on the squats too
     assert end.lag_from_still is not None
     assert end.lag_from_still >= 0
     # 4 s still after the set, less at most SET_EDGE_REST_S kept in it: 3-4 s of standing.
@@ -55,12 +57,14 @@ def test_a_model_that_never_says_standing_is_counted_as_never(tmp_path: Path) ->
     model = open_step_model(never)
     ends = [set_end_latency.set_end("squat", _squat_then_still(), model, tmp_path)]
     assert ends[0].lag_frames is None
+    assert ends[0].wrong_after == ends[0].standing_frames  # every standing frame after it wrong
     assert ends[0].lag_from_still is None
     args = argparse.Namespace(people=1, seconds=6.0, stand_s=4.0)
     text = set_end_latency.markdown(ends, args, never)
     row = next(line for line in text.splitlines() if line.startswith("| `squat`"))
     assert row.split("|")[3].strip() == "-"  # no lag to show
     assert row.split("|")[-2].strip() == "1"  # never said standing: one person
+    assert row.split("|")[-3].strip() == f"{ends[0].wrong_after} of {ends[0].wrong}"
     assert "--people 1 --seconds 6 --stand-s 4" in text
 
 
