@@ -91,16 +91,17 @@ def completed(stream: Iterable[Published]) -> Counter[int]:
     Every increment counts, also across the counter starting over: a session
     holds several sets of one action, and the count the counter ends with would
     only be the last set's. The counter counts only while the published action is
-    the one it counts, so each repetition is credited to that action."""
+    the one it counts, so each repetition is credited to that action. A count that
+    comes back after a pause in its set (standing, then the same action at the
+    count it stood at) completes nothing."""
     done: Counter[int] = Counter()
-    last = 0
+    action, last = None, 0
     for p in stream:
-        if p.withheld is not None:
-            continue  # the counter neither counted nor forgot
-        n = max(p.repetition, 0)  # -1: standing, the next action counts from 0
-        if n > last:
-            done[p.action] += n - last
-        last = n
+        if p.withheld is not None or p.repetition < 0:
+            continue  # withheld: neither counted nor forgot; standing counts nothing
+        if p.action == action and p.repetition > last:
+            done[p.action] += p.repetition - last
+        action, last = p.action, p.repetition
     return done
 
 

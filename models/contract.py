@@ -143,15 +143,22 @@ def has_progress(action: int) -> bool:
 # - Repetitions are cut where the person rests (models/progress.py): squat and
 #   lunge standing tall, step-up on the floor, walking in place with both feet
 #   down, jump in the crouch; a repetition runs from its cut to the next.
-# - A pause between repetitions, standing at that rest, is part of the set: it
-#   carries the set's action, progress ~0 (it belongs to the repetition that
-#   follows), and the repetition just finished is complete on arrival. However
-#   long it is: only a label ends a set.
+# - A pause between repetitions, standing at that rest, is part of the set for
+#   its first ``SET_EDGE_REST_S``: it carries the set's action, progress ~0 (it
+#   belongs to the repetition that follows), and the repetition just finished is
+#   complete on arrival. Beyond that bound, standing straight-legged (both knees
+#   bent less than ``STANDING_KNEE_FLEXION_DEG``) is ``standing`` until the next
+#   movement, which starts a run of the set's action again. Every label is then
+#   a function of the motion up to its frame plus at most ``SET_EDGE_REST_S``: a
+#   causal model cannot tell the stillness after a set's last repetition from a
+#   pause, so a pause "however long" was unanswerable after every set. A held
+#   crouch is not standing and stays the set's.
 # - Still standing before a set's first movement and after its last belongs to
 #   the set for at most ``SET_EDGE_REST_S`` (a moment of getting ready, a hold
 #   at the top; it reads ~0 like a pause); beyond that it is ``standing``
-#   (models/set_edges.py applies this to every source). "Still": no keypoint
-#   faster than ``STILL_SPEED_MPS``. A set with no movement at all keeps its label.
+#   (models/set_edges.py applies both bounds to every source). "Still": no
+#   keypoint faster than ``STILL_SPEED_MPS``. A set with no movement at all
+#   keeps its label.
 # - Standing: ``STANDING``, no progress (NaN), repetition -1.
 # - Transitions, ``NO_ACTION``: movement that is neither a set nor standing:
 #   walking to the next spot or turning round between lab sets, a jump set's
@@ -162,11 +169,15 @@ def has_progress(action: int) -> bool:
 #
 # The simulator's sets hold at most 0.6 s of still standing at their edges at
 # tempo 1 (the recipes' lead-in and a repetition's hold at the top), so at its
-# own tempo the rule changes none of its labels: a lab session's labels are
-# the same with and without it (tests/test_labelling_convention.py).
+# own tempo the edge bound changes none of its labels; the pause bound changes
+# the pauses of squat and lunge sets longer than it (sim/actions/strength.py
+# draws them up to 4.5 s; tests/test_labelling_convention.py).
 SET_EDGE_REST_S: Final = 1.0
 # Faster than a simulated quiet stand's sway (under 0.085 m/s, the same test).
 STILL_SPEED_MPS: Final = 0.1
+# Standing straight: a simulated quiet stand bends its knees 12 degrees, a
+# squat's crouch 100 or more, a jump's 70-80 (tests/test_labelling_convention.py).
+STANDING_KNEE_FLEXION_DEG: Final = 25.0
 
 
 # --- ONNX graph I/O names --------------------------------------------------

@@ -5,8 +5,17 @@ A run of a repeated action may begin and end standing still: the recipe's
 moment of getting ready, the hold at the top of its last repetition, or a
 segment file drawn loosely around the set. At most ``SET_EDGE_REST_S`` of that
 stillness next to the set's first and last movement keeps the set's label;
-the stillness beyond it becomes ``STANDING``. Pauses between movements inside
-the run are never touched (a pause is part of its set).
+the stillness beyond it becomes ``STANDING``.
+
+A pause between movements inside the run is held to the same bound: its first
+``SET_EDGE_REST_S`` is the set's, the rest, up to the next movement, is
+``STANDING`` when the person stands straight-legged in it (both knees bent less
+than ``STANDING_KNEE_FLEXION_DEG``). Why: a model reads the past only, and
+stillness after a set's last repetition looks like a pause until the next
+repetition comes or does not; under a convention where a pause of any length is
+the set, the standing after every set was unanswerable (the model named the set
+for 1.4-2.1 s after its end, experiments/set_end_latency.py). A held crouch (a
+jump's landing, a lunge held low) is not standing and stays the set's.
 
 Stillness is read from the keypoints of the run itself (pose frame, metres):
 a frame is still when no keypoint moved faster than ``STILL_SPEED_MPS`` since
@@ -20,9 +29,11 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 from scotti.models.contract import (
+    KP,
     NUM_KEYPOINTS,
     SET_EDGE_REST_S,
     STANDING,
+    STANDING_KNEE_FLEXION_DEG,
     STILL_SPEED_MPS,
     has_progress,
 )
@@ -57,7 +68,8 @@ def set_edges(
 
     ``keypoints`` (N, 19, 3) pose frame, metres; ``actions`` (N,) ints; ``segment``
     (N,) optional ids of stretches recorded without a gap (a run never spans two).
-    Returns a new array; standing, transitions and pauses inside a run are kept.
+    Returns a new array; standing and transitions are kept, and so is a pause inside a
+    run up to ``SET_EDGE_REST_S`` (beyond it, standing straight-legged is ``STANDING``).
     """
     k = np.asarray(keypoints, dtype=np.float64)
     out = np.array(actions, dtype=np.int64, copy=True)
@@ -80,7 +92,33 @@ def set_edges(
             out[start : start + first - keep] = STANDING
         if tail_known and end - start - 1 - last > keep:
             out[start + last + 1 + keep : end] = STANDING
+        straight = _straight_legged(k[start:end])
+        for before, after in zip(moving[:-1].tolist(), moving[1:].tolist(), strict=True):
+            beyond = slice(before + 1 + keep, after)  # the pause's frames past the bound
+            seen = np.isfinite(speed[before + 1 : after]).all()
+            if after - before - 1 > keep and seen and straight[beyond].all():
+                out[start + beyond.start : start + beyond.stop] = STANDING
     return out
+
+
+def knee_flexion_deg(keypoints: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """(N, 2) left and right knee flexion in degrees (0: straight), NaN where unseen."""
+    k = np.asarray(keypoints, dtype=np.float64)
+    flexion = []
+    for side in ("left", "right"):
+        thigh = k[:, KP[f"{side}_knee"]] - k[:, KP[f"{side}_hip"]]
+        shank = k[:, KP[f"{side}_ankle"]] - k[:, KP[f"{side}_knee"]]
+        cos = np.sum(thigh * shank, axis=-1) / (
+            np.linalg.norm(thigh, axis=-1) * np.linalg.norm(shank, axis=-1)
+        )
+        flexion.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return np.stack(flexion, axis=1)
+
+
+def _straight_legged(keypoints: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+    """(N,) whether both knees are seen and bent less than ``STANDING_KNEE_FLEXION_DEG``."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray((knee_flexion_deg(keypoints) < STANDING_KNEE_FLEXION_DEG).all(axis=1))
 
 
 def _runs(actions: IntArray, segment: npt.NDArray[np.generic]) -> list[tuple[int, int]]:

@@ -73,6 +73,23 @@ def test_a_withheld_frame_neither_counts_nor_forgets() -> None:
     assert math.isnan(publish(STANDING, 0.7, (), counter).progress)
 
 
+def test_a_set_split_by_standing_counts_each_repetition_once() -> None:
+    """Two squats, a pause long enough to read standing (8 frames), two more: the counter
+    goes on at 2 and the count of completions is 4, not 2 + 4 (a resumed count is no
+    completion) nor 2 (the count starting over)."""
+    squats = [(SQUAT, p, ()) for _ in range(2) for p in ONE_REP]
+    pause = [(STANDING, 0.0, ())] * 8
+    out = run(squats + pause + squats)
+    assert [p.repetition for p in out[len(squats) : len(squats) + len(pause)]][-1] == -1
+    assert out[-1].repetition == 4
+    assert completed(out) == {SQUAT: 4}
+    # After a stand longer than a pause the next set starts over, and counts its own.
+    long_stand = [(STANDING, 0.0, ())] * (RepetitionCounter().resume_frames + 8)
+    out = run(squats + long_stand + squats)
+    assert out[-1].repetition == 2
+    assert completed(out) == {SQUAT: 4}
+
+
 # --- the real pipeline against the replay counted through the same rule ------------
 
 EMPTY_FROM, EMPTY_TO = 120, 150  # nobody on the insoles: unloaded once 16 frames in

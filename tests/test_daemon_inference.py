@@ -148,11 +148,37 @@ def test_standing_counts_nothing_and_a_short_flicker_to_it_does_not_reset() -> N
     assert got[:3] == [3, 3, 3]
     assert got[3:] == [-1] * (len(got) - 3)
     assert counter.action == standing
-    # The next repeated action counts from 0.
+    # The same action back after a short standing: a pause in the set, the count goes on.
     for _ in range(4):
         got_back = counter.update(squat, 0.5)
-    assert got_back == 0
-    assert [counter.update(squat, p) for p in wrap][-1] == 1
+    assert got_back == 3
+    assert [counter.update(squat, p) for p in wrap][-1] == 4
+
+
+def test_a_set_resumes_after_a_pause_and_starts_over_after_a_long_stand() -> None:
+    squat, lunge = ACTIONS.index("squat"), ACTIONS.index("lunge")
+    wrap = [0.2, 0.5, 0.9, 0.1]  # one completed repetition per pass
+
+    def after_standing(frames: int, then: int) -> int:
+        counter = RepetitionCounter(resume_frames=20)
+        for p in wrap * 2:
+            counter.update(squat, p)
+        standing = [counter.update(STANDING, 0.0) for _ in range(frames)]
+        assert standing[-1] == -1
+        # The first pass confirms the action (its progress unread), the second counts.
+        return [counter.update(then, p) for p in wrap * 2][-1]
+
+    assert after_standing(20, squat) == 3  # within resume_frames: the set goes on
+    assert after_standing(21, squat) == 1  # beyond it: a new set counts from 0
+    assert after_standing(10, lunge) == 1  # another exercise counts from 0
+    # A standing entered from another exercise resumes nothing of the one before it.
+    counter = RepetitionCounter(resume_frames=20)
+    for action in (squat, lunge):
+        for p in wrap * 2:
+            counter.update(action, p)
+    for _ in range(6):
+        counter.update(STANDING, 0.0)
+    assert [counter.update(squat, p) for p in wrap * 2][-1] == 1
 
 
 def test_a_repetition_whose_progress_turns_down_before_the_top_still_counts() -> None:

@@ -1,10 +1,11 @@
 """One labelling convention for every source of labels (models/contract.py, "The labelling
 convention"): the same squats with pauses, asked by a script, by a lab session and brought
-in by ``scotti import``, get the same labels frame for frame; the edges of a set keep at
-most SET_EDGE_REST_S of still standing, wherever the labels come from."""
+in by ``scotti import``, get the same labels frame for frame; the edges of a set and its
+pauses keep at most SET_EDGE_REST_S of still standing, wherever the labels come from."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -16,12 +17,14 @@ from scotti.models.contract import (
     ACTIONS,
     FRAME_RATE_HZ,
     KEYPOINTS,
+    KP,
     NO_ACTION,
     SET_EDGE_REST_S,
     STANDING,
+    STANDING_KNEE_FLEXION_DEG,
     STILL_SPEED_MPS,
 )
-from scotti.models.set_edges import frame_speeds, set_edges
+from scotti.models.set_edges import frame_speeds, knee_flexion_deg, set_edges
 from scotti.sim.actions import Context, Segment
 from scotti.sim.motion import Labels, Motion, labels
 from scotti.sim.scene import (
@@ -88,39 +91,54 @@ def test_a_script_and_a_lab_session_label_the_same_set_the_same() -> None:
     np.testing.assert_array_equal(script.repetition, lab.repetition)
 
 
-def test_pauses_are_the_set_and_the_stands_around_it_are_standing() -> None:
+def test_a_pause_is_the_set_for_a_second_then_standing_as_are_the_stands_around_it() -> None:
     _, lab = scripted(seed=4)
     runs = _runs(lab.action)
-    assert [int(lab.action[s]) for s, _ in runs] == [STANDING, SQUAT, STANDING]
-    (_, lead_end), (start, end), _ = runs
-    assert lead_end == round(LEAD_IN_S * FRAME_RATE_HZ)
+    assert int(lab.action[runs[0][0]]) == STANDING
+    assert int(lab.action[runs[-1][0]]) == STANDING
+    assert runs[0][1] == round(LEAD_IN_S * FRAME_RATE_HZ)
+    assert set(lab.action.tolist()) == {STANDING, SQUAT}
     assert np.isnan(lab.progress[lab.action == STANDING]).all()
     assert (lab.repetition[lab.action == STANDING] == -1).all()
 
+    start, end = runs[1][0], runs[-1][0]  # the set, from its first squat to the last
     moving = frame_speeds(lab.keypoints[start:end], FRAME_RATE_HZ) >= STILL_SPEED_MPS
     first, last = np.flatnonzero(moving)[[0, -1]]
     # The set's still edges are the recipe's own, shorter than the convention's bound.
     assert 0 < first <= EDGE
     assert 0 < end - start - 1 - last <= EDGE
-    # Pauses between repetitions: still frames at the top between the first and the last
-    # movement (the bottom of a squat is held a moment too: no pause).
+    # Pauses between repetitions: stretches still at the top between the first and the
+    # last movement (the bottom of a squat is held a moment too: no pause).
     hips = lab.keypoints[start:end, 7:9, 2].mean(axis=1)
-    inner = np.arange(first, last + 1)
-    paused = inner[~moving[inner] & (hips[inner] > hips.max() - 0.01)]
-    assert paused.size >= (REPS - 1) * round(0.5 * FRAME_RATE_HZ)  # half a second or more each
-    assert (lab.action[paused + start] == SQUAT).all()
-    assert lab.progress[paused + start].max() < 0.05  # the start of the repetition that follows
-    # A repetition ends on arrival at the top: the count steps up as the hips get there.
-    steps = np.flatnonzero(np.diff(lab.repetition[start:end])) + 1
-    assert steps.size == REPS  # REPS - 1 pauses and the rest after the last repetition
-    for step in steps:
-        assert hips[step] > hips.max() - 0.04 > hips[step - 2]  # just risen to the top
-    assert (lab.repetition[start + steps[-1] : end] == REPS).all()  # the last complete on arrival
+    at_top = ~moving & (hips > hips.max() - 0.01)
+    pauses = [(a, b) for a, b in _runs(at_top.astype(int)) if at_top[a] and first < a < last]
+    assert len(pauses) == REPS - 1
+    long = [(a, b) for a, b in pauses if b - a > EDGE]
+    assert long  # this person pauses both ways
+    assert len(long) < len(pauses)
+    for a, b in pauses:
+        held = lab.action[start + a : start + min(b, a + EDGE)]
+        assert (held == SQUAT).all()  # the first second is the set's ...
+        assert lab.progress[start + a : start + a + held.size].max() < 0.05  # ... at ~0
+        assert (lab.action[start + a + EDGE : start + b] == STANDING).all()  # then standing
+    # A repetition ends on arrival at the top: the count steps up as the hips get there,
+    # and a run that a pause ends holds the repetitions completed in it.
+    squats = lab.action[start:end] == SQUAT
+    completed = 0
+    for a, b in _runs(squats.astype(int)):
+        if not squats[a]:
+            continue
+        steps = np.flatnonzero(np.diff(lab.repetition[start + a : start + b])) + 1
+        for step in steps:
+            assert hips[a + step] > hips.max() - 0.04 > hips[a + step - 2]  # just risen
+        completed += int(lab.repetition[start + b - 1])
+    assert completed == REPS
 
 
-def test_lab_sessions_hold_the_convention_without_a_change() -> None:
+def test_lab_sessions_hold_the_edge_bound_without_a_change() -> None:
     """The figures in contract.py: at tempo 1 the sets' still edges stay within 0.6 s and a
-    quiet stand's sway under 0.085 m/s (< STILL_SPEED_MPS), so the edge rule relabels nothing."""
+    quiet stand's sway under 0.085 m/s (< STILL_SPEED_MPS), so the edge bound relabels
+    nothing: what set_edges changes is pauses inside sets, standing straight-legged."""
     scene = Scene(
         seed=5,
         subject=SubjectModel(height_m=1.68, mass_kg=63.0, style_seed=8),
@@ -134,7 +152,18 @@ def test_lab_sessions_hold_the_convention_without_a_change() -> None:
     motion = motion_from_segments(ctx.body, subject, FRAME_RATE_HZ, segments)  # the recipes' labels
     np.testing.assert_array_equal(motion.world, build_motion(scene).world)  # the scene's motion
     keypoints = motion.pose_frame()
-    np.testing.assert_array_equal(set_edges(keypoints, motion.action, FRAME_RATE_HZ), motion.action)
+    held = set_edges(keypoints, motion.action, FRAME_RATE_HZ)
+    changed = np.flatnonzero(held != motion.action)
+    assert changed.size  # this session's sets pause longer than the bound
+    assert (held[changed] == STANDING).all()
+    assert (knee_flexion_deg(keypoints[changed]) < STANDING_KNEE_FLEXION_DEG).all()
+    for start, end in _runs(motion.action):  # every change lies between a set's movements
+        inside = changed[(changed >= start) & (changed < end)]
+        if inside.size:
+            speed = frame_speeds(keypoints[start:end], FRAME_RATE_HZ)
+            moving = np.flatnonzero(speed >= STILL_SPEED_MPS)
+            assert moving[0] < inside.min() - start
+            assert inside.max() - start < moving[-1]
     speed = frame_speeds(keypoints, FRAME_RATE_HZ)
     assert speed[motion.action == STANDING].max() < 0.085
     edges = []
@@ -240,29 +269,78 @@ def test_an_import_that_calls_the_stands_squat_keeps_a_second_of_them(
 # --- the edge rule itself, on hand-made keypoints -------------------------------------
 
 
-def _bobbing(still_before: float, still_after: float, pause: float = 0.0) -> np.ndarray:
-    """(N, 19, 3): every keypoint still, then two 2 s dips of 0.3 m (a pause between them),
-    then still again."""
+def _bobbing(
+    still_before: float, still_after: float, pause: float = 0.0, *, pause_low: bool = False
+) -> np.ndarray:
+    """(N, 19, 3): standing still, then two 2 s dips of the hips by 0.3 m (a pause between
+    them, standing tall or, ``pause_low``, held at the bottom), then still again. The knees
+    go forward as the hips drop: about 5 degrees of flexion standing, 70 at the bottom."""
     rate = FRAME_RATE_HZ
     pieces = [np.zeros(round(still_before * rate))]
     dip = 0.15 * (1.0 - np.cos(2.0 * math.pi * np.arange(round(2.0 * rate)) / (2.0 * rate)))
-    pieces += [dip, np.zeros(round(pause * rate)), dip, np.zeros(round(still_after * rate))]
-    z = -np.concatenate(pieces)
-    k = np.zeros((z.size, len(KEYPOINTS), 3))
-    k[:, :, 2] = 1.0 + z[:, None]
+    half = dip.size // 2
+    if pause_low:
+        pieces += [dip[:half], np.full(round(pause * rate), 0.3), dip[half:]]
+    else:
+        pieces += [dip, np.zeros(round(pause * rate))]
+    pieces += [dip, np.zeros(round(still_after * rate))]
+    drop = np.concatenate(pieces)
+    k = np.zeros((drop.size, len(KEYPOINTS), 3))
+    k[:, :, 2] = 1.4 - drop[:, None]  # the upper body rides on the hips
+    for side, y in (("left", 0.1), ("right", -0.1)):
+        k[:, KP[f"{side}_hip"]] = np.stack(
+            [np.zeros_like(drop), np.full_like(drop, y), 0.95 - drop], 1
+        )
+        k[:, KP[f"{side}_knee"]] = np.stack(
+            [0.02 + 0.5 * drop, np.full_like(drop, y), np.full_like(drop, 0.5)], 1
+        )
+        for foot in ("ankle", "heel", "big_toe", "small_toe"):
+            k[:, KP[f"{side}_{foot}"]] = [0.0, y, 0.08]
     return k
 
 
-def test_still_edges_beyond_the_bound_become_standing_pauses_never() -> None:
+def _longest_still(moving: np.ndarray) -> tuple[int, int]:
+    """[from, to) of the longest still stretch between two moving frames."""
+    gaps = [(int(a) + 1, int(b)) for a, b in itertools.pairwise(moving)]
+    return max(gaps, key=lambda g: g[1] - g[0])
+
+
+def test_still_edges_and_pauses_beyond_the_bound_become_standing() -> None:
     k = _bobbing(3.0, 2.5, pause=4.0)
     action = np.full(len(k), SQUAT)
     out = set_edges(k, action, FRAME_RATE_HZ)
     moving = np.flatnonzero(frame_speeds(k, FRAME_RATE_HZ) >= STILL_SPEED_MPS)
     first, last = moving[0], moving[-1]
+    pause_from, pause_to = _longest_still(moving)
+    assert pause_to - pause_from >= round(4.0 * FRAME_RATE_HZ)  # the 4 s stand, seen
     assert (out[: first - EDGE] == STANDING).all()
-    assert (out[first - EDGE : last + 1 + EDGE] == SQUAT).all()  # the 4 s pause included
+    assert (out[first - EDGE : pause_from + EDGE] == SQUAT).all()  # the pause's first second
+    assert (out[pause_from + EDGE : pause_to] == STANDING).all()  # the rest of it
+    assert (out[pause_to : last + 1 + EDGE] == SQUAT).all()  # the next movement on
     assert (out[last + 1 + EDGE :] == STANDING).all()
     np.testing.assert_array_equal(action, SQUAT)  # the input is left as it was
+    # A pause of at most the bound is the set's, whole.
+    short = _bobbing(3.0, 2.5, pause=SET_EDGE_REST_S - 0.1)
+    held = set_edges(short, np.full(len(short), SQUAT), FRAME_RATE_HZ)
+    assert [int(held[a]) for a, _ in _runs(held)] == [STANDING, SQUAT, STANDING]
+
+
+def test_a_pause_held_low_is_no_standing() -> None:
+    """4 s held at the bottom of the dip: still, but the knees bent 70 degrees."""
+    k = _bobbing(3.0, 2.5, pause=4.0, pause_low=True)
+    assert knee_flexion_deg(k).max() > 60.0 > 10.0 > knee_flexion_deg(k[:10]).max()
+    out = set_edges(k, np.full(len(k), SQUAT), FRAME_RATE_HZ)
+    assert [int(out[a]) for a, _ in _runs(out)] == [STANDING, SQUAT, STANDING]
+
+
+def test_a_pause_the_keypoints_do_not_show_keeps_its_label() -> None:
+    k = _bobbing(3.0, 2.5, pause=4.0)
+    moving = np.flatnonzero(frame_speeds(k, FRAME_RATE_HZ) >= STILL_SPEED_MPS)
+    pause_from, _ = _longest_still(moving)
+    masked = k.copy()
+    masked[pause_from + 30] = np.nan  # one unseen frame in the pause
+    out = set_edges(masked, np.full(len(k), SQUAT), FRAME_RATE_HZ)
+    assert [int(out[a]) for a, _ in _runs(out)] == [STANDING, SQUAT, STANDING]
 
 
 def test_what_the_keypoints_do_not_show_keeps_its_label() -> None:
@@ -284,7 +362,16 @@ def test_a_gap_ends_a_run() -> None:
     k = np.concatenate([_bobbing(0.0, 3.0), _bobbing(3.0, 0.0)])
     action = np.full(len(k), SQUAT)
     half = len(k) // 2
-    # One run: the 6 s still in the middle is a pause, and the run has no still edge.
-    np.testing.assert_array_equal(set_edges(k, action, FRAME_RATE_HZ), SQUAT)
+    moving = np.flatnonzero(frame_speeds(k, FRAME_RATE_HZ) >= STILL_SPEED_MPS)
+    pause_from, pause_to = _longest_still(moving)
+    # One run: the 6 s still in the middle is a pause: the set's for a second, then
+    # standing up to the next movement (a run's lead is no pause's).
+    one = set_edges(k, action, FRAME_RATE_HZ)
+    assert (one[: pause_from + EDGE] == SQUAT).all()
+    assert (one[pause_from + EDGE : pause_to] == STANDING).all()
+    assert (one[pause_to:] == SQUAT).all()
+    # Two runs: each edge is held, the second run's lead keeps its second before moving.
     split = set_edges(k, action, FRAME_RATE_HZ, segment=np.repeat([0, 1], half))
-    assert (split[half - 10 : half + 10] == STANDING).all()  # two runs: each edge held
+    assert (split[half - 10 : half + 10] == STANDING).all()
+    assert (split[pause_to - EDGE : pause_to] == SQUAT).all()
+    assert (one[pause_to - EDGE : pause_to] == STANDING).all()

@@ -8,9 +8,16 @@ hold for ``confirm_frames`` predictions before the count starts over, so
 one misclassified frame does not reset it.
 
 An action without repetitions (``standing``) counts nothing: while it holds,
-the count is -1 (none) and progress is not looked at; the next repeated
-action counts from 0. A flicker to standing shorter than ``confirm_frames``
-(the top of a squat can look like standing) neither counts nor resets.
+the count is -1 (none) and progress is not looked at. A flicker to standing
+shorter than ``confirm_frames`` (the top of a squat can look like standing)
+neither counts nor resets.
+
+A set goes on through a pause: the labelling convention (models/contract.py)
+calls a pause between repetitions longer than ``SET_EDGE_REST_S`` standing, so
+a set with long pauses reads squat, standing, squat, ... When the action that
+ends a standing of at most ``resume_frames`` predictions is the one before it,
+its count goes on from where it stood; after a longer standing, or another
+action, the count starts from 0.
 """
 
 from __future__ import annotations
@@ -28,13 +35,24 @@ class RepetitionCounter:
     # unsure of that moment turns down before it (step-ups topped out near 0.6; at 0.7
     # the shipped model counted 8 of 62 step-ups and 1 of 454 backward steps of a
     # held-out subject). Chosen on the validation subjects 011 and 031 among 0.5-0.7.
-    def __init__(self, high: float = 0.55, low: float = 0.3, confirm_frames: int = 4) -> None:
+    #
+    # ``resume_frames`` 128 (8 s at 16 Hz): longer than any pause the simulator draws
+    # (sim/actions/strength.py: at most 4.5 s) with room for a person's own, shorter
+    # than the stand between two sets of a lab session (stands of 5-20 s and a walk).
+    def __init__(
+        self,
+        high: float = 0.55,
+        low: float = 0.3,
+        confirm_frames: int = 4,
+        resume_frames: int = 128,
+    ) -> None:
         if not 0.0 <= low < high <= 1.0:
             msg = f"need 0 <= low < high <= 1, got low={low} high={high}"
             raise ValueError(msg)
         self.high = high
         self.low = low
         self.confirm_frames = confirm_frames
+        self.resume_frames = resume_frames
         self.reset()
 
     def reset(self) -> None:
@@ -43,6 +61,10 @@ class RepetitionCounter:
         self._armed = False  # progress has been above ``high`` since the last count
         self._candidate: int | None = None
         self._candidate_frames = 0
+        # The repeated action a standing interrupted, its count and armed state, and
+        # how many predictions the standing has lasted: a pause the set may resume from.
+        self._paused: tuple[int, int, bool] | None = None
+        self._standing_frames = 0
 
     @property
     def action(self) -> int | None:
@@ -61,13 +83,16 @@ class RepetitionCounter:
             else:
                 self._candidate, self._candidate_frames = action, 1
             if self._action is None or self._candidate_frames >= self.confirm_frames:
-                self._action, self._count, self._armed = action, 0, False
-                self._candidate = None
+                self._switch(action)
             else:
                 return self._count  # a flicker: neither counted nor reset
         else:
             self._candidate = None
-        if math.isnan(progress) or not has_progress(action):
+            if not has_progress(action):
+                self._standing_frames += 1
+        if not has_progress(action):
+            return self._count
+        if math.isnan(progress):
             return self._count
         if progress >= self.high:
             self._armed = True
@@ -75,3 +100,17 @@ class RepetitionCounter:
             self._count += 1
             self._armed = False
         return self._count
+
+    def _switch(self, action: int) -> None:
+        """The confirmed change to ``action``: a new count, or the paused set's again."""
+        left = (self._action, self._count, self._armed)
+        paused, standing_frames = self._paused, self._standing_frames
+        self._action, self._count, self._armed = action, 0, False
+        self._candidate, self._paused = None, None
+        if not has_progress(action):
+            if left[0] is not None and has_progress(left[0]):
+                self._paused = (left[0], left[1], left[2])
+            # The predictions spent confirming the standing were standing already.
+            self._standing_frames = self.confirm_frames
+        elif paused is not None and paused[0] == action and standing_frames <= self.resume_frames:
+            _, self._count, self._armed = paused
