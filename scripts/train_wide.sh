@@ -11,6 +11,8 @@
 #   PARTITION=p2 RUN=runs/x-p2 scripts/train_wide.sh  # another partition's people (default p1)
 #   HELD_OUT=1 scripts/train_wide.sh           # also render the partition's held-out people into DATA/realistic
 #                                              # (for wide_rule.py --held-out after a simulator change)
+#   INIT=models/scotti-default.onnx EPOCHS=1 LR=3e-4 scripts/train_wide.sh
+#                                              # fine-tune a model (e.g. after a labelling change)
 #
 # Every step is checkpointed: the people already rendered and decoded are not redone,
 # and training resumes from RUN/last.pt. Nothing here needs a GPU.
@@ -22,6 +24,8 @@ CACHE=${CACHE:-data/cache13}
 JOBS=${JOBS:-$(nproc)}
 DEVICE=${DEVICE:-auto}
 EPOCHS=${EPOCHS:-6}
+LR=${LR:-1e-3}
+INIT=${INIT:-}                     # start from these weights (scotti train --init)
 STRIDE=${STRIDE:-16}
 MINUTES=${MINUTES:-0}              # training's --max-minutes (0: none)
 TRANSFER=${TRANSFER:-0.5}          # share of windows seen through a drawn foreign sensor
@@ -118,10 +122,15 @@ form=()
 [[ $FORM != paper ]] && form=(--arch "$FORM")
 transfer=()
 [[ $TRANSFER != 0 ]] && transfer=(--sensor-transfer "$TRANSFER")
+init=(--config small)  # --init takes the size from its weights
+[[ -n $INIT ]] && init=(--init "$INIT")
 echo "train_wide: training $RUN on $DEVICE"
-"$SCOTTI" train "${files[@]}" -o "$RUN" --config small \
+mkdir -p "$RUN"
+# The card quotes this (experiments/card_training.py): how the weights were made.
+echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS LR=$LR INIT=$INIT TRANSFER=$TRANSFER scripts/train_wide.sh" > "$RUN/command.txt"
+"$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
   --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
-  --stride "$STRIDE" --val-stride 8 --lr 1e-3 --loss-weights 0.01,1,3 \
+  --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
   --max-crosstalk 0.03 --ema 0.999 "${transfer[@]}" "${form[@]}" \
   --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" \
   --cache "$CACHE" --no-progress "${resume[@]}"
