@@ -162,10 +162,15 @@ def test_the_map_reaches_zero_and_one_so_every_repetition_completes() -> None:
     # well below 1, which an unstretched isotonic map would keep.
     output = 0.5 + 0.4 * (label - 0.5) + rng.normal(0, 0.12, 6000)
     cal = fit(output, label, np.full(6000, SQUAT))
-    _, y = cal.knots[SQUAT]
+    x, y = cal.knots[SQUAT]
     assert y[0] == 0.0
     assert y[-1] == 1.0
     assert np.all(np.diff(y) >= 0)
+    # The ends are reached past the data, at outputs 0 and 1: the extreme bins keep their
+    # pooled labels (moving them to 0 and 1 cost a trained model's held-out MSE).
+    assert (x[0], x[-1]) == (0.0, 1.0)
+    assert 0.0 < y[1] < 0.2
+    assert 0.8 < y[-2] < 1.0
     assert cal.apply([output.max() + 1.0], [SQUAT])[0] == 1.0
     assert cal.apply([output.min() - 1.0], [SQUAT])[0] == 0.0
 
