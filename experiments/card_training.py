@@ -115,7 +115,9 @@ def training_markdown(block: dict[str, Any] | None) -> list[str]:
         lines += ["", f"Recipe (`scotti train` options): {recipe_line(block['recipe'])}."]
     if block.get("command"):
         command = block["command"]
-        shown = command if command.startswith("scotti ") else f"scotti train {command}"
+        # command.txt holds scotti train's options, or a whole command line (train_wide.sh's).
+        whole = command.startswith("scotti ") or "scripts/" in command
+        shown = command if whole else f"scotti train {command}"
         lines += ["", "```", shown, "```"]
     return lines
 

@@ -127,7 +127,7 @@ init=(--config small)  # --init takes the size from its weights
 echo "train_wide: training $RUN on $DEVICE"
 mkdir -p "$RUN"
 # The card quotes this (experiments/card_training.py): how the weights were made.
-echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS LR=$LR INIT=$INIT TRANSFER=$TRANSFER scripts/train_wide.sh" > "$RUN/command.txt"
+echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
 "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
   --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
   --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
