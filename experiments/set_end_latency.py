@@ -14,14 +14,16 @@ the shipped model (or ``--model``). Per person it reads, frame by frame:
   in the set) and how many frames after that the model first says standing;
 - the same counted from the last movement of the set (no keypoint faster than
   ``STILL_SPEED_MPS``, the convention's "still");
-- the longest still pause inside the set, which the convention labels as the
-  set however long it is;
+- the longest still stretch inside the set's label (the convention keeps at
+  most ``SET_EDGE_REST_S`` of a pause in the set; beyond it the pause is
+  standing);
 - how many of the wrong frames are the standing after the set.
 
-Why: `sim/scenes/squat.toml` stands 1.5 s after its last squat, 24 frames
-labelled standing, and every error of its replay is there; a causal model can
-only call a set over once the stillness is longer than the pauses it was taught
-to call part of a set. The table says how long that takes for each action.
+Why: a causal model can only call a set over once the stillness is longer than
+the pauses it was taught to call part of a set. Under the old convention (a
+pause of any length was the set) the shipped model waited 1.4-2.1 s after squat
+and lunge sets, and every error of `sim/scenes/squat.toml` was there; the table
+says how long it takes for each action now (docs/generalisation.md).
 """
 
 from __future__ import annotations

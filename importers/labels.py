@@ -13,8 +13,9 @@ With keypoints, the segments' actions follow the labelling convention
 action keeps at most ``SET_EDGE_REST_S`` of still standing before its first
 movement and after its last, and the stillness beyond is ``standing``
 (models/set_edges.py); a pause between repetitions inside the segment stays
-the segment's action, progress ~0. Where the keypoints do not show it (none,
-or masked at the edge), the segment file's action stands.
+the segment's action, progress ~0, for ``SET_EDGE_REST_S``, and standing
+straight-legged beyond that is ``standing``. Where the keypoints do not show
+it (none, or masked), the segment file's action stands.
 
 Progress comes from the keypoints by the paper's indicators
 (models/progress.py), one run of one action at a time, never across a

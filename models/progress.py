@@ -9,8 +9,8 @@ hmax and hmin its extremes and "mid" the frame where h is smallest,
 
 so p runs 0 -> 0.5 -> 1 as h goes top -> bottom -> top.
 
-Which frames carry which action (a pause between repetitions is its set's,
-standing at a set's edges beyond a second is ``standing``, transitions
+Which frames carry which action (a pause between repetitions is its set's
+for a second, standing beyond that and at a set's edges is ``standing``, transitions
 ``NO_ACTION``) is the labelling convention in models/contract.py, the same
 for every source of labels; this module labels progress inside the runs of
 actions it is given.
