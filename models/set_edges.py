@@ -29,7 +29,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 from scotti.models.contract import (
-    KP,
+    BONES,
+    JOINT_ANGLES,
     NUM_KEYPOINTS,
     SET_EDGE_REST_S,
     STANDING,
@@ -38,8 +39,19 @@ from scotti.models.contract import (
     has_progress,
 )
 from scotti.models.errors import ModelInputError
+from scotti.models.metrics import joint_angles_deg
 
 IntArray = npt.NDArray[np.int64]
+# Where the knees are among the contract's joint angles: thigh to shank, left then right.
+_KNEES = [
+    JOINT_ANGLES.index(
+        (
+            BONES.index((f"{side}_hip", f"{side}_knee")),
+            BONES.index((f"{side}_knee", f"{side}_ankle")),
+        )
+    )
+    for side in ("left", "right")
+]
 
 
 def frame_speeds(keypoints: npt.ArrayLike, rate_hz: float) -> npt.NDArray[np.float64]:
@@ -102,17 +114,9 @@ def set_edges(
 
 
 def knee_flexion_deg(keypoints: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """(N, 2) left and right knee flexion in degrees (0: straight), NaN where unseen."""
-    k = np.asarray(keypoints, dtype=np.float64)
-    flexion = []
-    for side in ("left", "right"):
-        thigh = k[:, KP[f"{side}_knee"]] - k[:, KP[f"{side}_hip"]]
-        shank = k[:, KP[f"{side}_ankle"]] - k[:, KP[f"{side}_knee"]]
-        cos = np.sum(thigh * shank, axis=-1) / (
-            np.linalg.norm(thigh, axis=-1) * np.linalg.norm(shank, axis=-1)
-        )
-        flexion.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    return np.stack(flexion, axis=1)
+    """(N, 2) left and right knee flexion in degrees (0: straight), NaN where unseen:
+    the knees among the contract's joint angles (models/metrics.py)."""
+    return joint_angles_deg(keypoints)[..., _KNEES]
 
 
 def _straight_legged(keypoints: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:

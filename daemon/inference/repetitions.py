@@ -90,9 +90,7 @@ class RepetitionCounter:
             self._candidate = None
             if not has_progress(action):
                 self._standing_frames += 1
-        if not has_progress(action):
-            return self._count
-        if math.isnan(progress):
+        if not has_progress(action) or math.isnan(progress):
             return self._count
         if progress >= self.high:
             self._armed = True
@@ -103,13 +101,13 @@ class RepetitionCounter:
 
     def _switch(self, action: int) -> None:
         """The confirmed change to ``action``: a new count, or the paused set's again."""
-        left = (self._action, self._count, self._armed)
+        left, count, armed = self._action, self._count, self._armed
         paused, standing_frames = self._paused, self._standing_frames
         self._action, self._count, self._armed = action, 0, False
         self._candidate, self._paused = None, None
         if not has_progress(action):
-            if left[0] is not None and has_progress(left[0]):
-                self._paused = (left[0], left[1], left[2])
+            if left is not None and has_progress(left):
+                self._paused = (left, count, armed)  # the set this standing pauses
             # The predictions spent confirming the standing were standing already.
             self._standing_frames = self.confirm_frames
         elif paused is not None and paused[0] == action and standing_frames <= self.resume_frames:
