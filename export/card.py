@@ -110,6 +110,28 @@ def progress_markdown(progress: dict[str, Any] | None) -> list[str]:
     ]
 
 
+def _action_means_lines(actions: dict[str, dict[str, Any]] | None) -> list[str]:
+    """Each action's mean and threshold: of how many training windows, from how many
+    held-out windows the model called that action."""
+    if not actions:
+        return []
+    rows = [
+        f"| {name} | {a['train_windows']} | {a['held_out_windows']} | {a['threshold']:.2f} |"
+        for name, a in actions.items()
+    ]
+    return [
+        "",
+        "The score is the distance to the mean of the action the model calls the window, "
+        "over that action's threshold (the percentile above of the distances of the "
+        "held-out windows called it; with fewer than 20 such windows, the nearest mean's); "
+        "above 1 is unfamiliar.",
+        "",
+        "| action | training windows (mean) | held-out windows (threshold) | threshold |",
+        "|---|---:|---:|---:|",
+        *rows,
+    ]
+
+
 def ood_markdown(ood: dict[str, Any] | None) -> list[str]:
     """The card's section on what the model does not know (flags, statistics, threshold)."""
     lines = ["", "## What it does not know (OOD flags)", ""]
@@ -120,10 +142,12 @@ def ood_markdown(ood: dict[str, Any] | None) -> list[str]:
     lines += [
         f"`unfamiliar`: {ood['method']} (E={ood['dim']}, shrinkage {ood['shrinkage']:.4f}), "
         f"statistics of {ood['train_windows']} windows of the training subjects "
-        f"({', '.join(ood['train_subjects'])}); threshold **{ood['threshold']:.2f}** = the "
-        f"{ood['threshold_percentile']:g}th percentile over {ood['held_out_windows']} windows "
+        f"({', '.join(ood['train_subjects'])}); threshold **{ood['threshold']:.2f}** "
+        + ("on the score, each action's own below, from the " if ood.get("actions") else "= the ")
+        + f"{ood['threshold_percentile']:g}th percentile over {ood['held_out_windows']} windows "
         f"of the held-out ({ood['held_out_split']}) subjects "
         f"({', '.join(ood['held_out_subjects'])}).",
+        *_action_means_lines(ood.get("actions")),
         "",
         "| score percentile | 50 | 90 | 99 | 99.9 | flagged |",
         "|---|---|---|---|---|---|",

@@ -7,10 +7,13 @@ the trainer drew a validation split, else ``test_subjects``). The session files
 given to ``scotti export --calibrate`` are grouped by subject; the usable
 windows of the training subjects (as training draws them,
 ``WindowDataset``), thinned evenly to at most ``max_windows``, go through
-the exported window graph, and the mean and shrunk covariance of their
-pooled vectors are fitted (models/ood.py). The threshold is the
-``percentile`` of the held-out subjects' window scores: about 1 % of windows
-from people the model never saw are called unfamiliar, by construction.
+the exported window graph, and each action's mean of their pooled vectors
+and the shrunk covariance around those means are fitted (models/ood.py; a
+window's action is its target slot's label, as training reads it). Each
+action's threshold is the ``percentile`` of the distances to its mean of the
+held-out subjects' windows the model calls that action (thinned the same
+way): about 1 % of the windows of people the model never saw are called
+unfamiliar, by construction, and about 1 % of each action's.
 
 The same windows also measure the input checks (models/input_checks.py):
 the share of real windows flagged ``unloaded`` or ``out_of_range``, which
@@ -29,7 +32,7 @@ from scotti.export.data import SessionArrays, find_sessions, load_session
 from scotti.export.errors import ExportError
 from scotti.export.windows import WindowDataset
 from scotti.models import input_checks
-from scotti.models.contract import WINDOW
+from scotti.models.contract import ACTIONS, WINDOW
 from scotti.models.ood import OodStats, fit
 from scotti.models.runtime import ScottiRuntime
 
@@ -68,35 +71,51 @@ def split_subjects(training_data: Any) -> tuple[list[str], list[str], str]:
 
 def _window_batches(
     sessions: Sequence[SessionArrays], max_windows: int, batch: int = 64
-) -> Iterator[np.ndarray]:
-    """At most ``max_windows`` usable windows, evenly over time, in batches (b, T, H, 2W)
-    float32 (a batch at a time: thousands of windows would take gigabytes at once)."""
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """At most ``max_windows`` usable windows, evenly over time, in batches: (b, T, H, 2W)
+    float32 (a batch at a time: thousands of windows would take gigabytes at once) and
+    (b,) the action of each window's target slot (slot t + T, ``WindowDataset``)."""
     data = WindowDataset(sessions, WINDOW)
     stride = max(1, -(-data.count() // max(max_windows, 1)))
     starts = [(i, int(t)) for i in range(len(sessions)) for t in data.starts(i, stride=stride)]
     for k in range(0, len(starts), batch):
         chunk = starts[k : k + batch]
-        yield np.stack([sessions[i].frames[t : t + WINDOW] for i, t in chunk]).astype(np.float32)
+        windows = np.stack([sessions[i].frames[t : t + WINDOW] for i, t in chunk])
+        actions = np.array([sessions[i].action[t + WINDOW] for i, t in chunk], dtype=np.int64)
+        yield windows.astype(np.float32), actions
+
+
+@dataclass(frozen=True)
+class _Measured:
+    pooled: np.ndarray  # (n, E)
+    actions: np.ndarray  # (n,) the windows' labels, contract.NO_ACTION for none
+    predicted: np.ndarray  # (n,) the action the model calls each window
+    input_flags: dict[str, float]  # share of the windows each input check flags
 
 
 def _measure(
     graph: ScottiRuntime, sessions: Sequence[SessionArrays], max_windows: int
-) -> tuple[np.ndarray, dict[str, float]]:
-    """Pooled vectors (n, E) of the windows, and the share the input checks flag."""
-    pooled, flagged = [], dict.fromkeys((input_checks.UNLOADED, input_checks.OUT_OF_RANGE), 0)
-    for windows in _window_batches(sessions, max_windows):
+) -> _Measured:
+    """Pooled vectors of the windows, their labels, and the share the input checks flag."""
+    pooled, actions, predicted = [], [], []
+    flagged = dict.fromkeys((input_checks.UNLOADED, input_checks.OUT_OF_RANGE), 0)
+    for windows, labels in _window_batches(sessions, max_windows):
         result = graph.run_windows(windows, batch_size=len(windows))
         if result.pooled is None:
             msg = f"{graph.path.name} has no pooled output to calibrate"
             raise ExportError(msg)
         pooled.append(result.pooled)
+        actions.append(labels)
+        predicted.append(result.action_logits.argmax(axis=-1))
         for w in windows:
             for flag in input_checks.check_window(w).flags:
                 flagged[flag] += 1
     if not pooled:
-        return np.zeros((0, graph.embed_dim), np.float32), {}
+        none = np.zeros(0, np.int64)
+        return _Measured(np.zeros((0, graph.embed_dim), np.float32), none, none, {})
     out = np.concatenate(pooled)
-    return out, {flag: n / len(out) for flag, n in flagged.items()}
+    shares = {flag: n / len(out) for flag, n in flagged.items()}
+    return _Measured(out, np.concatenate(actions), np.concatenate(predicted), shares)
 
 
 @dataclass(frozen=True)
@@ -133,18 +152,20 @@ def calibrate(
 ) -> OodStats:
     """Fit the OOD statistics of an exported window graph; one ``ExportError`` line on misfit."""
     graph = ScottiRuntime(window_graph_path, threads)
-    train_pooled, train_flags = _measure(graph, sets.train, request.max_windows)
-    held_pooled, held_flags = _measure(graph, sets.held_out, request.max_windows)
-    if len(train_pooled) < 2 or len(held_pooled) < 1:
+    train = _measure(graph, sets.train, request.max_windows)
+    held = _measure(graph, sets.held_out, request.max_windows)
+    if len(train.pooled) < 2 or len(held.pooled) < 1:
         msg = "too few usable windows in the calibration sessions"
         raise ExportError(msg)
-    stats = fit(train_pooled, held_pooled, request.percentile)
+    stats = fit(
+        train.pooled, held.pooled, request.percentile, train.actions, held.predicted, ACTIONS
+    )
     summary = {
         **stats.summary,
         "train_subjects": sorted({a.subject for a in sets.train}),
         "held_out_subjects": sorted({a.subject for a in sets.held_out}),
         "held_out_split": sets.held_kind,
-        "input_checks_on_held_out": held_flags,
-        "input_checks_on_train": train_flags,
+        "input_checks_on_held_out": held.input_flags,
+        "input_checks_on_train": train.input_flags,
     }
-    return OodStats(stats.mean, stats.whitening, stats.threshold, summary)
+    return OodStats(stats.mean, stats.whitening, stats.threshold, summary, stats.action_means)

@@ -228,7 +228,7 @@ class KvStepRuntime:
         feeds = {c.STEP_INPUT_FRAME: f, KV_INPUT_PAST: p, KV_INPUT_VALID: v}
         pose, logits, progress, present, pooled = self._session.run(list(KV_STEP_OUTPUTS), feeds)
         ood = self._ood
-        score = ood.score(pooled) if ood is not None else None
+        score = ood.score(pooled, logits.argmax(axis=-1)) if ood is not None else None
         progress = self._progress(progress, logits)
         threshold = ood.threshold if ood is not None else None
         return StepBatch(pose, logits, softmax(logits), progress, present, pooled, score, threshold)

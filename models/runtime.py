@@ -266,7 +266,11 @@ class ScottiRuntime:
         )
         pooled = rest[0] if rest else None
         ood = self._ood
-        score = ood.score(pooled) if pooled is not None and ood is not None else None
+        score = (
+            ood.score(pooled, logits.argmax(axis=-1))
+            if pooled is not None and ood is not None
+            else None
+        )
         threshold = ood.threshold if ood is not None else None
         return StepBatch(
             pose,
@@ -309,7 +313,11 @@ class ScottiRuntime:
         )
         pooled = rest[0] if rest else None
         ood = self._ood
-        score = ood.score(pooled) if pooled is not None and ood is not None else None
+        score = (
+            ood.score(pooled, logits.argmax(axis=-1))
+            if pooled is not None and ood is not None
+            else None
+        )
         threshold = ood.threshold if ood is not None else None
         progress = self._calibrated(progress, logits)
         return WindowResult(pose, logits, softmax(logits), progress, pooled, score, threshold)

@@ -9,14 +9,15 @@ import numpy as np
 import onnx
 import pytest
 from scotti.cli.main import main as scotti_main
+from scotti.export.card import ood_markdown
 from scotti.export.data import load_session
 from scotti.export.errors import ExportError
 from scotti.export.make_tiny import build_tiny
 from scotti.export.onnx_export import Checkpoint, export_model
-from scotti.export.ood_calibration import Calibration, split_subjects
+from scotti.export.ood_calibration import Calibration, calibrate, gather, split_subjects
 from scotti.export.progress_fit import fit_progress
 from scotti.export.validation import three_way_split
-from scotti.models.contract import META_OOD, OUTPUT_POOLED
+from scotti.models.contract import ACTIONS, META_OOD, OUTPUT_POOLED
 from scotti.models.runtime import ScottiRuntime, load_pair
 from scotti.models.streaming import StreamingWindow
 
@@ -74,6 +75,40 @@ def test_the_graphs_carry_pooled_and_the_statistics_and_the_card_says_so(
     card = json.loads(out.with_suffix(".card.json").read_text())
     assert card["ood"]["threshold"] == pytest.approx(step.ood.threshold)  # type: ignore[union-attr]
     assert "unfamiliar" in out.with_suffix(".card.md").read_text()
+
+
+@pytest.mark.slow
+def test_training_windows_fit_a_mean_per_action_where_each_has_enough(
+    calibrated: tuple[Path, Path], tmp_path: Path
+) -> None:
+    out, _ = calibrated
+    # The fixture's 60 windows a side hold under MIN_CLASS_WINDOWS of every action: one mean.
+    assert ScottiRuntime(out).ood.action_means is None  # type: ignore[union-attr]
+    # Longer sessions: each action's windows, by their target slot's label, get a mean.
+    for subject in ("a", "b", "c"):
+        write_session(tmp_path / f"{subject}.ses", 900, subject=subject)
+    request = Calibration((tmp_path,), max_windows=2000)
+    sets = gather(SPLIT, request)
+    stats = calibrate(out.with_name("cal.window.onnx"), sets, request)
+    am = stats.action_means
+    assert am is not None
+    assert stats.threshold == 1.0
+    per_action = stats.summary["actions"]
+    assert set(per_action) <= set(ACTIONS)
+    assert len(per_action) == len(am.actions) >= 2
+    assert [ACTIONS[a] for a in am.actions] == list(per_action)
+    trained = sum(a["train_windows"] for a in per_action.values())
+    assert trained < stats.summary["train_windows"]  # the stands (no action) fit none
+    # Held-out windows called each action set its threshold (the graph is barely trained,
+    # so some actions are called on too few and take the nearest mean's).
+    assert sum(a["held_out_windows"] for a in per_action.values()) > 0
+    assert stats.summary["train_subjects"] == ["a", "b"]
+    # Each action's mean lies at distance 0 from itself.
+    np.testing.assert_allclose(stats.score(am.means, np.array(am.actions)), 0.0, atol=1e-2)
+    card = "\n".join(ood_markdown({**stats.summary, "calibrated": True}))
+    first, a = next(iter(per_action.items()))
+    row = f"| {first} | {a['train_windows']} | {a['held_out_windows']} | {a['threshold']:.2f} |"
+    assert row in card
 
 
 @pytest.mark.slow

@@ -11,6 +11,7 @@ from scotti.models.contract import FRAME_COLS, FRAME_ROWS, MAX_COUNT, WINDOW
 from scotti.models.errors import ModelContractError
 from scotti.models.insole import counts_from_kpa, insole_mask
 from scotti.models.ood import (
+    MIN_CLASS_WINDOWS,
     OOD_FLAGS,
     UNFAMILIAR,
     OodStats,
@@ -189,3 +190,150 @@ def test_statistics_round_trip_through_metadata_and_bad_ones_are_one_line() -> N
         OodStats.from_json(json.dumps(broken), dim)
     with pytest.raises(ModelContractError, match="not a JSON object"):
         OodStats.from_json("[1, 2]", dim)
+
+
+def two_actions(n: int, dim: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A common action (label 0, 90 %) round the origin and a rarer one (label 1) six
+    sigmas away on two axes, each with unit spread: a squat beside the rest."""
+    rng = np.random.default_rng(seed)
+    labels = (rng.random(n) < 0.1).astype(np.int64)
+    x = rng.normal(size=(n, dim))
+    x[labels == 1, :2] += 6.0
+    return x, labels
+
+
+def flagged(stats: OodStats, x: np.ndarray, actions: np.ndarray | None = None) -> float:
+    return float((stats.score(x, actions) > stats.threshold).mean())
+
+
+def test_per_action_means_call_a_rare_action_as_familiar_as_a_common_one() -> None:
+    dim = 16
+    train, labels = two_actions(4000, dim, 0)
+    held, held_labels = two_actions(4000, dim, 1)
+    fresh, fresh_labels = two_actions(20000, dim, 2)
+    rare, common = fresh_labels == 1, fresh_labels == 0
+    one_mean = fit(train, held)
+    # The model called each held-out window right.
+    per_action = fit(train, held, 99.0, labels, held_labels, ("common", "rare"))
+    assert per_action.threshold == 1.0
+    # One Gaussian over both puts the rare action's ordinary windows in its tail ...
+    assert flagged(one_mean, fresh[rare]) > 4 * flagged(one_mean, fresh[common])
+    # ... each action's own mean and threshold flag both alike, about 1 %.
+    assert 0.003 < flagged(per_action, fresh[rare], fresh_labels[rare]) < 0.025
+    assert 0.003 < flagged(per_action, fresh[common], fresh_labels[common]) < 0.025
+    summary = per_action.summary["actions"]
+    assert summary["rare"]["train_windows"] == int((labels == 1).sum())
+    assert summary["rare"]["held_out_windows"] == int((held_labels == 1).sum())
+    assert "predicted action" in per_action.summary["method"]
+    # Still a detector: the rare action moved off along another axis is unfamiliar.
+    moved = fresh[rare].copy()
+    moved[:, 5] += 6.0
+    assert flagged(per_action, moved, fresh_labels[rare]) > 0.95
+
+
+def test_a_window_of_one_action_called_another_is_unfamiliar() -> None:
+    """What the nearest mean misses: real walking the model calls a confident step_up
+    lies near the walking mean, so it is familiar to some action, not to the one named."""
+    dim = 16
+    train, labels = two_actions(4000, dim, 0)
+    held, held_labels = two_actions(4000, dim, 1)
+    stats = fit(train, held, 99.0, labels, held_labels)
+    fresh, fresh_labels = two_actions(2000, dim, 3)
+    common = fresh[fresh_labels == 0]
+    called_rare = np.ones(len(common), dtype=np.int64)
+    assert flagged(stats, common[:100] * 0.0) == 0.0  # the common mean itself, by min
+    assert flagged(stats, common, called_rare) > 0.99
+    # Without a prediction (or one with no mean) the smallest ratio decides.
+    nearest = stats.score(common)
+    np.testing.assert_allclose(stats.score(common, np.full(len(common), 7)), nearest)
+    np.testing.assert_allclose(stats.score(common, np.full(len(common), -1)), nearest)
+    assert flagged(stats, common) < 0.05
+
+
+def test_the_score_is_the_distance_to_the_predicted_mean_over_its_threshold() -> None:
+    dim = 6
+    train, labels = two_actions(600, dim, 0)
+    labels[:50] = -1  # windows without an action fit neither mean nor covariance
+    held, held_labels = two_actions(400, dim, 1)
+    stats = fit(train, held, 95.0, labels, held_labels)
+    am = stats.action_means
+    assert am is not None
+    assert am.actions == (0, 1)
+    x = np.random.default_rng(3).normal(size=(7, dim)) * 3
+    called = np.array([0, 1, 1, 0, 1, 0, 0])
+    w = stats.whitening.astype(np.float64)
+    brute = [
+        np.linalg.norm(w @ (row - am.means[a])) / am.thresholds[a]
+        for row, a in zip(x, called, strict=True)
+    ]
+    np.testing.assert_allclose(stats.score(x, called), brute, rtol=1e-5)
+    np.testing.assert_allclose(stats.score(am.means, np.array([0, 1])), 0.0, atol=1e-3)
+    kept = labels == 1
+    np.testing.assert_allclose(am.means[1], train[kept].mean(axis=0), rtol=1e-5)
+    # Each threshold: the 95th percentile of the held-out windows called that action.
+    d1 = [np.linalg.norm(w @ (row - am.means[1])) for row in held[held_labels == 1]]
+    assert am.thresholds[1] == pytest.approx(np.percentile(d1, 95.0), rel=1e-4)
+
+
+def test_too_few_windows_fall_back_to_one_mean_or_the_nearest_threshold() -> None:
+    dim = 4
+    train, labels = two_actions(400, dim, 0)
+    few = np.full(400, -1)
+    few[: MIN_CLASS_WINDOWS - 1] = 0  # one action, one window short
+    stats = fit(train, train[:50], train_labels=few)
+    assert stats.action_means is None
+    assert "actions" not in stats.summary
+    np.testing.assert_allclose(stats.score(train), fit(train, train[:50]).score(train))
+    # Enough training windows, but the held-out windows called the rare action are too
+    # few for a threshold of its own: it takes the nearest mean's.
+    held, _ = two_actions(200, dim, 1)
+    called = np.zeros(200, dtype=np.int64)
+    called[: MIN_CLASS_WINDOWS - 1] = 1
+    stats = fit(train, held, 99.0, labels, called)
+    assert stats.summary["actions"]["1"]["held_out_windows"] == MIN_CLASS_WINDOWS - 1
+    am = stats.action_means
+    assert am is not None
+    assert am.thresholds[0] != am.thresholds[1]
+    nearest = fit(train, held, 99.0, labels, None).action_means
+    assert nearest is not None
+    assert am.thresholds[1] == pytest.approx(nearest.thresholds[1])
+    assert nearest.thresholds[0] == pytest.approx(nearest.thresholds[1])
+
+
+def test_action_means_round_trip_through_metadata_and_bad_ones_are_one_line() -> None:
+    dim = 8
+    train, labels = two_actions(400, dim, 0)
+    stats = fit(train, train[:100], 99.0, labels, labels[:100])
+    back = OodStats.from_json(stats.to_json(), dim)
+    assert back.action_means is not None
+    assert stats.action_means is not None
+    assert back.action_means.actions == stats.action_means.actions
+    np.testing.assert_array_equal(back.action_means.means, stats.action_means.means)
+    np.testing.assert_array_equal(back.action_means.thresholds, stats.action_means.thresholds)
+    np.testing.assert_allclose(
+        back.score(train[:9], labels[:9]), stats.score(train[:9], labels[:9])
+    )
+    good = json.loads(stats.to_json())
+    for key, value, message in (
+        ("actions", [0, 1, 2], "action_means is not"),
+        ("actions", [0, 0], "distinct action indices"),
+        ("actions", "two", "distinct action indices"),
+        ("action_thresholds", good["mean"], "action_thresholds is not"),
+    ):
+        broken = {**good, key: value}
+        with pytest.raises(ModelContractError, match=message):
+            OodStats.from_json(json.dumps(broken), dim)
+    negative = OodStats(
+        stats.mean,
+        stats.whitening,
+        1.0,
+        action_means=type(stats.action_means)(
+            (0, 1), stats.action_means.means, -np.ones(2, np.float32)
+        ),
+    )
+    with pytest.raises(ModelContractError, match="positive numbers"):
+        OodStats.from_json(negative.to_json(), dim)
+    # Statistics written before there were action means still load: one global mean.
+    legacy = json.loads(fit(train, train[:100]).to_json())
+    assert "action_means" not in legacy
+    assert OodStats.from_json(json.dumps(legacy), dim).action_means is None
