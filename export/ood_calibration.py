@@ -86,16 +86,14 @@ def _window_batches(
 
 
 @dataclass(frozen=True)
-class _Measured:
+class Measured:
     pooled: np.ndarray  # (n, E)
     actions: np.ndarray  # (n,) the windows' labels, contract.NO_ACTION for none
     predicted: np.ndarray  # (n,) the action the model calls each window
     input_flags: dict[str, float]  # share of the windows each input check flags
 
 
-def _measure(
-    graph: ScottiRuntime, sessions: Sequence[SessionArrays], max_windows: int
-) -> _Measured:
+def measure(graph: ScottiRuntime, sessions: Sequence[SessionArrays], max_windows: int) -> Measured:
     """Pooled vectors of the windows, their labels, and the share the input checks flag."""
     pooled, actions, predicted = [], [], []
     flagged = dict.fromkeys((input_checks.UNLOADED, input_checks.OUT_OF_RANGE), 0)
@@ -112,10 +110,10 @@ def _measure(
                 flagged[flag] += 1
     if not pooled:
         none = np.zeros(0, np.int64)
-        return _Measured(np.zeros((0, graph.embed_dim), np.float32), none, none, {})
+        return Measured(np.zeros((0, graph.embed_dim), np.float32), none, none, {})
     out = np.concatenate(pooled)
     shares = {flag: n / len(out) for flag, n in flagged.items()}
-    return _Measured(out, np.concatenate(actions), np.concatenate(predicted), shares)
+    return Measured(out, np.concatenate(actions), np.concatenate(predicted), shares)
 
 
 @dataclass(frozen=True)
@@ -152,8 +150,8 @@ def calibrate(
 ) -> OodStats:
     """Fit the OOD statistics of an exported window graph; one ``ExportError`` line on misfit."""
     graph = ScottiRuntime(window_graph_path, threads)
-    train = _measure(graph, sets.train, request.max_windows)
-    held = _measure(graph, sets.held_out, request.max_windows)
+    train = measure(graph, sets.train, request.max_windows)
+    held = measure(graph, sets.held_out, request.max_windows)
     if len(train.pooled) < 2 or len(held.pooled) < 1:
         msg = "too few usable windows in the calibration sessions"
         raise ExportError(msg)

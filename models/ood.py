@@ -13,7 +13,10 @@ windows the model called a. The score of a window is its distance to the
 mean of the action the model calls it, in units of that action's threshold:
 ``|| W (pooled - m_a) || / t_a`` for the predicted a; above 1 it is
 ``unfamiliar``. Where no action is given, or the predicted one has no mean,
-the score is the smallest ratio over the actions.
+the score is the smallest ratio over the actions. Statistics fitted without
+the held-out predictions measure every window against the nearest mean
+(``by_prediction`` False, one threshold), Lee et al.'s rule; compared in
+experiments/ood_scores.py.
 
 Why per action and by the prediction: the actions' pooled vectors lie in
 clusters apart. One mean and one covariance over all of them put a squat's
@@ -134,6 +137,9 @@ class ActionMeans:
     actions: tuple[int, ...]  # (K,) the contract's action index of each row
     means: F32  # (K, E)
     thresholds: F32  # (K,) on the distance to that mean; a ratio above 1 is unfamiliar
+    # True: a window is measured against the action the model calls it; False: against
+    # the nearest mean, whatever the prediction (Lee et al.'s rule, one threshold for all)
+    by_prediction: bool = True
 
     def __post_init__(self) -> None:
         k = len(self.actions)
@@ -192,7 +198,7 @@ class OodStats:
             return distance.reshape(z.shape[:-1])
         ratios = self._ratios(w, squares)
         chosen = ratios.min(axis=1)
-        if actions is not None:
+        if actions is not None and self.action_means.by_prediction:
             rows_of = self.action_means.row_of_action
             a = np.asarray(actions, dtype=np.int64).reshape(-1)
             known = (a >= 0) & (a < len(rows_of))
@@ -241,6 +247,7 @@ class OodStats:
             d["actions"] = list(am.actions)
             d["action_means"] = _pack(am.means)
             d["action_thresholds"] = _pack(am.thresholds)
+            d["by"] = "prediction" if am.by_prediction else "nearest"
         return json.dumps(d, sort_keys=True)
 
     @classmethod
@@ -290,7 +297,11 @@ def _action_means_from(d: dict[str, Any], embed_dim: int) -> ActionMeans | None:
     if not (np.isfinite(thresholds).all() and (thresholds > 0).all()):
         msg = "OOD statistics: action_thresholds must be positive numbers"
         raise ModelContractError(msg)
-    return ActionMeans(tuple(actions), means, thresholds)
+    by = d.get("by", "prediction")
+    if by not in ("prediction", "nearest"):
+        msg = f"OOD statistics: by must be 'prediction' or 'nearest', got {by!r}"
+        raise ModelContractError(msg)
+    return ActionMeans(tuple(actions), means, thresholds, by_prediction=by == "prediction")
 
 
 def shrunk_covariance(x: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], float]:
@@ -332,8 +343,9 @@ def fit(
     a mean per action and the covariance of the windows around their own action's
     mean (windows without an action, or of an action with fewer than
     ``MIN_CLASS_WINDOWS``, fit neither), and a threshold per action from the held-out
-    windows ``held_out_predicted`` calls it (the model's action per held-out window;
-    None: every action takes the nearest-mean threshold). Without labels, or where no
+    windows ``held_out_predicted`` calls it (the model's action per held-out window).
+    Without predictions the score is the distance to the nearest mean, whatever the
+    model says, with one threshold (Lee et al. 2018). Without labels, or where no
     action has that many windows (a small calibration set), one global mean.
     ``action_names`` (indexed by action) only names the actions in the summary.
     """
@@ -387,12 +399,18 @@ def fit(
                 "held_out_windows": len(own),
                 "threshold": float(thresholds[row]),
             }
-        am = ActionMeans(tuple(kept), means.astype(np.float32), thresholds.astype(np.float32))
+        by_prediction = predicted is not None
+        am = ActionMeans(
+            tuple(kept), means.astype(np.float32), thresholds.astype(np.float32), by_prediction
+        )
         stats = OodStats(mean.astype(np.float32), whitening, 1.0, {}, am)
         threshold = 1.0
         method = (
             "Mahalanobis distance of the pooled vector to the mean of the predicted action "
             "over that action's threshold, Ledoit-Wolf shrunk within-action covariance"
+            if by_prediction
+            else "Mahalanobis distance of the pooled vector to the nearest action's mean, "
+            "Ledoit-Wolf shrunk within-action covariance"
         )
     train_scores = stats.score(train, labels if kept else None)
     held_scores = stats.score(held, predicted)

@@ -294,10 +294,20 @@ def test_too_few_windows_fall_back_to_one_mean_or_the_nearest_threshold() -> Non
     am = stats.action_means
     assert am is not None
     assert am.thresholds[0] != am.thresholds[1]
-    nearest = fit(train, held, 99.0, labels, None).action_means
+    nearest_stats = fit(train, held, 99.0, labels, None)
+    nearest = nearest_stats.action_means
     assert nearest is not None
     assert am.thresholds[1] == pytest.approx(nearest.thresholds[1])
+    # Without predictions: Lee et al.'s rule, the nearest mean and one threshold, whatever
+    # action a window is called.
+    assert not nearest.by_prediction
     assert nearest.thresholds[0] == pytest.approx(nearest.thresholds[1])
+    assert "nearest action" in nearest_stats.summary["method"]
+    called_rare = np.ones(len(train), dtype=np.int64)
+    np.testing.assert_allclose(nearest_stats.score(train, called_rare), nearest_stats.score(train))
+    back = OodStats.from_json(nearest_stats.to_json(), dim)
+    assert back.action_means is not None
+    assert not back.action_means.by_prediction
 
 
 def test_action_means_round_trip_through_metadata_and_bad_ones_are_one_line() -> None:
@@ -319,6 +329,7 @@ def test_action_means_round_trip_through_metadata_and_bad_ones_are_one_line() ->
         ("actions", [0, 0], "distinct action indices"),
         ("actions", "two", "distinct action indices"),
         ("action_thresholds", good["mean"], "action_thresholds is not"),
+        ("by", "farthest", "'prediction' or 'nearest'"),
     ):
         broken = {**good, key: value}
         with pytest.raises(ModelContractError, match=message):
