@@ -20,10 +20,8 @@ experiments/ood_scores.py.
 
 Why per action and by the prediction: the actions' pooled vectors lie in
 clusters apart. One mean and one covariance over all of them put a squat's
-ordinary windows far from the middle (the shipped model's training squats
-scored a median 11.6 against a threshold of 12.4): the global distance
-flagged 16 % of held-out people's squat windows and every mid-rep window of
-sim/scenes/squat.toml. The distance to the nearest mean flags no squat, but
+ordinary windows far from the middle: the global distance flagged 95 % of
+sim/scenes/squat.toml's predictions (docs/ood.md). The distance to the nearest mean flags no squat, but
 lets through windows of real walking that the model calls a confident
 step_up (8 % of one Moticon file), which lie nearer the walking mean than
 the step_up one; measured against the predicted action's own threshold they
