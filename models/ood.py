@@ -21,12 +21,13 @@ experiments/ood_scores.py.
 Why per action and by the prediction: the actions' pooled vectors lie in
 clusters apart. One mean and one covariance over all of them put a squat's
 ordinary windows far from the middle: the global distance flagged 95 % of
-sim/scenes/squat.toml's predictions (docs/ood.md). The distance to the nearest mean flags no squat, but
-lets through windows of real walking that the model calls a confident
-step_up (8 % of one Moticon file), which lie nearer the walking mean than
-the step_up one; measured against the predicted action's own threshold they
-are unfamiliar. Statistics without action means (``class_means`` None:
-graphs calibrated before) keep the one global distance and its threshold.
+sim/scenes/squat.toml's predictions (docs/ood.md). The distance to the
+nearest mean flags no squat, but lets through windows of real walking that
+the model calls a confident step_up (8 % of one Moticon file), which lie
+nearer the walking mean than the step_up one; measured against the
+predicted action's own threshold they are unfamiliar. Statistics without
+action means (``class_means`` None: graphs calibrated before) keep the one
+global distance and its threshold.
 
 ``OodStats`` travels in the graphs' metadata (``contract.META_OOD``) as JSON
 with the arrays as base64 little-endian float32, and is fitted at export
