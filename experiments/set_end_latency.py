@@ -13,7 +13,9 @@ the shipped model (or ``--model``). Per person it reads, frame by frame:
   at most ``SET_EDGE_REST_S`` of still standing after the last movement stays
   in the set) and how many frames after that the model first says standing;
 - the same counted from the last movement of the set (no keypoint faster than
-  ``STILL_SPEED_MPS``, the convention's "still");
+  ``STILL_SPEED_MPS``, the convention's "still"), and how much still standing
+  the labels keep in the set after that movement, beside the
+  ``SET_EDGE_REST_S`` a pause inside the set keeps;
 - the longest still stretch inside the set's label (the convention keeps at
   most ``SET_EDGE_REST_S`` of a pause in the set; beyond it the pause is
   standing);
@@ -59,6 +61,7 @@ class SetEnd:
     standing_frames: int  # frames labelled standing after the set (scored ones)
     lag_frames: int | None  # from the label's switch to the first standing prediction
     lag_from_still: int | None  # the same from the set's last movement
+    kept_still: int | None  # still frames after the last movement still labelled the set
     longest_pause: int  # the longest still run inside the set's label, in frames
     wrong: int = 0  # scored frames with an action label whose action is wrong
     wrong_after: int = 0  # of them, the standing frames after the set
@@ -92,6 +95,7 @@ def set_end(action: str, scene: Scene, model: StepModel, workdir: Path) -> SetEn
         int(after.size),
         None if first is None else first - switch,
         None if first is None or last_move is None else first - last_move,
+        None if last_move is None else switch - last_move - 1,
         _longest_run(
             still[in_set[0] : in_set[-1] + 1] & (truth[in_set[0] : in_set[-1] + 1] == index)
         ),
@@ -115,6 +119,7 @@ def markdown(results: list[SetEnd], args: argparse.Namespace, model: Path) -> st
         mine = [r for r in results if r.action == action]
         lags = [r.lag_frames for r in mine if r.lag_frames is not None]
         from_still = [r.lag_from_still for r in mine if r.lag_from_still is not None]
+        kept = [r.kept_still for r in mine if r.kept_still is not None]
         never = sum(r.lag_frames is None for r in mine)
         rows.append(
             [
@@ -122,6 +127,7 @@ def markdown(results: list[SetEnd], args: argparse.Namespace, model: Path) -> st
                 str(len(mine)),
                 _frames_and_s(lags),
                 _frames_and_s(from_still),
+                _frames_and_s(kept),
                 f"{max(r.longest_pause for r in mine) / RATE_HZ:.1f} s",
                 f"{sum(r.wrong_after for r in mine)} of {sum(r.wrong for r in mine)}",
                 str(never),
@@ -132,6 +138,7 @@ def markdown(results: list[SetEnd], args: argparse.Namespace, model: Path) -> st
         "people",
         "model names the set after its label ends: median (max) frames, s",
         "after its last movement",
+        "still standing its label keeps after the last movement",
         "longest still pause inside a set",
         "wrong frames: standing after the set, of all",
         "never said standing",

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scotti.models.contract import SET_EDGE_REST_S
 from scotti.models.kv_streaming import open_step_model
 from scotti.sim.scene import Scene
 
@@ -46,6 +47,11 @@ def test_a_model_that_says_standing_switches_at_the_label(
     assert end.wrong > 0  # and standing on the squats too
     assert end.lag_from_still is not None
     assert end.lag_from_still >= 0
+    # The labels keep some still standing in the set after its last movement, at most the
+    # convention's bound; the lag from that movement is the lag from the label plus it.
+    assert end.kept_still is not None
+    assert 0 <= end.kept_still <= round(SET_EDGE_REST_S * 16)
+    assert end.lag_from_still == end.lag_frames + end.kept_still + 1
     # 4 s still after the set, less at most SET_EDGE_REST_S kept in it: 3-4 s of standing.
     assert 3 * 16 <= end.standing_frames <= 4 * 16 + 1
     assert end.longest_pause >= 0
@@ -59,6 +65,7 @@ def test_a_model_that_never_says_standing_is_counted_as_never(tmp_path: Path) ->
     assert ends[0].lag_frames is None
     assert ends[0].wrong_after == ends[0].standing_frames  # every standing frame after it wrong
     assert ends[0].lag_from_still is None
+    assert ends[0].kept_still is not None  # the labels' edge does not depend on the model
     args = argparse.Namespace(people=1, seconds=6.0, stand_s=4.0)
     text = set_end_latency.markdown(ends, args, never)
     row = next(line for line in text.splitlines() if line.startswith("| `squat`"))
