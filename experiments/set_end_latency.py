@@ -11,7 +11,8 @@ the shipped model (or ``--model``). Per person it reads, frame by frame:
 
 - where the label turns from the set to ``standing`` (the labelling convention:
   at most ``SET_EDGE_REST_S`` of still standing after the last movement stays
-  in the set) and how many frames after that the model first says standing;
+  in the set, exactly that for squat and lunge) and how many frames after that
+  the model first says standing;
 - the same counted from the last movement of the set (no keypoint faster than
   ``STILL_SPEED_MPS``, the convention's "still"), and how much still standing
   the labels keep in the set after that movement, beside the

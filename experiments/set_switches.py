@@ -13,8 +13,9 @@ every frame where the label turns from a repeated action to ``standing`` it read
 - how many frames after the switch the model first said standing.
 
 Why: the labelling convention keeps the first ``SET_EDGE_REST_S`` of a pause in the
-set, while the still standing after a set's last movement keeps what the recipe
-held; a causal model cannot tell the two apart before the pause's bound has passed
+set; until the still standing after a set's last movement kept the same second (for
+``PAUSING_ACTIONS``), it kept what the recipe held, and a causal model, which cannot
+tell the two apart before the pause's bound has passed, was late at every set end
 (docs/generalisation.md, "Where a set ends").
 """
 

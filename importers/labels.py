@@ -14,8 +14,11 @@ action keeps at most ``SET_EDGE_REST_S`` of still standing before its first
 movement and after its last, and the stillness beyond is ``standing``
 (models/set_edges.py); a pause between repetitions inside the segment stays
 the segment's action, progress ~0, for ``SET_EDGE_REST_S``, and standing
-straight-legged beyond that is ``standing``. Where the keypoints do not show
-it (none, or masked), the segment file's action stands.
+straight-legged beyond that is ``standing``, and a squat or lunge segment
+(``PAUSING_ACTIONS``) that ends before a second of still standing after its
+last movement takes the standing after it up to that second, as a pause would.
+Where the keypoints do not show it (none, or masked), the segment file's action
+stands.
 
 Progress comes from the keypoints by the paper's indicators
 (models/progress.py), one run of one action at a time, never across a

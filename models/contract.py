@@ -159,6 +159,12 @@ def has_progress(action: int) -> bool:
 #   (models/set_edges.py applies both bounds to every source). "Still": no
 #   keypoint faster than ``STILL_SPEED_MPS``. A set with no movement at all
 #   keeps its label.
+# - After the last movement of a set of ``PAUSING_ACTIONS`` the still standing is
+#   the set's for exactly ``SET_EDGE_REST_S``, as a pause's is: until that second
+#   is over a set's end and a pause look the same, so the label may not tell them
+#   apart by what comes after. Standing straight-legged that the source labelled
+#   ``standing`` is taken into the set up to the bound. The other actions' sets do
+#   not pause in the simulator's recipes and end at their last movement's hold.
 # - Standing: ``STANDING``, no progress (NaN), repetition -1.
 # - Transitions, ``NO_ACTION``: movement that is neither a set nor standing:
 #   walking to the next spot or turning round between lab sets, a jump set's
@@ -169,10 +175,17 @@ def has_progress(action: int) -> bool:
 #
 # The simulator's sets hold at most 0.6 s of still standing at their edges at
 # tempo 1 (the recipes' lead-in and a repetition's hold at the top), so at its
-# own tempo the edge bound changes none of its labels; the pause bound changes
+# own tempo the edge bound trims none of its labels; the pause bound changes
 # the pauses of squat and lunge sets longer than it (sim/actions/strength.py
-# draws them up to 4.5 s; tests/test_labelling_convention.py).
+# draws them up to 4.5 s), and their ends take the standing after them up to a
+# second (tests/test_labelling_convention.py).
 SET_EDGE_REST_S: Final = 1.0
+# The actions whose sets pause standing tall between repetitions (sim/actions/strength.py
+# draws the pauses; people pause so too). Under the edge bound alone a set's end kept only
+# the recipe's hold (0.25-0.44 s) while a pause kept a second, and a model waited out the
+# second at every end (experiments/set_switches.py: 10-11 frames at each of 9 squat and
+# lunge set ends of a held-out lab session, 0-6 at most pauses).
+PAUSING_ACTIONS: Final = ("squat", "lunge")
 # Faster than a simulated quiet stand's sway (under 0.085 m/s, the same test).
 STILL_SPEED_MPS: Final = 0.1
 # Standing straight: a simulated quiet stand bends its knees 12 degrees, a

@@ -7,6 +7,13 @@ segment file drawn loosely around the set. At most ``SET_EDGE_REST_S`` of that
 stillness next to the set's first and last movement keeps the set's label;
 the stillness beyond it becomes ``STANDING``.
 
+After the last movement of a set of ``PAUSING_ACTIONS`` the still standing is the
+set's for exactly ``SET_EDGE_REST_S``, as a pause's first second is: standing that the
+source labelled ``STANDING`` right after the run, still and straight-legged, is taken
+into the set up to the bound. Without it a set's end kept only the recipe's hold and
+the label told an end from a pause by what came after, which no model reading the past
+can (experiments/set_switches.py).
+
 A pause between movements inside the run is held to the same bound: its first
 ``SET_EDGE_REST_S`` is the set's, the rest, up to the next movement, is
 ``STANDING`` when the person stands straight-legged in it (both knees bent less
@@ -29,9 +36,11 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 from scotti.models.contract import (
+    ACTIONS,
     BONES,
     JOINT_ANGLES,
     NUM_KEYPOINTS,
+    PAUSING_ACTIONS,
     SET_EDGE_REST_S,
     STANDING,
     STANDING_KNEE_FLEXION_DEG,
@@ -80,8 +89,9 @@ def set_edges(
 
     ``keypoints`` (N, 19, 3) pose frame, metres; ``actions`` (N,) ints; ``segment``
     (N,) optional ids of stretches recorded without a gap (a run never spans two).
-    Returns a new array; standing and transitions are kept, and so is a pause inside a
-    run up to ``SET_EDGE_REST_S`` (beyond it, standing straight-legged is ``STANDING``).
+    Returns a new array; transitions are kept, and so is a pause inside a run up to
+    ``SET_EDGE_REST_S`` (beyond it, standing straight-legged is ``STANDING``); standing
+    is kept but for the second after a pausing set's last movement.
     """
     k = np.asarray(keypoints, dtype=np.float64)
     out = np.array(actions, dtype=np.int64, copy=True)
@@ -90,8 +100,10 @@ def set_edges(
         raise ModelInputError(msg)
     part = np.zeros(len(k), np.int64) if segment is None else np.asarray(segment)
     keep = round(SET_EDGE_REST_S * rate_hz)
-    for start, end in _runs(out, part):
-        if not has_progress(int(out[start])):
+    runs = _runs(out, part)
+    given = out.copy()  # the source's labels: which frames it called standing
+    for start, end in runs:
+        if not has_progress(int(given[start])):
             continue
         speed = frame_speeds(k[start:end], rate_hz)
         moving = np.flatnonzero(speed >= STILL_SPEED_MPS)
@@ -104,6 +116,11 @@ def set_edges(
             out[start : start + first - keep] = STANDING
         if tail_known and end - start - 1 - last > keep:
             out[start + last + 1 + keep : end] = STANDING
+        action = int(given[start])  # out[start] may be standing now: a long lead
+        if tail_known and ACTIONS[action] in PAUSING_ACTIONS:
+            wanted = keep - (end - start - 1 - last)
+            taken = _standing_after(k, given, part, end, wanted, rate_hz)
+            out[end : end + taken] = action
         straight = _straight_legged(k[start:end])
         for before, after in zip(moving[:-1].tolist(), moving[1:].tolist(), strict=True):
             beyond = slice(before + 1 + keep, after)  # the pause's frames past the bound
@@ -111,6 +128,33 @@ def set_edges(
             if after - before - 1 > keep and seen and straight[beyond].all():
                 out[start + beyond.start : start + beyond.stop] = STANDING
     return out
+
+
+def _standing_after(
+    k: npt.NDArray[np.float64],
+    given: IntArray,
+    part: npt.NDArray[np.generic],
+    end: int,
+    wanted: int,
+    rate_hz: float,
+) -> int:
+    """How many of the up to ``wanted`` frames from ``end`` on are standing as a pause
+    stands: labelled ``STANDING``, in the segment of frame ``end - 1``, still (measured
+    from the frame before) and straight-legged; the count stops at the first that is not."""
+    if wanted <= 0 or end >= len(k):
+        return 0
+    stop = min(end + wanted, len(k))
+    window = k[end - 1 : stop]
+    speed = frame_speeds(window, rate_hz)[1:]  # each frame's speed from the one before
+    with np.errstate(invalid="ignore"):
+        ok = (
+            (given[end:stop] == STANDING)
+            & (part[end:stop] == part[end - 1])
+            & (speed < STILL_SPEED_MPS)
+            & _straight_legged(window[1:])
+        )
+    bad = np.flatnonzero(~ok)
+    return int(bad[0]) if bad.size else stop - end
 
 
 def knee_flexion_deg(keypoints: npt.ArrayLike) -> npt.NDArray[np.float64]:

@@ -285,7 +285,8 @@ def script_segments(ctx: Context, script: list[ScriptEntry]) -> list[Segment]:
 def with_set_edges(motion: Motion) -> Motion:
     """``motion`` with its sets' edges labelled by the convention (models/set_edges.py):
     a set keeps at most ``SET_EDGE_REST_S`` of still standing before its first movement
-    and after its last, the rest is ``standing``. Scripts and lab sessions alike."""
+    and after its last, the rest is ``standing``; a squat or lunge set keeps exactly that
+    second after its last movement, as a pause. Scripts and lab sessions alike."""
     action = set_edges(motion.pose_frame(), motion.action, motion.rate_hz)
     return dataclasses.replace(motion, action=action)
 

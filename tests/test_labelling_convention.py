@@ -104,9 +104,10 @@ def test_a_pause_is_the_set_for_a_second_then_standing_as_are_the_stands_around_
     start, end = runs[1][0], runs[-1][0]  # the set, from its first squat to the last
     moving = frame_speeds(lab.keypoints[start:end], FRAME_RATE_HZ) >= STILL_SPEED_MPS
     first, last = np.flatnonzero(moving)[[0, -1]]
-    # The set's still edges are the recipe's own, shorter than the convention's bound.
+    # The set's still lead is the recipe's own, shorter than the convention's bound; after
+    # its last movement a squat set keeps exactly the bound, as a pause does.
     assert 0 < first <= EDGE
-    assert 0 < end - start - 1 - last <= EDGE
+    assert end - start - 1 - last == EDGE
     # Pauses between repetitions: stretches still at the top between the first and the
     # last movement (the bottom of a squat is held a moment too: no pause).
     hips = lab.keypoints[start:end, 7:9, 2].mean(axis=1)
@@ -135,10 +136,12 @@ def test_a_pause_is_the_set_for_a_second_then_standing_as_are_the_stands_around_
     assert completed == REPS
 
 
-def test_lab_sessions_hold_the_edge_bound_without_a_change() -> None:
+def test_lab_sessions_change_only_pauses_and_the_ends_of_pausing_sets() -> None:
     """The figures in contract.py: at tempo 1 the sets' still edges stay within 0.6 s and a
-    quiet stand's sway under 0.085 m/s (< STILL_SPEED_MPS), so the edge bound relabels
-    nothing: what set_edges changes is pauses inside sets, standing straight-legged."""
+    quiet stand's sway under 0.085 m/s (< STILL_SPEED_MPS), so the edge bound trims
+    nothing: what set_edges changes is pauses inside sets, standing straight-legged, and
+    the standing right after a squat or lunge set, which becomes the set's up to a second
+    after its last movement."""
     scene = Scene(
         seed=5,
         subject=SubjectModel(height_m=1.68, mass_kg=63.0, style_seed=8),
@@ -154,16 +157,26 @@ def test_lab_sessions_hold_the_edge_bound_without_a_change() -> None:
     keypoints = motion.pose_frame()
     held = set_edges(keypoints, motion.action, FRAME_RATE_HZ)
     changed = np.flatnonzero(held != motion.action)
-    assert changed.size  # this session's sets pause longer than the bound
-    assert (held[changed] == STANDING).all()
+    to_standing = changed[held[changed] == STANDING]
+    taken = changed[held[changed] != STANDING]
+    assert to_standing.size  # this session's sets pause longer than the bound
+    assert taken.size  # and its squat and lunge sets end standing
     assert (knee_flexion_deg(keypoints[changed]) < STANDING_KNEE_FLEXION_DEG).all()
-    for start, end in _runs(motion.action):  # every change lies between a set's movements
-        inside = changed[(changed >= start) & (changed < end)]
-        if inside.size:
-            speed = frame_speeds(keypoints[start:end], FRAME_RATE_HZ)
-            moving = np.flatnonzero(speed >= STILL_SPEED_MPS)
+    assert (motion.action[taken] == STANDING).all()
+    assert {ACTIONS[a] for a in held[taken]} == {"squat", "lunge"}
+    for start, end in _runs(motion.action):
+        action = int(motion.action[start])
+        speed = frame_speeds(keypoints[start:end], FRAME_RATE_HZ)
+        moving = np.flatnonzero(speed >= STILL_SPEED_MPS)
+        inside = to_standing[(to_standing >= start) & (to_standing < end)]
+        if inside.size:  # every pause relabelled lies between a set's movements
             assert moving[0] < inside.min() - start
             assert inside.max() - start < moving[-1]
+        if action in (ACTIONS.index("squat"), ACTIONS.index("lunge")):
+            # The set's label now runs to a second after its last movement.
+            run_end = end + int(np.sum(np.isin(taken, np.arange(end, end + EDGE))))
+            assert (held[start + moving[-1] + 1 : run_end] == action).all()
+            assert run_end - (start + moving[-1] + 1) == EDGE
     speed = frame_speeds(keypoints, FRAME_RATE_HZ)
     assert speed[motion.action == STANDING].max() < 0.085
     edges = []
@@ -242,16 +255,19 @@ def test_an_import_that_calls_the_stands_squat_keeps_a_second_of_them(
 ) -> None:
     """A loose segment file (squat from the first frame to the last): the pauses stay squat
     as in the lab; the stands beyond SET_EDGE_REST_S of the first and last movement become
-    standing; within it the importer cannot know where the set began, and keeps squat."""
+    standing. After the last movement both keep exactly the second; before the first the
+    importer cannot know where the set began, and keeps squat where the lab's lead-in is
+    shorter."""
     n = len(lab_set.action)
     imported = _import(lab_set, tmp_path, _segment_file([(0, n, SQUAT)]))
     moving = frame_speeds(imported.keypoints, FRAME_RATE_HZ) >= STILL_SPEED_MPS
     first, last = np.flatnonzero(moving)[[0, -1]]
+    assert (lab_set.action[last + 1 : last + 1 + EDGE] == SQUAT).all()  # the end: the same
+    assert lab_set.action[last + 1 + EDGE] == STANDING
     margin = np.zeros(n, dtype=bool)
     margin[first - EDGE : first] = True
-    margin[last + 1 : last + 1 + EDGE] = True
-    margin &= lab_set.action == STANDING  # where the lab's own set edge ends sooner
-    assert margin.sum() >= EDGE  # the two sources do differ there ...
+    margin &= lab_set.action == STANDING  # where the lab's own lead-in ends sooner
+    assert margin.any()  # the two sources do differ there ...
     assert (imported.action[margin] == SQUAT).all()  # ... the import keeps squat, ~0
     assert np.nanmax(imported.progress[margin]) < 0.05
     same = ~margin
@@ -375,3 +391,50 @@ def test_a_gap_ends_a_run() -> None:
     assert (split[half - 10 : half + 10] == STANDING).all()
     assert (split[pause_to - EDGE : pause_to] == SQUAT).all()
     assert (one[pause_to - EDGE : pause_to] == STANDING).all()
+
+
+def test_a_pausing_set_takes_the_standing_after_its_last_movement_up_to_the_bound() -> None:
+    """The source ends the squat set 3 frames after its last movement and calls the rest
+    standing: the set takes the standing up to SET_EDGE_REST_S after that movement, as a
+    pause's first second; a walking set (its sets do not pause) keeps its own end."""
+    k = _bobbing(3.0, 3.0)
+    moving = np.flatnonzero(frame_speeds(k, FRAME_RATE_HZ) >= STILL_SPEED_MPS)
+    first, last = moving[0], moving[-1]
+    given = np.full(len(k), STANDING)
+    given[first : last + 4] = SQUAT
+    out = set_edges(k, given, FRAME_RATE_HZ)
+    assert (out[first : last + 1 + EDGE] == SQUAT).all()
+    assert (out[last + 1 + EDGE :] == STANDING).all()
+    assert (out[:first] == STANDING).all()  # the lead is not taken: no set starts unseen
+    np.testing.assert_array_equal(given[last + 4 :], STANDING)  # the input is left as it was
+    walking = ACTIONS.index("walking")
+    given_walking = np.where(given == SQUAT, walking, STANDING)
+    np.testing.assert_array_equal(set_edges(k, given_walking, FRAME_RATE_HZ), given_walking)
+
+
+def test_the_standing_a_set_takes_stops_at_movement_bent_knees_or_a_gap() -> None:
+    k = _bobbing(3.0, 3.0)
+    moving = np.flatnonzero(frame_speeds(k, FRAME_RATE_HZ) >= STILL_SPEED_MPS)
+    last = moving[-1]
+    given = np.full(len(k), STANDING)
+    given[: last + 1] = SQUAT
+    # A step 5 frames after the last movement: the set takes the 4 still frames before it.
+    stepped = k.copy()
+    stepped[last + 5 :, :, 0] += 0.05
+    out = set_edges(stepped, given, FRAME_RATE_HZ)
+    assert (out[last + 1 : last + 5] == SQUAT).all()
+    assert (out[last + 5 :] == STANDING).all()
+    # Knees bent past STANDING_KNEE_FLEXION_DEG from 6 frames on: 5 taken.
+    crouched = k.copy()
+    for side in ("left", "right"):
+        crouched[last + 6 :, KP[f"{side}_knee"], 0] += 0.4
+    assert knee_flexion_deg(crouched[last + 6 : last + 7]).min() > STANDING_KNEE_FLEXION_DEG
+    out = set_edges(crouched, given, FRAME_RATE_HZ)
+    assert (out[last + 1 : last + 6] == SQUAT).all()
+    assert (out[last + 6 :] == STANDING).all()
+    # A gap (another segment) 3 frames after: 2 taken.
+    segment = np.zeros(len(k), np.int64)
+    segment[last + 3 :] = 1
+    out = set_edges(k, given, FRAME_RATE_HZ, segment=segment)
+    assert (out[last + 1 : last + 3] == SQUAT).all()
+    assert (out[last + 3 :] == STANDING).all()
