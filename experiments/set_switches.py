@@ -51,7 +51,8 @@ class Switch:
     action: str
     kind: str  # PAUSE or END
     kept_still: int | None  # still frames after the last movement still labelled the set
-    lag: int | None  # frames from the switch to the model's first standing; None: never
+    lag: int | None  # frames from the switch to the model's first standing; None: not
+    # while the standing lasted
 
 
 def label_switches(truth: npt.ArrayLike, said: npt.ArrayLike, still: npt.ArrayLike) -> list[Switch]:
@@ -65,8 +66,9 @@ def label_switches(truth: npt.ArrayLike, said: npt.ArrayLike, still: npt.ArrayLi
             continue
         after = np.flatnonzero(t[i:] != STANDING)
         resumes = after.size > 0 and int(t[i + after[0]]) == action
+        run = int(after[0]) if after.size else len(t) - i  # the standing's frames
         moving = np.flatnonzero(~quiet[:i])
-        standing = np.flatnonzero(s[i:] == STANDING)
+        standing = np.flatnonzero(s[i : i + run] == STANDING)  # said while it lasts
         found.append(
             Switch(
                 ACTIONS[action],
@@ -92,6 +94,7 @@ def markdown(switches: list[Switch], sessions: list[Path], model: Path) -> str:
             lags = [s.lag for s in mine if s.lag is not None]
             kept = [s.kept_still for s in mine if s.kept_still is not None]
             within = sum(lag <= 8 for lag in lags)
+            never = len(mine) - len(lags)
             median = f"{statistics.median(lags):g}" if lags else "-"
             rows.append(
                 [
@@ -101,6 +104,7 @@ def markdown(switches: list[Switch], sessions: list[Path], model: Path) -> str:
                     _range(kept),
                     f"{median} ({_range(lags)})",
                     f"{within} of {len(mine)}",
+                    str(never),
                 ]
             )
     head = [
@@ -110,6 +114,7 @@ def markdown(switches: list[Switch], sessions: list[Path], model: Path) -> str:
         "still frames the label kept after the last movement",
         "model's lag, frames: median (range)",
         "model within 8 frames",
+        "standing over before the model said it",
     ]
     names = " ".join(from_root(p) for p in sessions)
     return (

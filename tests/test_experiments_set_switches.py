@@ -49,6 +49,11 @@ def test_a_pause_and_a_set_end_are_told_apart_with_their_still_frames_and_lags()
     ]
     assert [s.kept_still for s in switches] == [5, 2, 0]
     assert [s.lag for s in switches] == [3, 0, None]  # the model never said standing after 40
+    # Said only once the standing is over: not a lag of that standing.
+    late = said.copy()
+    late[18] = SQUAT
+    late[21] = STANDING  # the pause's standing ended at 20
+    assert set_switches.label_switches(truth, late, still)[0].lag is None
 
 
 def test_standing_and_transitions_are_no_switch_of_a_set() -> None:
@@ -70,4 +75,5 @@ def test_the_command_reads_a_rendered_session(
     cells = [c.strip() for c in row.split("|")]
     assert cells[3] == "1"  # one set, one end
     assert cells[5].startswith("0 (0-0)")  # a model that always says standing: no lag
+    assert cells[7] == "0"  # and said it in every standing
     assert set_switches.main([str(tmp_path / "missing.ses")]) == 1
