@@ -33,13 +33,18 @@ from common import ROOT, from_root, table
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.replay import replay_session
 from scotti.firmware_protocol.errors import SessionError
-from scotti.models.contract import ACTIONS, STANDING, STILL_SPEED_MPS, has_progress
+from scotti.models.contract import (
+    ACTIONS,
+    FRAME_RATE_HZ,
+    STANDING,
+    STILL_SPEED_MPS,
+    has_progress,
+)
 from scotti.models.errors import ModelError
 from scotti.models.kv_streaming import open_step_model
 from scotti.models.set_edges import frame_speeds
 
 DEFAULT_MODEL = ROOT / "models" / "scotti-default.onnx"
-RATE_HZ = 16.0
 PAUSE = "inside a set"
 END = "set end"
 
@@ -51,8 +56,8 @@ class Switch:
     action: str
     kind: str  # PAUSE or END
     kept_still: int | None  # still frames after the last movement still labelled the set
-    lag: int | None  # frames from the switch to the model's first standing; None: not
-    # while the standing lasted
+    # frames from the switch to the model's first standing; None: not while it lasted
+    lag: int | None
 
 
 def label_switches(truth: npt.ArrayLike, said: npt.ArrayLike, still: npt.ArrayLike) -> list[Switch]:
@@ -136,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         switches = []
         for path in args.sessions:
             frames = replay_session(path, model).frames
-            still = frame_speeds(frames.pose_true, RATE_HZ) < STILL_SPEED_MPS
+            still = frame_speeds(frames.pose_true, FRAME_RATE_HZ) < STILL_SPEED_MPS
             switches += label_switches(frames.action_true, frames.action_pred, still)
     except (ModelError, EvaluationError, SessionError, OSError) as exc:
         print(f"set_switches: {exc}", file=sys.stderr)

@@ -100,10 +100,10 @@ def set_edges(
         raise ModelInputError(msg)
     part = np.zeros(len(k), np.int64) if segment is None else np.asarray(segment)
     keep = round(SET_EDGE_REST_S * rate_hz)
-    runs = _runs(out, part)
-    given = out.copy()  # the source's labels: which frames it called standing
-    for start, end in runs:
-        if not has_progress(int(given[start])):
+    given = out.copy()  # the source's labels (out[start] may turn standing: a long lead)
+    for start, end in _runs(out, part):
+        action = int(given[start])
+        if not has_progress(action):
             continue
         speed = frame_speeds(k[start:end], rate_hz)
         moving = np.flatnonzero(speed >= STILL_SPEED_MPS)
@@ -116,7 +116,6 @@ def set_edges(
             out[start : start + first - keep] = STANDING
         if tail_known and end - start - 1 - last > keep:
             out[start + last + 1 + keep : end] = STANDING
-        action = int(given[start])  # out[start] may be standing now: a long lead
         if tail_known and ACTIONS[action] in PAUSING_ACTIONS:
             wanted = keep - (end - start - 1 - last)
             taken = _standing_after(k, given, part, end, wanted, rate_hz)
@@ -146,13 +145,12 @@ def _standing_after(
     stop = min(end + wanted, len(k))
     window = k[end - 1 : stop]
     speed = frame_speeds(window, rate_hz)[1:]  # each frame's speed from the one before
-    with np.errstate(invalid="ignore"):
-        ok = (
-            (given[end:stop] == STANDING)
-            & (part[end:stop] == part[end - 1])
-            & (speed < STILL_SPEED_MPS)
-            & _straight_legged(window[1:])
-        )
+    ok = (
+        (given[end:stop] == STANDING)
+        & (part[end:stop] == part[end - 1])
+        & (speed < STILL_SPEED_MPS)  # NaN (unseen) is not still
+        & _straight_legged(window[1:])
+    )
     bad = np.flatnonzero(~ok)
     return int(bad[0]) if bad.size else stop - end
 
