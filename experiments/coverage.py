@@ -1,7 +1,7 @@
 """Coverage: the shipped model over every parameter a scene may set, action by action.
 
     python experiments/coverage.py [--people 3] [--seconds 40] [--model M] [--jobs 1]
-        [--max-minutes MIN] [--cache runs/coverage] [--write docs/coverage.md]
+        [--max-minutes MIN] [--cache runs/coverage] [--write OUT.md]
         [--action A ...] [--param PREFIX ...] [--scenes DIR | --no-scenes] [--keep-sessions]
 
 For every action of the contract (standing included) and every field of the
@@ -13,9 +13,11 @@ replayed through the daemon's path as ``scotti eval`` does (the shipped model
 unless ``--model``) and the cell keeps accuracy, APP, MPJPE, progress MSE, the
 flag shares, and how many predictions were wrong and went out unflagged
 (experiments/coverage_score.py). Every scene file of sim/scenes is scored as
-shipped too. docs/coverage.md gets the headline (the worst cell), the goals,
+shipped too. The markdown gets the headline (the worst cell), the goals,
 the unfamiliar flag as a detector of wrong predictions and the tables
-(experiments/coverage_doc.py).
+(experiments/coverage_doc.py): docs/coverage.md for the shipped model over the
+whole grid, CACHE/coverage.md for another model or a restricted grid (``--write``
+chooses).
 
 Each cell is checkpointed in the cache as it is scored; a rerun takes what is
 there (``--fresh`` ignores it) and ``--max-minutes`` stops starting cells, so a
@@ -42,6 +44,7 @@ from scotti.sim.scene import Scene
 
 SCENES = ROOT / "sim" / "scenes"
 DEFAULT_MODEL = ROOT / "models" / "scotti-default.onnx"
+DOC = ROOT / "docs" / "coverage.md"  # the shipped model's table
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,7 +60,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-minutes", type=float, default=None, help="start no cell after this")
     p.add_argument("--cache", type=Path, default=ROOT / "runs" / "coverage")
     p.add_argument("--fresh", action="store_true", help="ignore the cache's checkpoints")
-    p.add_argument("--write", type=Path, default=ROOT / "docs" / "coverage.md")
+    p.add_argument(
+        "--write",
+        type=Path,
+        help="the markdown (default: docs/coverage.md for the shipped model over the whole "
+        "grid, else CACHE/coverage.md)",
+    )
     p.add_argument("--action", action="append", choices=ACTIONS, help="only these actions")
     p.add_argument("--param", action="append", help="only fields whose path starts so")
     p.add_argument("--scenes", type=Path, default=SCENES, help="scene files scored as shipped")
@@ -113,6 +121,19 @@ def _validate(raw: dict[str, object], cell: Cell) -> None:
         raise GridError(msg) from None
 
 
+def doc_target(args: argparse.Namespace) -> Path:
+    """Where the markdown goes. docs/coverage.md describes the shipped model over the whole
+    grid, so only such a run writes it unless ``--write`` says otherwise: a candidate's run,
+    or a run restricted by ``--action`` or ``--param``, goes beside its cache instead of
+    quietly replacing the shipped model's table with its own."""
+    if args.write is not None:
+        return Path(args.write)
+    whole = not args.action and not args.param
+    if whole and args.model.resolve() == DEFAULT_MODEL.resolve():
+        return DOC
+    return Path(args.cache) / "coverage.md"
+
+
 def _commit() -> str:
     proc = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
@@ -161,11 +182,12 @@ def main(argv: list[str] | None = None) -> int:
             "jobs_run": outcome.simulated + outcome.unchanged,
         }
     )
-    args.write.parent.mkdir(parents=True, exist_ok=True)
-    args.write.write_text(markdown(summary, rows, scenes))
+    target = doc_target(args)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text(markdown(summary, rows, scenes))
     print(
         f"coverage: {outcome.simulated} cells scored, {outcome.unchanged} unchanged, "
-        f"{outcome.reused} from the cache, {outcome.left} left; wrote {args.write}"
+        f"{outcome.reused} from the cache, {outcome.left} left; wrote {target}"
     )
     return 0
 

@@ -217,3 +217,24 @@ def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
     assert "0 cells scored, 0 unchanged, 3 from the cache, 0 left" in second
     assert [p.stat().st_mtime_ns for p in checkpoints] == stamps
     assert doc.read_text().split("## Goals")[1] == text.split("## Goals")[1]
+
+
+@pytest.mark.parametrize(
+    ("extra", "shipped_doc"),
+    [
+        ([], True),  # the shipped model over the whole grid: its table in docs
+        (["--model", "runs/candidate.onnx"], False),  # a candidate never replaces it
+        (["--action", "squat"], False),  # nor does a restricted grid
+        (["--param", "subject"], False),
+    ],
+)
+def test_only_the_shipped_models_whole_grid_writes_the_docs_table(
+    extra: list[str], shipped_doc: bool, tmp_path: Path
+) -> None:
+    args = coverage.build_parser().parse_args(["--cache", str(tmp_path), *extra])
+    target = coverage.doc_target(args)
+    assert (target == coverage.DOC) is shipped_doc
+    if not shipped_doc:
+        assert target == tmp_path / "coverage.md"
+    chosen = coverage.build_parser().parse_args([*extra, "--write", str(tmp_path / "x.md")])
+    assert coverage.doc_target(chosen) == tmp_path / "x.md"
