@@ -127,11 +127,11 @@ def doc_target(args: argparse.Namespace) -> Path:
     or a run restricted by ``--action`` or ``--param``, goes beside its cache instead of
     quietly replacing the shipped model's table with its own."""
     if args.write is not None:
-        return Path(args.write)
+        return args.write
     whole = not args.action and not args.param
     if whole and args.model.resolve() == DEFAULT_MODEL.resolve():
         return DOC
-    return Path(args.cache) / "coverage.md"
+    return args.cache / "coverage.md"
 
 
 def _commit() -> str:
