@@ -14,7 +14,9 @@ less CPU (a step costs 0.41 ms a frame at 16 frames a call, 1.10 alone:
 docs/performance.md). ``--jobs J`` (default: the
 cores the process may use) steps J such groups side by side on threads while
 the next frames are decoded, again the same predictions (docs/evaluation.md,
-"How fast it runs"). ``--processes P`` replays whole sessions in P worker
+"How fast it runs"). ``--decode process`` reads and decodes each session in a
+process of its own beside those threads (``evaluation.decoded``; ``auto``, the
+default, where it pays). ``--processes P`` replays whole sessions in P worker
 processes instead (``evaluation.processes``): the Python between the model's
 calls holds the interpreter's lock, so several sessions run faster on several
 processes than on threads; the same report.
@@ -40,7 +42,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from scotti.daemon.settings import ConfigError, default_model_path
-from scotti.evaluation.evaluation import EvaluationError, evaluate_models
+from scotti.evaluation.evaluation import DECODE_CHOICES, EvaluationError, evaluate_models
 from scotti.evaluation.segments import BATCH
 from scotti.firmware_protocol.errors import SessionError
 from scotti.firmware_protocol.overwrite import FORCE_HELP, refuse_existing
@@ -98,6 +100,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "than on threads (default 1: this process)",
     )
     parser.add_argument(
+        "--decode",
+        choices=DECODE_CHOICES,
+        default="auto",
+        help="read and decode each session here, or in a process of its own while this "
+        "one steps the model, the same report (default auto: a process when --jobs > 1 "
+        "and the sessions hold 64 MB or more; unused with --processes)",
+    )
+    parser.add_argument(
         "--every",
         type=int,
         default=1,
@@ -146,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
             batch=args.batch,
             jobs=jobs,
             processes=args.processes,
+            decode=args.decode,
             on_session=_progress,
         )
         for report, runtime in zip(reports, runtimes, strict=True):
@@ -188,7 +199,10 @@ def rate_line(rate: dict[str, Any]) -> str:
 
 def _workers(rate: dict[str, Any]) -> str:
     processes = rate.get("processes", 1)
-    return f"{processes} processes" if processes > 1 else f"{rate['jobs']} job(s)"
+    if processes > 1:
+        return f"{processes} processes"
+    where = " (decoded in a process of its own)" if rate.get("decode") == "process" else ""
+    return f"{rate['jobs']} job(s){where}"
 
 
 def _progress(done: int, total: int, path: Path, seconds: float) -> None:

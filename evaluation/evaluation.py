@@ -7,6 +7,7 @@ No torch, no asyncio: ``scotti eval`` and the experiment drivers use it.
 
 from __future__ import annotations
 
+import queue
 import resource
 import time
 from collections import Counter
@@ -15,6 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from scotti.evaluation.decoded import DecodeWorker
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet
 from scotti.evaluation.processes import ProcessReplays, peak_rss_children_mb
@@ -34,6 +36,10 @@ from scotti.models.runtime import ScottiRuntime
 
 # Sessions replayed at once when segments are stepped on threads (``evaluate_models``).
 SESSIONS_IN_FLIGHT = 2
+DECODE_CHOICES = ("auto", "here", "process")
+# Session bytes from which ``--decode auto`` decodes in a process: about 18,000 pairs,
+# whose decoding (~80 us a pair) outweighs the worker's start (~0.3 s) several times.
+AUTO_DECODE_BYTES = 64 << 20
 
 __all__ = [
     "EvaluationError",
@@ -72,6 +78,7 @@ def evaluate_models(
     batch: int = BATCH,
     jobs: int = 1,
     processes: int = 1,
+    decode: str = "auto",
     on_session: Callable[[int, int, Path, float], None] | None = None,
 ) -> list[dict[str, Any]]:
     """``evaluate_sessions`` for several models over one replay of each session.
@@ -83,6 +90,10 @@ def evaluate_models(
     one thread (``evaluation.processes``; ``jobs`` is not used), the same reports.
     The workers are spawned and import the main module: a script that calls this
     with ``processes`` > 1 keeps its work under ``if __name__ == "__main__":``.
+    ``decode``: where each session is read and decoded (``decode_where``): ``here``,
+    on the thread that replays it, or ``process``, in a worker process per session
+    thread (``evaluation.decoded``) while this process steps the model; the same
+    reports. Not used with ``processes`` > 1 (each worker decodes its own).
     ``on_session(done, total, path, seconds)`` after each session, in that order: a
     long run's progress.
     """
@@ -96,12 +107,25 @@ def evaluate_models(
         msg = f"--processes must be at least 1, got {processes}"
         raise EvaluationError(msg)
     windows = window_graphs(runtimes) if every > 1 else None
+    decode = decode_where(decode, paths, jobs, processes)
 
     def one(p: str | Path) -> tuple[list[SessionReplay], float]:
         started = time.perf_counter()
-        replays = replay_session_models(
-            p, runtimes, pairing, every=every, windows=windows, batch=batch, jobs=jobs, pool=pool
-        )
+        decoder = decoders.get()  # a session thread's own, while it replays
+        try:
+            replays = replay_session_models(
+                p,
+                runtimes,
+                pairing,
+                every=every,
+                windows=windows,
+                batch=batch,
+                jobs=jobs,
+                pool=pool,
+                decoder=decoder,
+            )
+        finally:
+            decoders.put(decoder)
         for replay in replays:
             replay.drop_predictions()  # memory stays that of a session or two, however many
         return replays, time.perf_counter() - started
@@ -117,6 +141,9 @@ def evaluate_models(
     # With jobs > 1, two sessions at a time: one decodes while the other's last chunk is
     # stepped and scored, so that the threads stepping segments seldom wait for work.
     in_flight = SESSIONS_IN_FLIGHT if jobs > 1 else 1
+    decoders: queue.SimpleQueue[DecodeWorker | None] = queue.SimpleQueue()
+    for _ in range(min(in_flight, len(paths))):
+        decoders.put(DecodeWorker(pairing).start() if decode == "process" else None)
     with (
         ThreadPoolExecutor(jobs, thread_name_prefix="scotti-eval") as pool,
         ThreadPoolExecutor(in_flight, thread_name_prefix="scotti-eval-session") as sessions,
@@ -132,9 +159,37 @@ def evaluate_models(
         finally:
             for future in futures:  # a session that failed: the ones after it never start
                 future.cancel()
+            while not decoders.empty():
+                if (worker := decoders.get()) is not None:
+                    worker.close()
     seconds = time.perf_counter() - began
     cpu_seconds = time.process_time() - began_cpu
-    return _reports(runtimes, per_session, every, windows, seconds, cpu_seconds, 1, jobs)
+    if decode == "process":  # the workers' CPU is the evaluation's too
+        cpu_seconds += sum(r[0].decode_cpu_s for r in per_session)
+    reports = _reports(runtimes, per_session, every, windows, seconds, cpu_seconds, 1, jobs)
+    for report in reports:
+        report["rate"]["decode"] = decode
+    return reports
+
+
+def decode_where(decode: str, paths: Sequence[str | Path], jobs: int, processes: int) -> str:
+    """``here`` or ``process`` for ``decode`` = ``auto``: a decode process where a core is
+    free for it (``jobs`` > 1, one process) and the sessions are long enough to repay
+    its start (``AUTO_DECODE_BYTES``); else as asked."""
+    if decode not in DECODE_CHOICES:
+        msg = f"--decode must be one of {', '.join(DECODE_CHOICES)}, got {decode!r}"
+        raise EvaluationError(msg)
+    if processes > 1:
+        return "here"  # in the workers: each decodes the sessions it replays
+    if decode != "auto":
+        return decode
+    if jobs < 2:
+        return "here"
+    try:
+        size = sum(Path(p).stat().st_size for p in paths)
+    except OSError:
+        return "here"  # the replay says what is wrong with the file
+    return "process" if size >= AUTO_DECODE_BYTES else "here"
 
 
 def _reports(
@@ -171,14 +226,16 @@ def rate(
     per_session: list[list[SessionReplay]], model: int, seconds: float, cpu_seconds: float
 ) -> dict[str, Any]:
     """How fast the replay went: paired frames per second of wall time and of this
-    process's CPU time (on a shared host the CPU figure is the one-core rate), the
-    time spent in this model's graph, and the rate of everything else (reading,
-    decoding, assembly, pairing, scoring). Every model's replay of a session is
-    one pass, so the models share the wall and CPU figures."""
+    process's CPU time and its decode workers' (on a shared host the CPU figure is
+    the one-core rate), the time spent in this model's graph and in reading and
+    decoding the files, and the rate of everything else (reading, decoding,
+    assembly, pairing, scoring). Every model's replay of a session is one pass, so
+    the models share the wall and CPU figures."""
     replays = [replays[model] for replays in per_session]
     pairs = sum(r.pairs for r in replays)
     model_s = sum(r.model_cpu_s for r in replays)  # onnxruntime, 1 thread: this thread
     rest_s = cpu_seconds - sum(r.model_cpu_s for per in per_session for r in per)
+    decode_s = sum(r.decode_cpu_s for r in replays)  # one decoding per session, all models
     return {
         "paired_frames": pairs,
         "seconds": round(seconds, 3),
@@ -186,6 +243,8 @@ def rate(
         "frames_per_s": round(pairs / seconds, 1) if seconds > 0 else None,
         "frames_per_cpu_s": round(pairs / cpu_seconds, 1) if cpu_seconds > 0 else None,
         "model_cpu_seconds": round(model_s, 3),
+        # reading the file and the one frame path, in the caller or its decode worker
+        "decode_cpu_seconds": round(decode_s, 3),
         "without_model_frames_per_cpu_s": round(pairs / rest_s, 1) if rest_s > 0 else None,
     }
 

@@ -33,14 +33,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scotti.evaluation.decoded import DecodeWorker, SessionEnd, decode_session
 from scotti.evaluation.errors import EvaluationError
 from scotti.evaluation.frames import FrameScores, FrameSet, align
 from scotti.evaluation.kv_segments import KvSegmentTrack, kv_window_graph
 from scotti.evaluation.sampling import Prediction, SampledTrack
 from scotti.evaluation.segments import BATCH, ChunkedSegments, SegmentTrack, quick_gil_handoff
-from scotti.firmware_protocol.frame_path import FramePath, PairSeq
-from scotti.firmware_protocol.pairing import PairedFrame, PairingConfig
-from scotti.firmware_protocol.session import LabelRecord, PacketRecord, SessionReader
+from scotti.firmware_protocol.pairing import PairingConfig
+from scotti.firmware_protocol.session import LabelRecord
 from scotti.models.contract import ACTIONS
 from scotti.models.kv_streaming import StepModel
 from scotti.models.ood import flag_counts, withheld
@@ -66,6 +66,7 @@ class SessionReplay:
     step_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)  # (ms, rows)
     window_batches: list[tuple[float, int]] = field(default_factory=list, repr=False)
     model_cpu_s: float = 0.0  # CPU time in the model's graph (this thread), for the rate
+    decode_cpu_s: float = 0.0  # CPU time reading and decoding the file (here or a worker)
     frames: FrameSet = field(default_factory=FrameSet.empty, repr=False)
     made: list[Prediction] = field(default_factory=list, repr=False)  # in time order
     # What pooling several sessions keeps once ``drop_predictions`` let the above go:
@@ -115,12 +116,16 @@ def window_graphs(runtimes: Sequence[StepModel]) -> list[ScottiRuntime]:
 
 
 def segment_track(
-    runtime: StepModel, out: SessionReplay, batch: int, jobs: int, pool: Executor | None
+    runtime: StepModel,
+    out: SessionReplay,
+    batch: int,
+    jobs: int,
+    pool: Executor | None,
+    streamed: bool = False,
 ) -> ChunkedSegments:
     """The batched step loop of the runtime's form (the cache it carries per segment)."""
-    if isinstance(runtime, ScottiRuntime):
-        return SegmentTrack(runtime, out, batch, jobs=jobs, pool=pool)
-    return KvSegmentTrack(runtime, out, batch, jobs=jobs, pool=pool)
+    track = SegmentTrack if isinstance(runtime, ScottiRuntime) else KvSegmentTrack
+    return track(runtime, out, batch, jobs=jobs, pool=pool, streamed=streamed)  # type: ignore[arg-type]
 
 
 def replay_session_models(
@@ -133,6 +138,7 @@ def replay_session_models(
     batch: int = BATCH,
     jobs: int = 1,
     pool: Executor | None = None,
+    decoder: DecodeWorker | None = None,
 ) -> list[SessionReplay]:
     """One replay, several models: the bytes are decoded, assembled and paired once,
     and every paired frame goes into each model's own window (nothing is shared
@@ -142,7 +148,9 @@ def replay_session_models(
     ``windows`` (default: those next to ``runtimes``) instead of the step graph;
     ``batch`` > 1: segments side by side in each step-graph call (same predictions);
     ``jobs`` > 1: that many groups of them stepped side by side on threads (``pool``,
-    else one of ``jobs`` threads for this session), the same predictions again."""
+    else one of ``jobs`` threads for this session), the same predictions again;
+    ``decoder``: the file read and decoded in that worker process
+    (``evaluation.decoded``) while this one steps the model, the same pairs."""
     if jobs > 1 and pool is None:
         own = ThreadPoolExecutor(jobs, thread_name_prefix="scotti-eval")
         with own, quick_gil_handoff():
@@ -155,6 +163,7 @@ def replay_session_models(
                 batch=batch,
                 jobs=jobs,
                 pool=own,
+                decoder=decoder,
             )
     if every < 1:
         msg = f"--every must be at least 1, got {every}"
@@ -165,39 +174,28 @@ def replay_session_models(
     if jobs < 1:
         msg = f"--jobs must be at least 1, got {jobs}"
         raise EvaluationError(msg)
-    frame_path = FramePath(pairing)
+    subject = Path(path).stem  # until the header says otherwise
+    streamed = decoder is not None
+    tracks: list[SampledTrack | ChunkedSegments]
+    if every == 1:
+        tracks = [
+            segment_track(r, SessionReplay(str(path), subject), batch, jobs, pool, streamed)
+            for r in runtimes
+        ]
+    else:
+        graphs = window_graphs(runtimes) if windows is None else windows
+        tracks = [SampledTrack(w, every, SessionReplay(str(path), subject)) for w in graphs]
     labels: list[LabelRecord] = []
-    clock = PairSeq()
-    with SessionReader(path) as reader:
-        subject = _subject_of(reader.header.subject) or Path(path).stem
-        tracks: list[SampledTrack | ChunkedSegments]
-        if every == 1:
-            tracks = [
-                segment_track(r, SessionReplay(str(path), subject), batch, jobs, pool)
-                for r in runtimes
-            ]
+    end: SessionEnd | None = None
+    items = decode_session(path, pairing) if decoder is None else decoder.blocks(path)
+    for item in items:
+        labels += item.labels
+        if isinstance(item, SessionEnd):
+            end = item
         else:
-            graphs = window_graphs(runtimes) if windows is None else windows
-            tracks = [SampledTrack(w, every, SessionReplay(str(path), subject)) for w in graphs]
-
-        silent = {"left": 0, "right": 0}
-
-        def take(pair: PairedFrame) -> None:
-            ext = clock.of(pair)
-            for foot in silent:
-                silent[foot] += f"{foot}_filled" in pair.flags
             for track in tracks:
-                track.take(pair, ext)
-
-        for record in reader:
-            if isinstance(record, LabelRecord):
-                labels.append(record)
-                continue
-            assert isinstance(record, PacketRecord)
-            for pair in frame_path.feed(record.data, record.t_ns):
-                take(pair)
-        for pair in frame_path.end():
-            take(pair)
+                track.take_block(item)
+    assert end is not None  # the last item of every session
     for track in tracks:
         track.finish()
         out = track.out
@@ -205,8 +203,10 @@ def replay_session_models(
         out.made = track.made
         out.predictions = len(out.made)
         out.window_restarts = track.restarts
-        out.decode_errors = frame_path.decoder.counters.errors
-        out.silent_pairs = dict(silent)
+        out.subject = _subject_of(end.subject) or out.subject
+        out.decode_errors = end.decode_errors
+        out.silent_pairs = dict(end.silent_pairs)
+        out.decode_cpu_s = end.cpu_seconds
         out.frames, out.unlabelled = align(track.made, labels)
         out.evaluated = len(out.frames)
         out.scores = FrameScores.of(out.frames)

@@ -25,6 +25,7 @@ from scotti.models.ood import UNFAMILIAR
 from scotti.models.runtime import ScottiRuntime
 
 if TYPE_CHECKING:  # evaluation imports this module
+    from scotti.evaluation.decoded import PairBlock
     from scotti.evaluation.replay import SessionReplay
 
 F32 = npt.NDArray[np.float32]
@@ -71,14 +72,30 @@ class SampledTrack:
 
     def take(self, pair: PairedFrame, ext: int | None) -> None:
         """One paired frame; ``ext`` is its unwrapped seq."""
+        self._take(pair.counts, bool(pair.flags), pair.restart, ext)
+
+    def take_block(self, block: PairBlock) -> None:
+        """Successive paired frames (``evaluation.decoded``)."""
+        for i, (degraded, restart, ext, known) in enumerate(
+            zip(
+                block.degraded.tolist(),
+                block.restart.tolist(),
+                block.ext.tolist(),
+                block.has_ext.tolist(),
+                strict=True,
+            )
+        ):
+            self._take(block.counts[i], degraded, restart, ext if known else None)
+
+    def _take(self, counts: U16, degraded: bool, restart: bool, ext: int | None) -> None:
         t = self.runtime.window
         self.out.pairs += 1
-        self.out.degraded_pairs += bool(pair.flags)
-        if pair.restart:
+        self.out.degraded_pairs += degraded
+        if restart:
             self.restarts += bool(self._held)
             self._held = 0
-        self._ring[self._head] = pair.counts
-        self._ring[self._head + t] = pair.counts
+        self._ring[self._head] = counts
+        self._ring[self._head + t] = counts
         self._head = (self._head + 1) % t
         self._held += 1
         if self._held < t or ext is None:

@@ -22,13 +22,14 @@ segments, down to one (``batch=1``: frame by frame). ``tests/test_evaluation_seg
 compares every prediction and flag with the daemon's own window stepped frame by
 frame, on a real exported model.
 
-With ``jobs`` J > 1 a chunk holds J x ``CHUNK_FRAMES`` frames, cut into J groups
-of K segments that J threads step side by side (onnxruntime lets go of the GIL
-during a call) while the caller decodes the next chunk; one chunk at most is in
-flight, so two are held (J x 92 MB of counts). The caller computes a chunk's
-input checks before it waits for the chunk before (it decodes faster than the
-threads step). Two jobs run 1.5x the frames per second of one on two cores
-(docs/evaluation.md, "How fast it runs").
+With ``jobs`` J > 1 the segments are stepped on J threads (onnxruntime lets go
+of the GIL during a call) while the caller takes the next chunk: a chunk of J x
+``CHUNK_FRAMES`` cut into J groups of K, one chunk in flight (two held, J x 46 MB
+of counts); or, when a decode worker streams the pairs in (``streamed``), each
+chunk of ``STREAMED_CHUNK_FRAMES`` to one thread as soon as it is full, J in
+flight. The caller computes a chunk's input checks before it waits for room.
+Two jobs run 1.5x the frames per second of one on two cores (docs/evaluation.md,
+"How fast it runs").
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from typing import TYPE_CHECKING, Any, Final, Protocol
 
 import numpy as np
 import numpy.typing as npt
+from scotti.evaluation.decoded import PairBlock
 from scotti.evaluation.sampling import Prediction
 from scotti.firmware_protocol.pairing import PairedFrame
 from scotti.models.input_checks import OUT_OF_RANGE, UNLOADED, FrameStats, frame_stats, window_flags
@@ -60,8 +62,12 @@ U16 = npt.NDArray[np.uint16]
 BATCH: Final = 16
 # Paired frames a chunk holds per job (raw counts: 2.8 kB each, 46 MB): a longer session
 # is replayed chunk after chunk, the last T-1 frames of one warming the next. 16 segments
-# of 1,024 frames: 3.8 % warm-up steps.
+# of 1,024 frames: 3.8 % warm-up steps (11 % for the streaming-native form's R-1 = 117).
 CHUNK_FRAMES: Final = 16_384
+# A chunk when a decode worker streams the pairs in: stepped as soon as it is full, so
+# the threads start after 8,192 pairs rather than 32,768 (``python -m
+# scotti.evaluation.speed``: docs/performance.md).
+STREAMED_CHUNK_FRAMES: Final = 8_192
 # Shortest segment: each costs T-1 = 39 warm-up steps more, 10 % of 400.
 MIN_SEGMENT_FRAMES: Final = 400
 # Python's switch interval while step loops run on threads (``quick_gil_handoff``).
@@ -113,18 +119,29 @@ class ChunkedSegments:
     ``_step_lanes`` (the model's step loop) is the subclass's: ``SegmentTrack`` for the
     paper form, ``evaluation.kv_segments.KvSegmentTrack`` for the streaming-native one.
 
-    ``jobs`` > 1 with a ``pool``: a chunk's segments are cut into ``jobs`` groups of
-    ``batch`` lanes, stepped side by side on the pool's threads (onnxruntime lets go
-    of the GIL while it runs), while the caller goes on decoding the next chunk.
-    One chunk at most is in flight, so the held frames stay two chunks."""
+    ``jobs`` > 1 with a ``pool``: the segments are stepped on the pool's threads
+    (onnxruntime lets go of the GIL while it runs) while the caller takes the next
+    chunk, one of two ways:
+
+    - the caller decodes (``streamed`` False): a chunk holds ``jobs`` x
+      ``CHUNK_FRAMES`` frames, cut into ``jobs`` groups of ``batch`` lanes; one chunk
+      in flight at most, so two are held;
+    - a decode worker does (``streamed``, ``evaluation.decoded``): the caller only
+      copies pairs, so a chunk of ``STREAMED_CHUNK_FRAMES`` goes to a thread as one
+      group as soon as it is full, up to ``jobs`` chunks in flight (``jobs`` + 1
+      held). The first chunk starts sooner, for more warm-up steps; with the
+      caller's decoding in the way of the threads it did not pay.
+
+    The last chunk, the session's end, is cut into ``jobs`` groups either way."""
 
     runtime: SegmentModel  # the step graph
     out: SessionReplay
     batch: int = BATCH
-    chunk_frames: int | None = None  # default CHUNK_FRAMES per job
+    chunk_frames: int | None = None  # default CHUNK_FRAMES
     min_segment: int | None = None  # default MIN_SEGMENT_FRAMES
     jobs: int = 1
     pool: Executor | None = None  # needed for jobs > 1
+    streamed: bool = False  # pairs come decoded from a worker: step each chunk when full
     made: list[Prediction] = field(default_factory=list)
     restarts: int = 0  # restarts of a window that held frames (as ``Window.restarts``)
     _cap: int = field(default=0, init=False)  # frames a chunk holds
@@ -144,7 +161,8 @@ class ChunkedSegments:
         if self.jobs > 1 and self.pool is None:
             msg = "jobs > 1 needs a pool of threads"
             raise ValueError(msg)
-        chunk = CHUNK_FRAMES * self.jobs if self.chunk_frames is None else self.chunk_frames
+        default = STREAMED_CHUNK_FRAMES if self.streamed else CHUNK_FRAMES * self.jobs
+        chunk = default if self.chunk_frames is None else self.chunk_frames
         self._cap = max(chunk, 2 * (self.history() + 1))
         self._buf = self._new_buffer()
 
@@ -163,53 +181,73 @@ class ChunkedSegments:
 
     def take(self, pair: PairedFrame, ext: int | None) -> None:
         """One paired frame; ``ext`` is its unwrapped seq."""
-        self.out.pairs += 1
-        self.out.degraded_pairs += bool(pair.flags)
-        if pair.restart:
-            self.restarts += bool(self._run_len)
-            self._run_len = 0
+        self.take_block(PairBlock.of([pair], [ext], []))
+
+    def take_block(self, block: PairBlock) -> None:
+        """Successive paired frames (``evaluation.decoded``), held a chunk at a time."""
+        n = len(block)
+        self.out.pairs += n
+        self.out.degraded_pairs += int(np.count_nonzero(block.degraded))
+        start = 0
+        while start < n:
+            end = min(n, start + self._cap - self._held)
+            self._hold(block, start, end)
+            start = end
+            if self._held == self._cap:
+                self._step_held()
+                keep = self.history()  # the next chunk's warm-up
+                # In flight, the old buffer is the step loops' until they end: a new one.
+                buf = self._buf
+                new = self._new_buffer() if self._in_flight else buf
+                for a, b in zip(_arrays(new), _arrays(buf), strict=True):
+                    a[:keep] = b[self._held - keep : self._held]
+                self._buf = new
+                self._held = self._carried = keep
+
+    def _hold(self, block: PairBlock, start: int, end: int) -> None:
+        """Rows ``start:end`` of the block into the buffer, each with its place in the
+        window's run (a restart starts the run over, as ``Window`` does)."""
+        restart = block.restart[start:end]
+        at = np.arange(end - start)
+        last_restart = np.maximum.accumulate(np.where(restart, at, -1))
+        run_pos = np.where(last_restart >= 0, at - last_restart, self._run_len + at)
+        before = np.concatenate(([self._run_len], run_pos[:-1] + 1))  # the run a restart ends
+        self.restarts += int(np.count_nonzero(restart & (before > 0)))
+        self._run_len = int(run_pos[-1]) + 1
         i, buf = self._held, self._buf
-        buf.counts[i] = pair.counts
-        buf.run_pos[i] = self._run_len
-        buf.ext[i] = ext if ext is not None else 0
-        buf.has_ext[i] = ext is not None
-        self._run_len += 1
-        self._held += 1
-        if self._held == self._cap:
-            self._step_held()
-            keep = self.history()  # the next chunk's warm-up
-            # In flight, the old buffer is the step loops' until they end: a new one.
-            new = self._new_buffer() if self._in_flight else buf
-            for a, b in zip(_arrays(new), _arrays(buf), strict=True):
-                a[:keep] = b[self._held - keep : self._held]
-            self._buf = new
-            self._held = self._carried = keep
+        rows = slice(i, i + end - start)
+        buf.counts[rows] = block.counts[start:end]
+        buf.run_pos[rows] = run_pos
+        buf.ext[rows] = block.ext[start:end]
+        buf.has_ext[rows] = block.has_ext[start:end]
+        self._held += end - start
 
     def finish(self) -> None:
         """Replay what is held (the session's end) and wait for every step loop."""
-        self._step_held()
-        self._collect()
+        self._step_held(last=True)
+        self._collect(0)
         self._held = self._carried = 0
 
-    def _step_held(self) -> None:
-        """Cut the held frames into segments and step them (in groups, on the pool)."""
+    def _step_held(self, *, last: bool = False) -> None:
+        """Cut the held frames into segments and step them: on the pool with jobs > 1,
+        in ``jobs`` groups (``streamed`` and not ``last``: one)."""
         first, end = self._carried, self._held
         if end <= first:
             return
         t = self.runtime.window
         # The input checks of every held frame's window, here: this thread decodes faster
-        # than the step loops run, and waits for them below while they step the chunk before.
+        # than the step loops run, and waits for them below while they step the chunks before.
         flags = window_flags(_stats(self._buf.counts[:end]), t)
-        self._collect()  # the chunk before: one in flight at most
+        groups_of = 1 if self.streamed and not last else self.jobs
+        self._collect(self.jobs - groups_of)  # room for these groups: jobs in flight at most
         shortest = MIN_SEGMENT_FRAMES if self.min_segment is None else self.min_segment
-        lanes = max(1, min(self.batch * self.jobs, (end - first) // max(shortest, 1)))
+        lanes = max(1, min(self.batch * groups_of, (end - first) // max(shortest, 1)))
         bounds = [first + (end - first) * k // lanes for k in range(lanes + 1)]
         score_from = np.array(bounds[:-1], dtype=np.int64)
         # Warm up on the frames before the segment it reads, or from the restart after them.
         feed_from = score_from - np.minimum(self.history(), self._buf.run_pos[score_from])
         ends = np.array(bounds[1:], dtype=np.int64)
-        groups = np.array_split(np.arange(lanes), min(self.jobs, lanes))
-        for g in groups:
+        for g in np.array_split(np.arange(lanes), min(groups_of, lanes)):
             args = (self._buf, flags, score_from[g], feed_from[g], ends[g])
             if self.pool is None or self.jobs == 1:
                 done: Future[_Stepped] = Future()
@@ -218,18 +256,21 @@ class ChunkedSegments:
             else:
                 self._in_flight.append(self.pool.submit(self._step_lanes, *args))
         if self.pool is None or self.jobs == 1:
-            self._collect()
+            self._collect(0)
 
-    def _collect(self) -> None:
-        """The predictions of the chunk in flight, groups in lane (so time) order."""
+    def _collect(self, keep: int) -> None:
+        """The predictions of the groups in flight, oldest first (so in time order),
+        until at most ``keep`` are left stepping."""
         try:
-            for future in self._in_flight:
-                stepped = future.result()
+            while len(self._in_flight) > keep:
+                stepped = self._in_flight[0].result()
+                self._in_flight.pop(0)
                 self.made.extend(stepped.made)
                 self.out.step_batches.extend(stepped.step_batches)
                 self.out.model_cpu_s += stepped.model_cpu_s
-        finally:
-            self._in_flight = []
+        except BaseException:
+            self._in_flight = []  # a failed step loop: the replay is over
+            raise
 
     def _step_lanes(
         self,
