@@ -26,6 +26,7 @@ import json
 import logging
 import math
 import time
+from collections.abc import Sequence
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +49,7 @@ from scotti.export.prefetch import prefetched
 from scotti.export.stop_signals import StopRequest
 from scotti.export.throughput import measure_throughput, unfold_frames
 from scotti.export.train_options import TrainOptions
+from scotti.export.watch import Watched, watch_line, watch_scores
 from scotti.export.windows import WindowDataset
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
@@ -118,8 +120,10 @@ class Trainer:
         training_data: dict[str, Any] | None = None,
         device: torch.device | None = None,
         dist_ctx: DistContext | None = None,
+        watched: Sequence[Watched] = (),
     ) -> None:
         self.device = device or torch.device("cpu")
+        self.watched = list(watched)  # scored after every epoch (export/watch.py)
         self.dist = dist_ctx or DistContext()
         self.model = model.to(self.device)
         self.train_set = train_set
@@ -327,6 +331,9 @@ class Trainer:
             record["stale_epochs"] = where.stale_epochs
             if where.reached:
                 record["status"] = "plateau"
+        if self.watched and self.dist.is_main:  # a look only: no figure of it steers the run
+            model, stride = self.evaluated_model, self.opts.val_stride
+            record["watch"] = {w.name: watch_scores(model, w.windows, stride) for w in self.watched}
         if "status" not in record and st.epoch + 1 >= self.opts.epochs:
             record["status"] = "epochs done"  # the schedule's end, not a time budget
         self.last_metrics = record
@@ -348,6 +355,8 @@ class Trainer:
             windows_per_s,
             "".join(f", val {k} {v:.4g}" for k, v in (val or {}).items() if isinstance(v, float)),
         )
+        for name, scores in record.get("watch", {}).items():
+            log.info("%s", watch_line(name, scores))
         if record.get("status") == "plateau":
             log.info(
                 "plateau: validation loss no better by %g for %d epochs; best epoch %d (%.4g)",

@@ -173,6 +173,16 @@ def add_validation_arguments(parser: argparse.ArgumentParser) -> None:
         "the last part of each session)",
     )
     group.add_argument(
+        "--watch",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="SESSION",
+        help="session files or directories scored after every epoch and never trained on "
+        "(the shipped scenes, people unlike the corpus): accuracy, recall per action and APP "
+        "per file in the log and history.jsonl; they never pick best.pt",
+    )
+    group.add_argument(
         "--patience",
         type=int,
         default=d.patience,

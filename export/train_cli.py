@@ -41,6 +41,7 @@ from scotti.export.throughput import measure_precisions, measure_throughput
 from scotti.export.train import Trainer, TrainOptions, load_initial_weights
 from scotti.export.train_args import CONFIG_PRESETS, add_arguments
 from scotti.export.validation import predates_validation_split
+from scotti.export.watch import load_watched
 
 log = logging.getLogger("scotti.train")
 
@@ -232,6 +233,16 @@ def train(
     if ctx.distributed:
         # The same weights everywhere (DDP checks), but each rank its own dropout draws.
         torch.manual_seed(opts.seed + 7919 * (ctx.rank + 1))
+    watched = []
+    if args.watch and ctx.is_main:  # scored on rank 0 only, as validation is
+        cache = args.cache or args.output.parent / ".session-cache"
+        watched = load_watched(
+            args.watch,
+            cache,
+            window=model.cfg.window,
+            allow_invalid=args.allow_invalid,
+            training=data.sessions,
+        )
     trainer = Trainer(
         model,
         data.train,
@@ -241,6 +252,7 @@ def train(
         training_data=training_data,
         device=device,
         dist_ctx=ctx,
+        watched=watched,
     )
     if ckpt is not None:
         _warn_changed_options(ckpt.get("options", {}), opts.to_dict())

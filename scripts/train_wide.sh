@@ -37,6 +37,9 @@ RENDER_ONLY=${RENDER_ONLY:-0}      # 1: stop after rendering and decoding
 FORM=${FORM:-paper}                # scotti train --arch streaming for the streaming-native form
 HELD_OUT=${HELD_OUT:-0}            # 1: render the partition's held-out people too (not trained on)
 PARTITION=${PARTITION:-p1}        # experiments/partitions.json: whose people train, whose are held out
+WATCH=${WATCH:-1}                  # 1: score the shipped scenes (sim/scenes, rendered into DATA/scenes)
+                                   # after every epoch (scotti train --watch): a run that loses a
+                                   # scene shows it in its first epoch's log
 RUN=${RUN:-runs/v13-$PARTITION-wide}  # per partition, so that p2 never resumes p1's last.pt
 # The partition's training and held-out people (three-digit indices); like
 # experiments/partition_runs.py, its last two training people and 031/032 validate.
@@ -77,7 +80,7 @@ jobs=()
 if [[ ${SMOKE:-0} == 1 ]]; then
   DATA=$DATA-smoke CACHE=$CACHE-smoke RUN=$RUN-smoke EPOCHS=1
   MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-0.2}
-  P_TRAIN=(011 012) VALIDATION=(subject-011 subject-012) MORE=1
+  P_TRAIN=(011 012) VALIDATION=(subject-011 subject-012) MORE=1 WATCH=0
 fi
 export DATA
 mkdir -p "$DATA"/{realistic,extra,more}
@@ -112,6 +115,19 @@ with ProcessPoolExecutor(jobs) as pool:
     list(pool.map(load_session, files, [cache] * len(files)))
 EOF
 
+watch=()
+if [[ $WATCH == 1 ]]; then
+  mkdir -p "$DATA/scenes"
+  for scene in sim/scenes/*.toml; do
+    out=$DATA/scenes/$(basename "$scene" .toml).scotti
+    # Through a part file outside the watched folder: a render killed half way is not
+    # taken for a scene (--watch finds session files by their magic, not their name).
+    part=$DATA/.scene-render.part
+    [[ -f $out ]] || { "$SCOTTI" sim "$scene" -o "$part" --force >/dev/null && mv "$part" "$out"; }
+  done
+  watch=(--watch "$DATA/scenes")
+fi
+
 if [[ $RENDER_ONLY == 1 ]]; then
   echo "train_wide: rendered and decoded (RENDER_ONLY=1: no training)"
   exit 0
@@ -133,7 +149,7 @@ echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE L
   --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
   --max-crosstalk 0.03 --ema 0.999 "${transfer[@]}" "${form[@]}" \
   --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" \
-  --cache "$CACHE" --no-progress "${resume[@]}"
+  --cache "$CACHE" --no-progress "${watch[@]}" "${resume[@]}"
 
 if [[ $TRAIN_ONLY == 1 ]]; then
   echo "train_wide: trained $RUN (TRAIN_ONLY=1: no export)"
