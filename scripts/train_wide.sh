@@ -26,6 +26,7 @@ DEVICE=${DEVICE:-auto}
 EPOCHS=${EPOCHS:-6}
 LR=${LR:-1e-3}
 INIT=${INIT:-}                     # start from these weights (scotti train --init)
+SEED=${SEED:-0}                    # scotti train --seed: initial weights, batches, augmentation
 STRIDE=${STRIDE:-16}
 MINUTES=${MINUTES:-0}              # training's --max-minutes (0: none)
 TRANSFER=${TRANSFER:-0.5}          # share of windows seen through a drawn foreign sensor
@@ -143,12 +144,12 @@ init=(--config small)  # --init takes the size from its weights
 echo "train_wide: training $RUN on $DEVICE"
 mkdir -p "$RUN"
 # The card quotes this (experiments/card_training.py): how the weights were made.
-echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER SEED=$SEED RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
 "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
   --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
   --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
   --max-crosstalk 0.03 --ema 0.999 "${transfer[@]}" "${form[@]}" \
-  --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" \
+  --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" --seed "$SEED" \
   --cache "$CACHE" --no-progress "${watch[@]}" "${resume[@]}"
 
 if [[ $TRAIN_ONLY == 1 ]]; then
