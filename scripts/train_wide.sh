@@ -27,6 +27,9 @@ EPOCHS=${EPOCHS:-6}
 LR=${LR:-1e-3}
 INIT=${INIT:-}                     # start from these weights (scotti train --init)
 SEED=${SEED:-0}                    # scotti train --seed: initial weights, batches, augmentation
+CLEAN=${CLEAN:-0}                  # 1: also train on clean copies (no effects) of the partition's
+                                   # and the extra people, into DATA/clean: a model that only met
+                                   # noisy transport can read clean squats as standing
 STRIDE=${STRIDE:-16}
 MINUTES=${MINUTES:-0}              # training's --max-minutes (0: none)
 TRANSFER=${TRANSFER:-0.5}          # share of windows seen through a drawn foreign sensor
@@ -99,6 +102,13 @@ fi
 for i in $(seq 33 $((33 + MORE - 1))); do
   jobs+=("more $i ${MINUTES_PER_ACTION:-2} --effects mixed --insoles wide")
 done
+if [[ $CLEAN == 1 ]]; then  # the same people, insoles and motions, without the effects
+  mkdir -p "$DATA/clean"
+  for i in "${P_TRAIN[@]}"; do jobs+=("clean $((10#$i)) ${MINUTES_PER_ACTION:-4} --effects none"); done
+  if [[ ${SMOKE:-0} != 1 ]]; then
+    for i in $(seq 15 32); do jobs+=("clean $i ${MINUTES_PER_ACTION:-2} --effects none"); done
+  fi
+fi
 echo "train_wide: rendering ${#jobs[@]} people on $JOBS processes into $DATA"
 printf '%s\n' "${jobs[@]}" | xargs -P "$JOBS" -L 1 bash -c 'render "$@"' _
 
@@ -106,6 +116,7 @@ shopt -s nullglob
 files=()
 for i in "${P_TRAIN[@]}"; do files+=("$DATA/realistic/subject-$i.ses"); done
 files+=("$DATA"/extra/subject-*.ses "$DATA"/more/subject-*.ses)
+[[ $CLEAN == 1 ]] && files+=("$DATA"/clean/subject-*.ses)
 echo "train_wide: decoding ${#files[@]} sessions into $CACHE"
 python - "$CACHE" "$JOBS" "${files[@]}" <<'EOF'
 import sys
@@ -144,7 +155,7 @@ init=(--config small)  # --init takes the size from its weights
 echo "train_wide: training $RUN on $DEVICE"
 mkdir -p "$RUN"
 # The card quotes this (experiments/card_training.py): how the weights were made.
-echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER SEED=$SEED RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER SEED=$SEED CLEAN=$CLEAN RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
 "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
   --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
   --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
