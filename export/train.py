@@ -22,7 +22,6 @@ that much training.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -38,6 +37,7 @@ from scotti.export.checkpoint import save_checkpoint
 from scotti.export.devices import autocast, batch_to_device, pin_batch
 from scotti.export.distributed import DistContext
 from scotti.export.early_stop import plateau
+from scotti.export.epoch_log import log_epoch, write_history
 from scotti.export.epochs import PlannedChunk, batch_tensors, plan_epoch, warmup_cosine
 from scotti.export.errors import ExportError
 from scotti.export.evaluate import chunked_outputs, evaluate
@@ -49,7 +49,7 @@ from scotti.export.prefetch import prefetched
 from scotti.export.stop_signals import StopRequest
 from scotti.export.throughput import measure_throughput, unfold_frames
 from scotti.export.train_options import TrainOptions
-from scotti.export.watch import Watched, watch_line, watch_scores
+from scotti.export.watch import Watched, watch_record
 from scotti.export.windows import WindowDataset
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from tqdm import tqdm
@@ -332,8 +332,7 @@ class Trainer:
             if where.reached:
                 record["status"] = "plateau"
         if self.watched and self.dist.is_main:  # a look only: no figure of it steers the run
-            model, stride = self.evaluated_model, self.opts.val_stride
-            record["watch"] = {w.name: watch_scores(model, w.windows, stride) for w in self.watched}
+            record["watch"] = watch_record(self.evaluated_model, self.watched, self.opts.val_stride)
         if "status" not in record and st.epoch + 1 >= self.opts.epochs:
             record["status"] = "epochs done"  # the schedule's end, not a time budget
         self.last_metrics = record
@@ -348,26 +347,9 @@ class Trainer:
         self.save("last.pt", *(["best.pt"] if better else []))
         if not self.dist.is_main:
             return
-        log.info(
-            "epoch %d: loss %.4f, %.1f windows/s%s",
-            record["epoch"],
-            record["train_loss"],
-            windows_per_s,
-            "".join(f", val {k} {v:.4g}" for k, v in (val or {}).items() if isinstance(v, float)),
-        )
-        for name, scores in record.get("watch", {}).items():
-            log.info("%s", watch_line(name, scores))
-        if record.get("status") == "plateau":
-            log.info(
-                "plateau: validation loss no better by %g for %d epochs; best epoch %d (%.4g)",
-                self.opts.min_delta,
-                record["stale_epochs"],
-                record["best_epoch"],
-                st.best_loss,
-            )
+        log_epoch(record, st.best_loss, self.opts.min_delta)
         if self.run_dir is not None:
-            with (self.run_dir / "history.jsonl").open("w") as f:
-                f.writelines(json.dumps(r) + "\n" for r in st.history)
+            write_history(self.run_dir, st.history)
 
     # --- checkpoints -------------------------------------------------------------
 

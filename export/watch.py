@@ -108,6 +108,13 @@ def watch_scores(model: Scotti, windows: WindowDataset, stride: int) -> dict[str
     }
 
 
+def watch_record(
+    model: Scotti, watched: Sequence[Watched], stride: int
+) -> dict[str, dict[str, Any]]:
+    """An epoch's ``watch`` record: each watched file's scores, by name."""
+    return {w.name: watch_scores(model, w.windows, stride) for w in watched}
+
+
 def watch_line(name: str, scores: dict[str, Any]) -> str:
     """One log line: ``watch squat: accuracy 20.3 %, APP 0.810; recall squat 17 %, ...``."""
     if not scores.get("windows"):
