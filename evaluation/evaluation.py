@@ -38,7 +38,8 @@ from scotti.models.runtime import ScottiRuntime
 SESSIONS_IN_FLIGHT = 2
 DECODE_CHOICES = ("auto", "here", "process")
 # Session bytes from which ``--decode auto`` decodes in a process: about 18,000 pairs,
-# whose decoding (~80 us a pair) outweighs the worker's start (~0.3 s) several times.
+# whose decoding (89-107 us a pair, the report's rate.decode_cpu_seconds) outweighs the
+# worker's start and the pipeline's filling (its first 8,192 pairs) several times.
 AUTO_DECODE_BYTES = 64 << 20
 
 __all__ = [
