@@ -11,6 +11,7 @@
 #   PARTITION=p2 RUN=runs/x-p2 scripts/train_wide.sh  # another partition's people (default p1)
 #   HELD_OUT=1 scripts/train_wide.sh           # also render the partition's held-out people into DATA/realistic
 #                                              # (for wide_rule.py --held-out after a simulator change)
+#   SLOW=24 scripts/train_wide.sh              # also 24 people at wide walking paces (slow walkers)
 #   INIT=models/scotti-default.onnx EPOCHS=1 LR=3e-4 scripts/train_wide.sh
 #                                              # fine-tune a model (e.g. after a labelling change)
 #
@@ -35,6 +36,8 @@ MINUTES=${MINUTES:-0}              # training's --max-minutes (0: none)
 TRANSFER=${TRANSFER:-0.5}          # share of windows seen through a drawn foreign sensor
 WORKERS=${WORKERS:-$((JOBS > 2 ? JOBS - 2 : 0))}
 MORE=${MORE:-48}                   # people rendered through wide insoles (subject-033 on)
+SLOW=${SLOW:-0}                    # people after them (subject-081 on) also drawn at wide walking
+                                   # paces (0.5-1.65 m/s: older and slow walkers), into DATA/slow
 MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-}
 TRAIN_ONLY=${TRAIN_ONLY:-0}        # 1: stop after training (export and calibrate elsewhere)
 RENDER_ONLY=${RENDER_ONLY:-0}      # 1: stop after rendering and decoding
@@ -102,6 +105,12 @@ fi
 for i in $(seq 33 $((33 + MORE - 1))); do
   jobs+=("more $i ${MINUTES_PER_ACTION:-2} --effects mixed --insoles wide")
 done
+if [[ $SLOW != 0 ]]; then
+  mkdir -p "$DATA/slow"
+  for i in $(seq $((33 + MORE)) $((33 + MORE + SLOW - 1))); do
+    jobs+=("slow $i ${MINUTES_PER_ACTION:-2} --effects mixed --insoles wide --paces wide")
+  done
+fi
 if [[ $CLEAN == 1 ]]; then  # the same people, insoles and motions, without the effects
   mkdir -p "$DATA/clean"
   for i in "${P_TRAIN[@]}"; do jobs+=("clean $((10#$i)) ${MINUTES_PER_ACTION:-4} --effects none"); done
@@ -117,6 +126,7 @@ files=()
 for i in "${P_TRAIN[@]}"; do files+=("$DATA/realistic/subject-$i.ses"); done
 files+=("$DATA"/extra/subject-*.ses "$DATA"/more/subject-*.ses)
 [[ $CLEAN == 1 ]] && files+=("$DATA"/clean/subject-*.ses)
+[[ $SLOW != 0 ]] && files+=("$DATA"/slow/subject-*.ses)
 echo "train_wide: decoding ${#files[@]} sessions into $CACHE"
 python - "$CACHE" "$JOBS" "${files[@]}" <<'EOF'
 import sys
@@ -155,7 +165,7 @@ init=(--config small)  # --init takes the size from its weights
 echo "train_wide: training $RUN on $DEVICE"
 mkdir -p "$RUN"
 # The card quotes this (experiments/card_training.py): how the weights were made.
-echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER SEED=$SEED CLEAN=$CLEAN RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
 "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
   --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
   --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \

@@ -96,6 +96,13 @@ def _corpus_parser() -> argparse.ArgumentParser:
         help="each subject's insole drawn near the nominal curve, or over the wide range of "
         "insoles users bring (sim/insole.py draw_insole)",
     )
+    p.add_argument(
+        "--paces",
+        choices=("typical", "wide"),
+        default="typical",
+        help="walking speeds of the typical adult population (1.05-1.65 m/s), or drawn "
+        "uniformly over 0.5-1.65 m/s so that slow walkers are met too (sim/traits.py)",
+    )
     return p
 
 
@@ -203,6 +210,7 @@ def _corpus(a: argparse.Namespace) -> int:
         minutes_per_action=a.minutes_per_action,
         effects=a.effects,
         insoles=a.insoles,
+        paces=a.paces,
         progress=lambda line: print(line, flush=True),  # a line per subject, as it is done
     )
     total = manifest["total_duration_s"]

@@ -9,9 +9,12 @@ or a fresh draw of the ``realistic`` preset. The effects never touch the
 motion's draws, so the clean and the realistic corpus of one seed hold the
 same motions. ``manifest.json`` lists subjects, seeds, durations and files.
 The insole's parameters are drawn per subject (``insole.draw_insole``), the
-same in both copies. The feet's shape and placement come from the subject's style seed and the
-session's seed (``foot.draw_feet``). The same arguments give the same files,
-byte for byte.
+same in both copies. ``paces="wide"`` gives each person a walking speed drawn
+uniformly over everything a scene accepts (0.5-1.65 m/s, ``sim.traits``), so
+that about half of them walk as slowly as older people do, where the typical
+population walks at 1.05-1.65 m/s. The feet's shape and placement come from
+the subject's style seed and the session's seed (``foot.draw_feet``). The
+same arguments give the same files, byte for byte.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from scotti.sim.motion import Subject
 from scotti.sim.scene import PHYSICS_OVERSAMPLE, Scene, SubjectModel, build_motion
 from scotti.sim.session import SessionModel
 from scotti.sim.subjects import draw_subjects
+from scotti.sim.traits import TRAIT_RANGES
 from scotti.sim.writer import RenderReport, sim_input, write_session
 
 EffectsPreset = Literal["realistic", "none", "mixed"]
@@ -40,6 +44,7 @@ MIXED_CLEAN_SHARE: Final = 1 / 3  # of subjects without effects in a "mixed" cor
 SET_S: Final = (30.0, 75.0)  # length of one set
 REST_S: Final = (5.0, 20.0)  # standing between sets
 MANIFEST: Final = "manifest.json"
+PaceSpread = Literal["typical", "wide"]
 
 
 def subject_scene(
@@ -50,6 +55,7 @@ def subject_scene(
     minutes_per_action: float,
     effects: EffectsPreset,
     insoles: InsoleSpread = "typical",
+    paces: PaceSpread = "typical",
 ) -> Scene:
     """The scene of one corpus subject (a lab session of all actions, derived seed, effects).
 
@@ -69,6 +75,11 @@ def subject_scene(
     # the clean copy differs from the realistic one by the effects alone.
     drawn = draw_insole(np.random.default_rng([corpus_seed, index, 0x15]), insoles)
     insole = InsoleSpec.model_validate(drawn.as_dict())
+    person = SubjectModel.of(subject)
+    if paces == "wide":  # a generator of its own: the other draws stay as they were
+        speed = TRAIT_RANGES["walking_speed_mps"]
+        pace = np.random.default_rng([corpus_seed, index, 0x9ACE]).uniform(speed.low, speed.high)
+        person = person.model_copy(update={"walking_speed_mps": float(pace)})
     return Scene(
         name=f"subject-{index:03d}",
         description=(
@@ -76,7 +87,7 @@ def subject_scene(
             f"{minutes_per_action} min in sets, standing and transitions between"
         ),
         seed=seed,
-        subject=SubjectModel.of(subject),
+        subject=person,
         session=SessionModel(
             actions=list(EXERCISES),
             minutes_per_action=minutes_per_action,
@@ -132,6 +143,7 @@ def write_corpus(
     effects: EffectsPreset,
     first: int = 0,
     insoles: InsoleSpread = "typical",
+    paces: PaceSpread = "typical",
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Render every subject's session into ``out_dir`` and write the manifest.
@@ -153,6 +165,7 @@ def write_corpus(
             minutes_per_action=minutes_per_action,
             effects=effects,
             insoles=insoles,
+            paces=paces,
         )
         name = f"{scene.name}.ses"
         started = time.perf_counter()
@@ -163,7 +176,7 @@ def write_corpus(
                 "id": scene.name,
                 "file": name,
                 "seed": scene.seed,
-                "subject": subject.as_dict(),
+                "subject": scene.subject.subject().as_dict(),  # with a given pace
                 "actions": list(ACTIONS),
                 "duration_s": report.duration_s,
                 "frames": report.frames,
@@ -186,6 +199,7 @@ def write_corpus(
         "minutes_per_action": minutes_per_action,
         "effects": effects,
         "insoles": insoles,
+        "paces": paces,
         "total_duration_s": sum(e["duration_s"] for e in entries),
         "sessions": entries,
     }

@@ -22,7 +22,7 @@ from typing import Final
 import numpy as np
 from scotti.sim.motion import Subject
 from scotti.sim.skeleton import FOOT_LENGTH
-from scotti.sim.traits import STRIKE_SHARES, STRIKES, TRAIT_RANGES, TraitRange
+from scotti.sim.traits import POPULATION_RANGES, STRIKE_SHARES, STRIKES, TraitRange
 
 HEIGHT_RANGE_M: Final = (1.50, 1.95)
 BMI_RANGE: Final = (18.0, 35.0)
@@ -106,7 +106,7 @@ def trait_spread(count: int = SPREAD_SUBJECTS, seed: int = SPREAD_SEED) -> Popul
             [s.foot_length / s.height_m for s in subjects],
         ),
     }
-    for name, drawn_in in TRAIT_RANGES.items():
+    for name, drawn_in in POPULATION_RANGES.items():
         columns[name] = (drawn_in, [float(getattr(s.traits, name)) for s in subjects])
     spreads = []
     for name, (drawn_in, raw) in columns.items():

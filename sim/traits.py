@@ -18,6 +18,14 @@ Walking (comfortable speed, healthy adults):
   (Grieve and Gear; Bohannon), kept within 95-135 (our limits, rarely
   reached); speed is recomputed when the clip bites.
   So at one speed taller people step longer and slower.
+- slower walkers: older people and people with Parkinson's disease walk at
+  0.6-1.2 m/s (Studenski et al. 2011, JAMA 305:50, gait speed in older
+  adults; Hausdorff's gaitpdb walkers in ../shared/realdata step 79-113
+  times a minute). The population above never draws them; a given walking
+  speed (a scene's, or a corpus drawn with ``--paces wide``) may go down to
+  0.5 m/s, its step length then scaled down to 0.28 x height and its cadence
+  down to 55 steps/min (the ranges of ``TRAIT_RANGES``; the population
+  keeps the ``TYPICAL_*`` limits).
 - step width (lateral distance between the feet's centres while walking)
   8-13 cm: Owings and Grabiner 2004 (J Biomech 37:935) and Helbostad and
   Moe-Nilssen 2003 (Gait Posture 17:27), about 0.10 +- 0.03 m; drawn
@@ -75,7 +83,11 @@ STRIKES: Final = ("heel", "midfoot", "forefoot")
 STRIKE_SHARES: Final = (0.88, 0.09, 0.03)
 # Foot pitch at touch-down by pattern (degrees, > 0 toes up): mean, SD.
 STRIKE_PITCH_DEG: Final = {"heel": (20.0, 4.0), "midfoot": (0.0, 1.0), "forefoot": (-8.0, 3.0)}
-CADENCE_RANGE_SPM: Final = (95.0, 135.0)  # hard limits; 100-125 is typical
+Limits = tuple[float, float]
+CADENCE_RANGE_SPM: Final = (55.0, 135.0)  # what a scene or a slow walker may have
+TYPICAL_CADENCE_SPM: Final = (95.0, 135.0)  # the drawn population's limits; 100-125 is typical
+TYPICAL_SPEED_MPS: Final = (1.05, 1.65)  # the drawn population's walking speeds
+TYPICAL_STEP_RATIO: Final = (0.37, 0.47)  # the drawn population's step lengths (x height)
 COMFORTABLE_SPEED_MPS: Final = 1.36  # the population's mean (Bohannon 1997)
 FATIGUE_CAP: Final = (0.30, 0.20)  # largest slow-down and shallowing of a set
 
@@ -93,8 +105,8 @@ class TraitRange:
 # The numeric traits, in the order they are drawn. Ranges are what the draw is
 # clipped to (or uniform over); ``source`` names the literature (see above).
 TRAIT_RANGES: Final[dict[str, TraitRange]] = {
-    "walking_speed_mps": TraitRange("m/s", 1.05, 1.65, "Bohannon 1997: 1.27-1.46 m/s"),
-    "step_length_ratio": TraitRange("x height", 0.37, 0.47, "Grieve & Gear 1966: 0.41-0.45"),
+    "walking_speed_mps": TraitRange("m/s", 0.5, 1.65, "Bohannon 1997: 1.27-1.46; Studenski 2011"),
+    "step_length_ratio": TraitRange("x height", 0.28, 0.47, "Grieve & Gear 1966: 0.41-0.45"),
     "step_width_m": TraitRange("m", 0.05, 0.16, "Owings & Grabiner 2004: 0.08-0.13 m"),
     "stance_width_m": TraitRange("m", 0.10, 0.26, "McIlroy & Maki 1997: 0.17 m"),
     "toe_out_deg": TraitRange("deg", -3.0, 20.0, "Seber 1981, Staheli 1985: 5-10 deg, SD 5"),
@@ -113,6 +125,17 @@ TRAIT_RANGES: Final[dict[str, TraitRange]] = {
     "fatigue_slowdown_per_min": TraitRange("/min", 0.02, 0.08, "Sanchez-Medina 2011"),
     "fatigue_shallowing_per_min": TraitRange("/min", 0.01, 0.05, "our choice"),
     "cadence_spm": TraitRange("steps/min", *CADENCE_RANGE_SPM, "Grieve & Gear: 100-125"),
+}
+
+
+# The ranges the drawn population keeps (sim/subjects.py trait_spread reports
+# against these): TRAIT_RANGES but for the walking traits' typical limits.
+POPULATION_RANGES: Final[dict[str, TraitRange]] = TRAIT_RANGES | {
+    "walking_speed_mps": TraitRange("m/s", *TYPICAL_SPEED_MPS, "Bohannon 1997: 1.27-1.46 m/s"),
+    "step_length_ratio": TraitRange(
+        "x height", *TYPICAL_STEP_RATIO, "Grieve & Gear 1966: 0.41-0.45"
+    ),
+    "cadence_spm": TraitRange("steps/min", *TYPICAL_CADENCE_SPM, "Grieve & Gear: 100-125"),
 }
 
 
@@ -171,9 +194,9 @@ def draw_traits(style_seed: int, height_m: float, given: Mapping[str, float | st
         raise ValueError(msg)
     rng = np.random.default_rng(style_seed)
 
-    def normal(name: str, mean: float, sd: float) -> float:
+    def normal(name: str, mean: float, sd: float, limits: Limits | None = None) -> float:
         r = TRAIT_RANGES[name]
-        return float(np.clip(rng.normal(mean, sd), r.low, r.high))
+        return float(np.clip(rng.normal(mean, sd), *(limits or (r.low, r.high))))
 
     def uniform(name: str) -> float:
         r = TRAIT_RANGES[name]
@@ -181,8 +204,10 @@ def draw_traits(style_seed: int, height_m: float, given: Mapping[str, float | st
 
     # Every draw happens, in this order, whatever is given.
     drawn: dict[str, float | str] = {
-        "walking_speed_mps": normal("walking_speed_mps", COMFORTABLE_SPEED_MPS, 0.10),
-        "step_length_ratio": normal("step_length_ratio", 0.415, 0.015),
+        "walking_speed_mps": normal(
+            "walking_speed_mps", COMFORTABLE_SPEED_MPS, 0.10, TYPICAL_SPEED_MPS
+        ),
+        "step_length_ratio": normal("step_length_ratio", 0.415, 0.015, TYPICAL_STEP_RATIO),
         "step_width_m": normal("step_width_m", 0.10, 0.025),
         "stance_width_m": normal("stance_width_m", 0.17, 0.03),
         "toe_out_deg": normal("toe_out_deg", 7.0, 5.0),
@@ -217,17 +242,22 @@ def draw_traits(style_seed: int, height_m: float, given: Mapping[str, float | st
     # Faster walkers take longer steps as well as more of them: the step
     # length scales with the square root of the speed (about the usual
     # split of a speed change between the two), cadence = speed / step.
+    # A drawn speed keeps the typical population's limits (so that corpora
+    # drawn before slow walkers existed remake byte for byte); a given one
+    # may be a slow walker's.
+    slow = "walking_speed_mps" in given
     if "step_length_ratio" not in given:
         speed_share = float(values["walking_speed_mps"]) / COMFORTABLE_SPEED_MPS
         ratio = TRAIT_RANGES["step_length_ratio"]
         scaled = float(values["step_length_ratio"]) * speed_share**0.5
-        values["step_length_ratio"] = float(np.clip(scaled, ratio.low, ratio.high))
+        limits = (ratio.low, ratio.high) if slow else TYPICAL_STEP_RATIO
+        values["step_length_ratio"] = float(np.clip(scaled, *limits))
     step_m = float(values["step_length_ratio"]) * height_m
     if "cadence_spm" in given:
         cadence = float(given["cadence_spm"])
     else:
-        cadence = float(np.clip(60.0 * float(values["walking_speed_mps"]) / step_m,
-                                *CADENCE_RANGE_SPM))  # fmt: skip
+        limits = CADENCE_RANGE_SPM if slow else TYPICAL_CADENCE_SPM
+        cadence = float(np.clip(60.0 * float(values["walking_speed_mps"]) / step_m, *limits))
     values["cadence_spm"] = cadence
     values["walking_speed_mps"] = cadence * step_m / 60.0  # a given cadence wins
     return Traits(**values)  # type: ignore[arg-type]

@@ -9,6 +9,7 @@ import pytest
 from scotti.models.contract import ACTIONS, BONE_INDEX, KP, NO_ACTION, STANDING
 from scotti.sim.actions import RECIPES, ActionSpec, Context, Place
 from scotti.sim.actions.base import finalize, neutral
+from scotti.sim.actions.gait import STANCE, stance_share
 from scotti.sim.actions.strength import SQUAT_DROP
 from scotti.sim.motion import Motion, Subject, labels
 from scotti.sim.scene import Scene, build_motion, motion_from_segments
@@ -95,6 +96,30 @@ def test_walking_cadence_and_stance_fraction() -> None:
     assert 100.0 * 0.9 < cadence < 120.0 * 1.1
     assert cadence == pytest.approx(subject.cadence_spm, rel=0.1)
     assert np.mean(stance_shares) == pytest.approx(0.6, abs=0.05)
+
+
+def test_a_slow_walker_stands_longer_in_each_cycle() -> None:
+    def stance(walking_speed_mps: float) -> tuple[float, float]:
+        given = {"walking_speed_mps": walking_speed_mps}
+        subject = Subject(HEIGHT, 70.0, style_seed=7, traits_given=given)
+        body = Body.from_height(HEIGHT, subject.foot_length)
+        ctx = Context(body, subject, 16.0, np.random.default_rng(0))
+        spec = ActionSpec("walking", reps=16)
+        segment = RECIPES["walking"](ctx, spec, Place(0.0, 0.0, 0.0))
+        m = motion_from_segments(body, subject, 16.0, [segment])
+        shares = []
+        for side in ("left", "right"):
+            contact = _contact(m, side)
+            onsets = np.flatnonzero(contact[1:] & ~contact[:-1]) + 1
+            shares += [contact[a:b].mean() for a, b in itertools.pairwise(onsets[1:-1])]
+        return subject.cadence_spm, float(np.mean(shares))
+
+    typical_cadence, typical_share = stance(1.36)
+    slow_cadence, slow_share = stance(0.55)
+    assert slow_cadence < 75.0 < 95.0 < typical_cadence
+    assert typical_share == pytest.approx(STANCE, abs=0.05)
+    assert slow_share > typical_share + 0.04  # double support grows as walkers slow down
+    assert stance_share(slow_cadence) > stance_share(typical_cadence) == STANCE
 
 
 def test_faster_tempo_walks_with_a_higher_cadence() -> None:

@@ -9,6 +9,8 @@ import pytest
 from scotti.cli.main import main
 from scotti.firmware_protocol.session import read_session
 from scotti.models.contract import ACTIONS
+from scotti.sim.corpus import subject_scene
+from scotti.sim.subjects import draw_subjects
 
 SCENE = """
 description = "two squats with sensor noise"
@@ -187,3 +189,25 @@ def test_each_help_says_the_rule(capsys: pytest.CaptureFixture[str]) -> None:
         out = " ".join(capsys.readouterr().out.split())
         assert "unless --force" in out, argv
         assert "--force" in out
+
+
+def test_corpus_with_wide_paces_records_each_persons_walking_speed(tmp_path: Path) -> None:
+    out = tmp_path / "slow"
+    argv = ["sim", "corpus", "-o", str(out), "--subjects", "3", "--minutes-per-action", "0.02"]
+    assert main([*argv, "--seed", "3", "--paces", "wide", "--effects", "none"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["paces"] == "wide"
+    speeds = [s["subject"]["walking_speed_mps"] for s in manifest["sessions"]]
+    header = read_session(out / "subject-002.ses").header
+    assert header.subject["walking_speed_mps"] == pytest.approx(speeds[2])  # type: ignore[index]
+    assert header.scene["subject"]["walking_speed_mps"] is not None  # type: ignore[index]
+    # Each person's own drawn pace, where the typical corpus leaves the speed to the style seed.
+    people = draw_subjects(3, seed=3)
+    given = [
+        subject_scene(
+            i, p, corpus_seed=3, minutes_per_action=0.02, effects="none", paces="wide"
+        ).subject.walking_speed_mps
+        for i, p in enumerate(people)
+    ]
+    assert speeds == pytest.approx(given)
+    assert speeds != pytest.approx([p.traits.walking_speed_mps for p in people])

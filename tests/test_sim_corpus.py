@@ -51,3 +51,27 @@ def test_a_mixed_corpus_has_clean_and_noisy_people_with_wide_insoles() -> None:
     assert scenes[k].effects == realistic.effects
     thresholds = [s.insole.resolved().threshold_kpa for s in scenes]
     assert max(thresholds) > 35  # beyond the typical draw's range
+
+
+def test_wide_paces_draw_slow_walkers_and_leave_everything_else_as_it_was() -> None:
+    people = draw_subjects(16, seed=9)
+    typical = [
+        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects="none")
+        for i, s in enumerate(people)
+    ]
+    wide = [
+        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects="none", paces="wide")
+        for i, s in enumerate(people)
+    ]
+    for t, w in zip(typical, wide, strict=True):
+        assert t.subject.walking_speed_mps is None  # the typical draw, as before
+        assert w.seed == t.seed
+        assert w.insole == t.insole
+        assert w.subject.model_copy(update={"walking_speed_mps": None}) == t.subject
+    speeds = np.array([w.subject.walking_speed_mps for w in wide], dtype=float)
+    cadences = np.array([w.subject.subject().cadence_spm for w in wide])
+    assert speeds.min() < 0.8
+    assert speeds.max() > 1.2
+    assert cadences.min() < 90.0  # slower than anyone the typical population draws
+    drawn = np.array([t.subject.subject().cadence_spm for t in typical])
+    assert drawn.min() >= 95.0

@@ -42,11 +42,26 @@ from scotti.sim.actions.pendulum import pendulum_height, steer_com_to_pendulum
 from scotti.sim.skeleton import LEFT, RIGHT, Array, PoseParams, axes
 
 STANCE = 0.6  # share of the gait cycle a foot stands (Winter; Perry)
+# Slow walkers stand longer in each cycle: about 0.6 at comfortable speed,
+# two thirds near 0.6 m/s (double support 20 % -> 33 %; Kirtley et al. 1985,
+# Winter 1991, gaitpdb's slowest walker here: 32 % at 79 steps/min). Our
+# stance share rises linearly below SLOW_CADENCE to STANCE_SLOWEST at
+# SLOWEST_CADENCE; at or above SLOW_CADENCE (every walker the typical
+# population draws) it is STANCE.
+SLOW_CADENCE = 95.0
+SLOWEST_CADENCE = 55.0
+STANCE_SLOWEST = 0.68
 SETTLE_S = 0.5  # after the closing step, before the segment ends
 START_S = 0.3  # weight shift before the first swing
 LEAD_AT_STRIKE = [0.1, 0.2]
 # Gait initiation: the first step from standing is shorter than the steady ones.
 FIRST_STEP = 0.75
+
+
+def stance_share(cadence_spm: float) -> float:
+    """Share of the gait cycle a foot stands at this cadence (steps per minute)."""
+    slow = (SLOW_CADENCE - cadence_spm) / (SLOW_CADENCE - SLOWEST_CADENCE)
+    return STANCE + (STANCE_SLOWEST - STANCE) * float(np.clip(slow, 0.0, 1.0))
 
 
 def steps_for(spec: ActionSpec, step_s: float, least: int = 2) -> int:
@@ -102,6 +117,9 @@ def _walk(
     traits = subject.traits
     step_s = 60.0 / (subject.cadence_spm * cadence_scale * spec.tempo)
     steps = steps_for(spec, step_s)
+    # The walker's own pace sets the stance share (a transition's quicker or
+    # slower steps, cadence_scale, do not).
+    stance = stance_share(subject.cadence_spm * spec.tempo)
     length = (spec.step_length_m or subject.step_length_m) * length_scale
     speed = speed_factors(ctx, steps, traits.speed_variability) if spec.vary else np.ones(steps)
     durations = step_s * np.clip(ctx.jitter(traits.stride_cv, steps), 0.85, 1.15) / speed**0.5
@@ -114,7 +132,7 @@ def _walk(
     lengths *= scale
     durations *= np.where(scale < 1.0, 1.1, 1.0)
     toe_off = START_S + np.r_[0.0, np.cumsum(durations[:-1])]
-    heel_strike = toe_off + (1.0 - STANCE) * 2 * durations
+    heel_strike = toe_off + (1.0 - stance) * 2 * durations
     # Where each step lands on the path and which way the body then faces;
     # the last step closes beside the one before.
     heading = place.heading + np.cumsum(turn)
