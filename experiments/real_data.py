@@ -17,7 +17,11 @@ spans of quiet standing read off the force trace). Per file and model:
   (models/ood.py); one-foot recordings must be out_of_range;
 - confident wrong: the share of predictions at probability > 0.9 for an action
   other than the one the person does (running counts as walking), and the share
-  of those that went out unflagged (what a robot would act on).
+  of those that went out unflagged (what a robot would act on);
+- steps /min: the person's cadence over the file, measured from the feet's
+  loads as experiments/real_vs_sim_gait.py measures gait (the model's
+  training walkers step 95-135 times a minute unless drawn with
+  ``scotti sim corpus --paces wide``).
 
 Goals (issue 37): walking >= 80 % of walking windows, standing >= 90 % of
 standing windows, no confident exercise on any file.
@@ -150,11 +154,28 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
     return rows
 
 
+def cadence_of(session: Path) -> float | None:
+    """Steps a minute over the whole file (experiments/real_vs_sim_gait.py's measure).
+
+    None where the file holds no 3 s of both feet (one foot, or too short).
+    """
+    import real_vs_sim_gait
+
+    try:
+        return real_vs_sim_gait.gait_of(session, None).cadence
+    except ExperimentError:
+        return None
+
+
 def label(model: Path) -> str:
     """A model's name in the tables: its path from the repository, without .onnx."""
     path = model.resolve()
     shown = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
     return str(shown.with_suffix(""))
+
+
+def _cadence(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}"
 
 
 def _share(mask: np.ndarray) -> float | None:
@@ -168,7 +189,7 @@ def _pct(value: float | None) -> str:
 def table(recordings: list[Recording], rows: list[dict[str, Any]], command: str) -> str:
     by_file = {r.name: r for r in recordings}
     models = list(dict.fromkeys(r["model"] for r in rows))
-    header = ["file", "sensor", "does", "model", "windows", "walking", "standing"]
+    header = ["file", "sensor", "does", "steps /min", "model", "windows", "walking", "standing"]
     header += ["out_of_range", "unfamiliar", "confident wrong", "of which unflagged"]
     per_file = []
     for row in rows:
@@ -179,12 +200,13 @@ def table(recordings: list[Recording], rows: list[dict[str, Any]], command: str)
         top = sorted(row.get("actions", {}).items(), key=lambda kv: -kv[1])[:2]
         shares = ["walking", "standing", "out_of_range", "unfamiliar", "confident_wrong"]
         per_file.append(
-            [row["file"], rec.sensor, does, row["model"], str(row["predictions"])]
+            [row["file"], rec.sensor, does, _cadence(row.get("cadence"))]
+            + [row["model"], str(row["predictions"])]
             + [_pct(row.get(k)) for k in [*shares, "confident_wrong_unflagged"]]
             + [", ".join(f"{a} {n}" for a, n in top)]
         )
     lines = [f"Written by `{command}` on {time.strftime('%Y-%m-%d')}.", ""]
-    lines += markdown_table([*header, "read as (most)"], per_file, "llllrrrrrrrl")
+    lines += markdown_table([*header, "read as (most)"], per_file, "lllrlrrrrrrrl")
     lines += ["", "Pooled over the files (both feet present), per model:", ""]
     pooled = []
     for model in models:
@@ -235,7 +257,8 @@ def main(argv: list[str] | None = None) -> int:
         rows: list[dict[str, Any]] = []
         for rec in chosen:
             session = import_file(rec, args.realdata, args.work)
-            rows += score_file(rec, session, models)
+            cadence = cadence_of(session)
+            rows += [row | {"cadence": cadence} for row in score_file(rec, session, models)]
             print(json.dumps(rows[-1]), flush=True)
         text = table(chosen, rows, command.strip())
         print(text)

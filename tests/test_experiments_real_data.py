@@ -17,6 +17,7 @@ EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 sys.path.insert(0, str(EXPERIMENTS))
 
 import real_data  # noqa: E402
+import real_vs_sim_gait  # noqa: E402
 
 FIXTURE = Path(__file__).resolve().parent / "data" / "vendors"
 MODEL = Path(__file__).resolve().parent.parent / "models" / "scotti-default.onnx"
@@ -31,7 +32,9 @@ def test_the_truth_follows_the_spans_of_quiet_standing() -> None:
 
 
 @pytest.mark.slow
-def test_a_real_cut_is_imported_scored_and_tabled(tmp_path: Path) -> None:
+def test_a_real_cut_is_imported_scored_and_tabled(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     rec = real_data.Recording("GaCo01_01_first5s.txt", "gaitpdb, 8 sensors", "walking")
     session = real_data.import_file(rec, FIXTURE, tmp_path)
     assert session.is_file()
@@ -45,6 +48,10 @@ def test_a_real_cut_is_imported_scored_and_tabled(tmp_path: Path) -> None:
         assert 0.0 <= row[key] <= 1.0
     assert sum(row["actions"].values()) == row["predictions"]
     assert row["confident_wrong_unflagged"] <= row["confident_wrong"]
-    text = real_data.table([rec], [row], "python experiments/real_data.py")
-    assert "| GaCo01_01_first5s |" in text
+    monkeypatch.setattr(real_vs_sim_gait, "CACHE", tmp_path / "cache")
+    cadence = real_data.cadence_of(session)
+    assert cadence is not None
+    assert 80.0 < cadence < 120.0  # GaCo01 walks at about 98 steps a minute
+    text = real_data.table([rec], [row | {"cadence": cadence}], "python experiments/real_data.py")
+    assert f"| GaCo01_01_first5s | gaitpdb, 8 sensors | walking | {cadence:.0f} |" in text
     assert "Pooled over the files" in text
