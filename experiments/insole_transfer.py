@@ -2,6 +2,7 @@
 
     python experiments/insole_transfer.py [--model models/scotti-default.onnx] [--every 8]
         [--write docs/generalisation.md]
+    python experiments/insole_transfer.py --people mine.scotti --every 1   # any session file
 
 1. Simulates three people the model never saw, as its corpus was simulated
    (``scotti sim corpus --first-subject 200 --subjects 3 --minutes-per-action 1
@@ -19,6 +20,9 @@
    predictions flagged ``unfamiliar``, and the share of action-labelled
    predictions that are wrong and carry no flag at all (what a robot would
    act on).
+
+``--people FILE...`` reads those session files (a scene rendered by ``scotti sim``,
+say) through the sensors instead of the three people.
 
 Rendered files and per-file reports go to data/insole_transfer/ and are
 reused when there (keyed by sensor and model). ``--write DOC`` puts the table
@@ -258,15 +262,22 @@ def pct(x: float) -> str:
 
 
 def sensor_figures(
-    model: Path, every: int, only: Sequence[str] | None = None
+    model: Path,
+    every: int,
+    only: Sequence[str] | None = None,
+    people: Sequence[Path] | None = None,
 ) -> Iterator[dict[str, Any]]:
     """Each sensor of ``sensors()`` (or those named in ``only``): the model's figures over
-    the three people read through it (``pooled``), with the sensor's name and what differs,
-    the drawn sensors of the ``drawn`` row, and the seconds it took. The people must have
-    been simulated (``main`` does it)."""
-    people = sorted(PEOPLE.glob("subject-*.ses"))
-    if not people:
-        raise ExperimentError(f"{PEOPLE}: no simulated sessions")
+    the three people (or the session files ``people``) read through it (``pooled``), with
+    the sensor's name and what differs, the drawn sensors of the ``drawn`` row, and the
+    seconds it took. The three people must have been simulated (``main`` does it)."""
+    if people is None:
+        people = sorted(PEOPLE.glob("subject-*.ses"))
+        if not people:
+            raise ExperimentError(f"{PEOPLE}: no simulated sessions")
+    for path in people:
+        if not path.is_file():
+            raise ExperimentError(f"{path}: no such session file")
     for entry in sensors():
         if only is not None and entry.name not in only:
             continue
@@ -304,13 +315,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every", type=int, default=8, help="score every K-th prediction time")
     parser.add_argument("--only", nargs="*", default=None, help="these sensors (names) only")
     parser.add_argument("--write", type=Path, default=None, help="doc with the marked section")
+    parser.add_argument(
+        "--people", type=Path, nargs="+", default=None, help="these session files instead"
+    )
     args = parser.parse_args(argv)
+    if args.people and args.write is not None:
+        parser.error("--write is for the three simulated people's table, not --people")
     try:
         started = time.monotonic()
-        simulate_people()
+        if not args.people:
+            simulate_people()
         model = args.model.resolve()
         rows, report = [], []
-        for figures in sensor_figures(model, args.every, args.only):
+        for figures in sensor_figures(model, args.every, args.only, args.people):
             report.append(figures)
             rows.append(
                 [

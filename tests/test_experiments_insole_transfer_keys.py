@@ -10,6 +10,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
 import insole_transfer
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = ROOT / "tests" / "data" / "tiny" / "scotti-tiny.onnx"
 
 
 def _sensor(name: str) -> insole_transfer.ForeignSensor:
@@ -38,3 +42,32 @@ def test_each_sensor_has_its_own_key(tmp_path: Path) -> None:
     one = insole_transfer.render_path(source, _sensor("grid-16x8"), "x")
     other = insole_transfer.render_path(source, _sensor("grid-8x4"), "x")
     assert one != other
+
+
+def test_any_session_file_is_read_through_the_named_sensors(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from scotti.cli.main import main as scotti_main
+
+    scene = tmp_path / "walk.toml"
+    text = (ROOT / "sim" / "scenes" / "slow-walking.toml").read_text()
+    scene.write_text(text.replace("reps = 20", "reps = 8"))
+    session = tmp_path / "walk.scotti"
+    assert scotti_main(["sim", str(scene), "-o", str(session)]) == 0
+    monkeypatch.setattr(insole_transfer, "WORK", tmp_path / "work")
+    argv = ["--people", str(session), "--every", "4", "--only", "ours", "import-gaitpdb-8"]
+    assert insole_transfer.main([*argv, "--model", str(TINY)]) == 0
+    out = capsys.readouterr().out
+    assert "`ours` |" in out
+    assert "`import-gaitpdb-8` |" in out
+    rendered = list((tmp_path / "work" / "import-gaitpdb-8").glob("walk.*.ses"))
+    assert len(rendered) == 1  # the file through gaitpdb's cells, beside the other renders
+    # The three simulated people's doc table is not written from other files.
+    with pytest.raises(SystemExit):
+        insole_transfer.main([*argv, "--write", str(tmp_path / "doc.md")])
+    assert "--write is for the three" in capsys.readouterr().err
+
+
+def test_a_missing_session_file_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert insole_transfer.main(["--people", "/nonexistent/x.scotti", "--only", "ours"]) == 2
+    assert "x.scotti: no such session file" in capsys.readouterr().err
