@@ -6,7 +6,8 @@ Reads, with the project's own reader (``scotti.export.data.load_session``, the
 daemon's pairing of feet; cache in data/real_vs_sim/cache):
 
 - real: the eight gaitpdb walks as ``experiments/real_data.py`` imported them
-  (data/realdata/<name>_01.scotti; run that script first);
+  (data/realdata/<name>_01.scotti; run that script first), and the other
+  insoles' walks it imports (pedar's, Moticon's: ``OTHER_REAL``);
 - simulated: the three people of ``experiments/insole_transfer.py``
   (data/insole_transfer/people, our own 32 x 22 grid) and the same sessions
   rendered through gaitpdb's 8 sensors (``import-gaitpdb-8``: 100 Hz, as an
@@ -45,6 +46,15 @@ from common import ROOT, ExperimentError, write_between_markers
 from common import table as markdown_table
 
 REAL: Final = ("GaCo01", "GaCo02", "JuCo01", "JuCo02", "SiCo01", "GaPt03", "JuPt01", "SiPt02")
+# The other insoles' walks (experiments/real_data.py imports them too): (group, name, file
+# stem). The pedar file stands for its first 2.5 s; the Moticon walks are tagged by pace.
+OTHER_REAL: Final = (
+    ("real pedar-x", "pedar", "pedar_example"),
+    ("real Moticon", "102114 normal", "230927_102114"),
+    ("real Moticon", "102137 slow", "230927_102137"),
+    ("real Moticon", "102231 fast", "230927_102231"),
+    ("real Moticon", "text_export", "text_export"),
+)
 REAL_DIR: Final = ROOT / "data" / "realdata"
 SIM_DIR: Final = ROOT / "data" / "insole_transfer"
 CACHE: Final = ROOT / "data" / "real_vs_sim" / "cache"
@@ -234,6 +244,7 @@ def sources() -> list[tuple[str, str, Path, str | None]]:
     out: list[tuple[str, str, Path, str | None]] = [
         ("real gaitpdb", name, REAL_DIR / f"{name}_01.scotti", None) for name in REAL
     ]
+    out += [(group, name, REAL_DIR / f"{stem}.scotti", None) for group, name, stem in OTHER_REAL]
     people = sorted((SIM_DIR / "people").glob("subject-*.ses"))
     for label in ("walking", "step_up"):
         for kind in ("import-gaitpdb-8", "cells-gaitpdb-8", "ours"):

@@ -88,3 +88,14 @@ def test_runs_split_at_label_gaps_and_restarts() -> None:
     assert gait.runs_of(keep, segment) == [(0, 3), (4, 6), (6, 8)]
     on = np.array([1, 1, 0, 1, 1, 0, 0, 1, 0, 1], bool)
     assert gait.contact_runs(on) == [(3, 5), (7, 8)]  # the ones cut by the ends are dropped
+
+
+def test_every_real_walk_of_real_data_is_measured() -> None:
+    # The other insoles' walks (pedar, Moticon) beside gaitpdb's, under the names real_data.py
+    # imports them to: a file renamed there would be missing here, not silently skipped.
+    sys.path.insert(0, str(Path(gait.__file__).parent))
+    import real_data
+
+    walks = {r.name for r in real_data.RECORDINGS if r.activity == "walking" and not r.one_foot}
+    measured = {f"{name}_01" for name in gait.REAL} | {stem for _, _, stem in gait.OTHER_REAL}
+    assert walks == measured
