@@ -18,11 +18,12 @@ Walking (comfortable speed, healthy adults):
   (Grieve and Gear; Bohannon), kept within 95-135 (our limits, rarely
   reached); speed is recomputed when the clip bites.
   So at one speed taller people step longer and slower.
-- slower walkers: older people and people with Parkinson's disease walk at
-  0.6-1.2 m/s (Studenski et al. 2011, JAMA 305:50, gait speed in older
-  adults; Hausdorff's gaitpdb walkers in ../shared/realdata step 79-113
-  times a minute). The population above never draws them; a given walking
-  speed (a scene's, or a corpus drawn with ``--paces wide``) may go down to
+- slower walkers: many older people walk at 0.6-1.2 m/s (Studenski et al.
+  2011, JAMA 305:50, gait speed and survival in older adults); the gaitpdb
+  walkers of ../shared/realdata (people with Parkinson's disease and their
+  controls) step 79-113 times a minute, a Moticon recording tagged "slow" 59.
+  The population above never draws them; a given walking speed (a scene's,
+  or a corpus drawn with ``--paces wide``) may go down to
   0.5 m/s, its step length then scaled down to 0.28 x height and its cadence
   down to 55 steps/min (the ranges of ``TRAIT_RANGES``; the population
   keeps the ``TYPICAL_*`` limits).
@@ -102,8 +103,10 @@ class TraitRange:
     source: str
 
 
-# The numeric traits, in the order they are drawn. Ranges are what the draw is
-# clipped to (or uniform over); ``source`` names the literature (see above).
+# The numeric traits, in the order they are drawn. Ranges are what a scene may
+# give and what the draw is clipped to (or uniform over), but for walking speed,
+# step length and cadence, whose draw keeps the typical population's narrower
+# limits (POPULATION_RANGES below); ``source`` names the literature (see above).
 TRAIT_RANGES: Final[dict[str, TraitRange]] = {
     "walking_speed_mps": TraitRange("m/s", 0.5, 1.65, "Bohannon 1997: 1.27-1.46; Studenski 2011"),
     "step_length_ratio": TraitRange("x height", 0.28, 0.47, "Grieve & Gear 1966: 0.41-0.45"),
