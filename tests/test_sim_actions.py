@@ -19,8 +19,14 @@ FOOT_POINTS = [f"{s}_{p}" for s in ("left", "right") for p in ("heel", "big_toe"
 HEIGHT = 1.75
 
 
-def _motion(action: str, rate: float = 16.0, seed: int = 0, **spec: object) -> Motion:
-    subject = Subject(HEIGHT, 70.0, style_seed=7)
+def _motion(
+    action: str,
+    rate: float = 16.0,
+    seed: int = 0,
+    given: dict[str, float | str] | None = None,
+    **spec: object,
+) -> Motion:
+    subject = Subject(HEIGHT, 70.0, style_seed=7, traits_given=given or {})
     body = Body.from_height(HEIGHT, subject.foot_length)
     ctx = Context(body, subject, rate, np.random.default_rng(seed))
     params = {"reps": 4, **spec}
@@ -78,18 +84,24 @@ def test_deeper_squat_goes_lower() -> None:
     assert deep < shallow - 0.15
 
 
-def test_walking_cadence_and_stance_fraction() -> None:
-    m = _motion("walking", reps=16)
-    subject = m.subject
-    strikes = []
-    stance_shares = []
+def _strikes_and_stance_shares(m: Motion) -> tuple[list[int], list[float]]:
+    """Both feet's touch-down frames, and the stance share of each steady gait cycle."""
+    strikes: list[int] = []
+    stance_shares: list[float] = []
     for side in ("left", "right"):
         contact = _contact(m, side)
         onsets = np.flatnonzero(contact[1:] & ~contact[:-1]) + 1
         strikes += onsets.tolist()
         # Steady state: whole gait cycles between this foot's heel strikes.
         for a, b in itertools.pairwise(onsets[1:-1]):
-            stance_shares.append(contact[a:b].mean())
+            stance_shares.append(float(contact[a:b].mean()))
+    return strikes, stance_shares
+
+
+def test_walking_cadence_and_stance_fraction() -> None:
+    m = _motion("walking", reps=16)
+    subject = m.subject
+    strikes, stance_shares = _strikes_and_stance_shares(m)
     strikes.sort()
     intervals = np.diff(strikes[1:-1]) / m.rate_hz  # steady steps, seconds
     cadence = 60.0 / intervals.mean()
@@ -100,19 +112,9 @@ def test_walking_cadence_and_stance_fraction() -> None:
 
 def test_a_slow_walker_stands_longer_in_each_cycle() -> None:
     def stance(walking_speed_mps: float) -> tuple[float, float]:
-        given = {"walking_speed_mps": walking_speed_mps}
-        subject = Subject(HEIGHT, 70.0, style_seed=7, traits_given=given)
-        body = Body.from_height(HEIGHT, subject.foot_length)
-        ctx = Context(body, subject, 16.0, np.random.default_rng(0))
-        spec = ActionSpec("walking", reps=16)
-        segment = RECIPES["walking"](ctx, spec, Place(0.0, 0.0, 0.0))
-        m = motion_from_segments(body, subject, 16.0, [segment])
-        shares = []
-        for side in ("left", "right"):
-            contact = _contact(m, side)
-            onsets = np.flatnonzero(contact[1:] & ~contact[:-1]) + 1
-            shares += [contact[a:b].mean() for a, b in itertools.pairwise(onsets[1:-1])]
-        return subject.cadence_spm, float(np.mean(shares))
+        m = _motion("walking", given={"walking_speed_mps": walking_speed_mps}, reps=16)
+        _, shares = _strikes_and_stance_shares(m)
+        return m.subject.cadence_spm, float(np.mean(shares))
 
     typical_cadence, typical_share = stance(1.36)
     slow_cadence, slow_share = stance(0.55)
