@@ -17,7 +17,18 @@ shipped graph,
 3. through the foreign sensors of experiments/insole_transfer.py its mean
    accuracy is higher, and no sensor has more than 5 % of predictions wrong
    and unflagged;
-4. on `sim/scenes/squat.toml` its accuracy is higher.
+4. on every scene of `sim/scenes` (each rendered once, scored by ``scotti
+   eval``), for accuracy and for APP apart: where the shipped model meets the
+   issue's bar (accuracy >= 95 %, APP >= 0.88) the candidate meets it too;
+   where the shipped model misses it, the candidate loses at most 1 point of
+   accuracy or 0.01 of APP against it.
+
+Line 4 was revised on 2026-11-29, before the next candidate was trained. It
+used to read "on `sim/scenes/squat.toml` its accuracy is higher", written
+when the shipped model read that scene at 47 %; at 99.0 % it was decided by
+3-9 standing frames after one set, and it looked at no other scene. The
+issue's own goal is every scene at 95 % and APP 0.88. Candidates judged by
+the old line (runs/v25, v26) keep that verdict (docs/generalisation.md).
 
 Each part runs what its own command runs (``scotti eval --json``, the
 experiments' functions) and prints the figures beside each other; the last
@@ -52,7 +63,10 @@ MAX_APP_LOSS: Final = 0.01
 MAX_WRONG_UNFLAGGED: Final = 0.05
 PARTITION: Final = "p1"
 HELD_OUT_DIR: Final = ROOT / "data" / "corpus7" / "realistic"
-SQUAT_SCENE: Final = ROOT / "sim" / "scenes" / "squat.toml"
+SCENES: Final = ROOT / "sim" / "scenes"
+# The issue's bar for every scene it ships (issue 37, "What to build" 2).
+SCENE_ACCURACY: Final = 0.95
+SCENE_APP: Final = 0.88
 WORK: Final = ROOT / "data" / "wide_rule"
 
 
@@ -151,18 +165,38 @@ def sensor_lines(candidate: Path, shipped: Path, every: int) -> list[Line]:
     ]  # fmt: skip
 
 
-def squat_lines(candidate: Path, shipped: Path) -> list[Line]:
-    session = WORK / "squat.scotti"
-    if not session.is_file():
-        WORK.mkdir(parents=True, exist_ok=True)
-        cmd = scotti_command("sim", SQUAT_SCENE, "-o", session, "--force")
-        subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
-    cand, ship = (r["metrics"] for r in eval_json([session], [candidate, shipped]))
-    return [
-        Line(4, "sim/scenes/squat.toml: accuracy", cand["action_accuracy"],
-             ship["action_accuracy"], "> shipped",
-             cand["action_accuracy"] > ship["action_accuracy"]),
-    ]  # fmt: skip
+def scene_line(scene: str, metric: str, candidate: float, shipped: float) -> Line:
+    """Line 4 for one scene and one metric ("accuracy" or "APP"): the issue's bar where
+    the shipped model meets it, else at most the rule's margin below the shipped model."""
+    bar, margin = {
+        "accuracy": (SCENE_ACCURACY, MAX_ACCURACY_LOSS),
+        "APP": (SCENE_APP, MAX_APP_LOSS),
+    }[metric]
+    if shipped >= bar:
+        return Line(4, f"{scene}: {metric}", candidate, shipped, f">= {bar}", candidate >= bar)
+    return Line(
+        4, f"{scene}: {metric}", candidate, shipped, f">= shipped - {margin}",
+        candidate >= shipped - margin,
+    )  # fmt: skip
+
+
+def scene_lines(candidate: Path, shipped: Path, scenes: Sequence[Path] | None = None) -> list[Line]:
+    """Line 4: each scene file (all of sim/scenes unless SCENES) rendered into WORK once
+    (again when the scene file is newer), both models scored on the same replay."""
+    WORK.mkdir(parents=True, exist_ok=True)
+    lines: list[Line] = []
+    for scene in scenes if scenes is not None else sorted(SCENES.glob("*.toml")):
+        session = WORK / f"{scene.stem}.scotti"
+        if not session.is_file() or session.stat().st_mtime < scene.stat().st_mtime:
+            part = WORK / f".{scene.stem}.part"
+            cmd = scotti_command("sim", scene, "-o", part, "--force")
+            subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+            part.replace(session)
+        cand, ship = (r["metrics"] for r in eval_json([session], [candidate, shipped]))
+        name = scene.name
+        lines.append(scene_line(name, "accuracy", cand["action_accuracy"], ship["action_accuracy"]))
+        lines.append(scene_line(name, "APP", cand["app"], ship["app"]))
+    return lines
 
 
 def verdict(lines: Sequence[Line]) -> str:
@@ -204,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         lambda: held_out_lines(candidate, shipped, args.held_out.resolve()),
         lambda: real_lines(candidate, shipped),
         lambda: sensor_lines(candidate, shipped, args.every),
-        lambda: squat_lines(candidate, shipped),
+        lambda: scene_lines(candidate, shipped),
     ]
     try:
         for path in (candidate, shipped):
