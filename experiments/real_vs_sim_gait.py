@@ -126,7 +126,9 @@ def central_mean(values: Sequence[float]) -> float:
         return float("nan")
     v = np.asarray(values, dtype=np.float64)
     lo, hi = np.percentile(v, [10, 90])
-    return float(v[(v >= lo) & (v <= hi)].mean())
+    kept = v[(v >= lo) & (v <= hi)]
+    # Two values leave nothing between their percentiles: a short walk keeps them all.
+    return float((kept if kept.size else v).mean())
 
 
 def runs_of(mask: np.ndarray, segment: np.ndarray) -> list[tuple[int, int]]:
