@@ -1,7 +1,7 @@
 """An epoch's plan (which windows, in which batches, with which shifts) and its tensors.
 
 Everything random in an epoch (window phase, chunk cuts, order, shifts,
-added crosstalk, foreign sensors) is drawn from a generator seeded with (seed, epoch), so the
+added crosstalk, foreign sensors, tempi) is drawn from a generator seeded with (seed, epoch), so the
 plan is a pure function of (dataset, options, seed, epoch): a resumed run, a
 prefetch thread and every rank of a distributed run all see the same plan.
 """
@@ -19,6 +19,7 @@ from scotti.export.augment import add_crosstalk, draw_crosstalk, draw_shifts, sh
 from scotti.export.evaluate import to_targets
 from scotti.export.losses import ScottiTargets
 from scotti.export.sensor_transfer import ForeignSensor, draw_transfer, render
+from scotti.export.tempo import draw_tempo
 from scotti.export.windows import Chunk, WindowDataset
 
 if TYPE_CHECKING:
@@ -31,6 +32,7 @@ class PlannedChunk:
     shifts: np.ndarray  # (2, 2) (rows, cols) per foot
     crosstalk: np.ndarray = field(default_factory=lambda: np.zeros(2, dtype=np.float32))
     sensor: ForeignSensor | None = None  # read through this insole as an import (None: ours)
+    tempo: float = 1.0  # played at this tempo (export/tempo.py; 1: as recorded)
 
 
 def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[list[PlannedChunk]]:
@@ -46,7 +48,10 @@ def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[l
         # Neither draws from rng when it is off: plans without them stay as they were.
         crosstalk = draw_crosstalk(rng, opts.max_crosstalk)
         sensor = draw_transfer(rng, opts.sensor_transfer)
-        current.append(PlannedChunk(chunks[i], shifts, crosstalk, sensor))
+        tempo = draw_tempo(rng, opts.tempo_stretch, *opts.tempo_range)
+        if not dataset.fits_tempo(chunks[i], tempo):
+            tempo = 1.0
+        current.append(PlannedChunk(chunks[i], shifts, crosstalk, sensor, tempo))
         windows += chunks[i].count
         if windows >= opts.batch:
             batches.append(current)
@@ -61,8 +66,10 @@ def batch_tensors(
 ) -> tuple[list[torch.Tensor], ScottiTargets]:
     """Augmented frames (float32 counts) per chunk and the batch's targets."""
     cols = dataset.sessions[0].frames.shape[2] // 2
-    frames = [torch.from_numpy(_augmented(dataset.frames(p.chunk), p, cols)) for p in batch]
-    return frames, to_targets([dataset.targets(p.chunk) for p in batch])
+    frames = [
+        torch.from_numpy(_augmented(dataset.frames(p.chunk, p.tempo), p, cols)) for p in batch
+    ]
+    return frames, to_targets([dataset.targets(p.chunk, p.tempo) for p in batch])
 
 
 def _augmented(frames: np.ndarray, planned: PlannedChunk, cols: int) -> np.ndarray:

@@ -98,6 +98,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "export/sensor_transfer.py; 0 = off)",
     )
     parser.add_argument(
+        "--tempo-stretch",
+        type=float,
+        default=d.tempo_stretch,
+        metavar="P",
+        help="augmentation: play this share of chunks slower or faster, at a tempo drawn from "
+        "--tempo-range (export/tempo.py; jumps never; 0 = off)",
+    )
+    parser.add_argument(
+        "--tempo-range",
+        default=",".join(f"{t:g}" for t in d.tempo_range),
+        metavar="LO,HI",
+        help="the tempi --tempo-stretch draws between, log-uniform (0.8: 20 %% slower)",
+    )
+    parser.add_argument(
         "--ema",
         type=float,
         default=d.ema,

@@ -97,6 +97,19 @@ def parse_loss_weights(text: str) -> LossWeights:
     return LossWeights(pose=pose, action=action, progress=progress)
 
 
+def _tempo_range(text: str) -> tuple[float, float]:
+    """``--tempo-range LO,HI``: 0 < LO <= 1 <= HI <= 3 (a tempo of 1 must be drawable)."""
+    try:
+        low, high = (float(v) for v in text.split(","))
+    except ValueError:
+        msg = f"--tempo-range must be two numbers LO,HI such as 0.65,1.3, got {text!r}"
+        raise TrainCliError(msg) from None
+    if not (0.0 < low <= 1.0 <= high <= 3.0):  # also catches NaN
+        msg = f"--tempo-range must have 0 < LO <= 1 <= HI <= 3, got {text!r}"
+        raise TrainCliError(msg)
+    return low, high
+
+
 def _options(args: argparse.Namespace) -> TrainOptions:
     for name in ("epochs", "batch", "chunk", "stride", "val_stride", "threads"):
         if getattr(args, name) < 1:
@@ -112,6 +125,10 @@ def _options(args: argparse.Namespace) -> TrainOptions:
     if not 0.0 <= args.sensor_transfer <= 1.0:  # also catches NaN
         msg = f"--sensor-transfer must be a share between 0 and 1, got {args.sensor_transfer}"
         raise TrainCliError(msg)
+    if not 0.0 <= args.tempo_stretch <= 1.0:  # also catches NaN
+        msg = f"--tempo-stretch must be a share between 0 and 1, got {args.tempo_stretch}"
+        raise TrainCliError(msg)
+    tempo_range = _tempo_range(args.tempo_range)
     if not (args.ema == 0.0 or 0.0 < args.ema < 1.0):  # also catches NaN
         msg = f"--ema must be 0 (off) or a decay between 0 and 1, got {args.ema}"
         raise TrainCliError(msg)
@@ -132,6 +149,8 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         max_shift=args.max_shift,
         max_crosstalk=args.max_crosstalk,
         sensor_transfer=args.sensor_transfer,
+        tempo_stretch=args.tempo_stretch,
+        tempo_range=tempo_range,
         loss_weights=parse_loss_weights(args.loss_weights),
         seed=args.seed,
         max_minutes=args.max_minutes,
@@ -337,7 +356,7 @@ def _benchmark(
 ) -> None:
     """Print naive vs chunked (fp32, CPU) and fp32 vs bf16 (chunked, on ``device``)."""
     cfg = model.cfg
-    plain = replace(opts, max_shift=0, max_crosstalk=0.0, sensor_transfer=0.0)
+    plain = replace(opts, max_shift=0, max_crosstalk=0.0, sensor_transfer=0.0, tempo_stretch=0.0)
     rates = measure_throughput(model, data.train, plain, args.benchmark)
     print(
         f"E={cfg.embed_dim} T={cfg.window} batch={opts.batch} chunk={opts.chunk} "

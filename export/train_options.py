@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from scotti.export.losses import LossWeights
+from scotti.export.tempo import DEFAULT_RANGE as DEFAULT_TEMPO_RANGE
 
 
 @dataclass(frozen=True)
@@ -23,6 +24,8 @@ class TrainOptions:
     max_shift: int = 2  # taxels, random shift of each foot per chunk (0 = no augmentation)
     max_crosstalk: float = 0.0  # crosstalk added per chunk and foot, up to this (augment.py)
     sensor_transfer: float = 0.0  # share of chunks read through a drawn foreign insole
+    tempo_stretch: float = 0.0  # share of chunks played at a drawn tempo (export/tempo.py)
+    tempo_range: tuple[float, float] = DEFAULT_TEMPO_RANGE  # log-uniform between these
     seed: int = 0
     max_minutes: float = 0.0  # stop (and checkpoint) after this much training; 0 = no limit
     save_minutes: float = 10.0  # write last.pt after this much training since the last; 0 = off

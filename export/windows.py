@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scotti.export import tempo as tempo_mod
 from scotti.export.data import SessionArrays, TrainingDataError
 from scotti.models import contract
 
@@ -136,13 +137,33 @@ class WindowDataset:
                     pos += k
         return out
 
-    def frames(self, c: Chunk) -> np.ndarray:
-        """(chunk.frame_count, H, 2W) uint16, the frames the chunk's windows share."""
-        return self.sessions[c.session].frames[c.start : c.start + c.frame_count]
+    def frames(self, c: Chunk, tempo: float = 1.0) -> np.ndarray:
+        """(chunk.frame_count, H, 2W), the frames the chunk's windows share: uint16 as
+        decoded, or float32 read between slots at another ``tempo`` (export/tempo.py)."""
+        s = self.sessions[c.session]
+        if tempo == 1.0:
+            return s.frames[c.start : c.start + c.frame_count]
+        return tempo_mod.read_between(s.frames, self._positions(c, tempo)[0])
 
-    def targets(self, c: Chunk) -> Targets:
-        s, slots = self.sessions[c.session], c.target_slots
-        return Targets(s.keypoints[slots], s.action[slots], s.progress[slots])
+    def targets(self, c: Chunk, tempo: float = 1.0) -> Targets:
+        s = self.sessions[c.session]
+        if tempo == 1.0:
+            slots = c.target_slots
+            return Targets(s.keypoints[slots], s.action[slots], s.progress[slots])
+        pos = self._positions(c, tempo)[1]
+        return Targets(
+            tempo_mod.read_between(s.keypoints, pos),
+            tempo_mod.nearest(s.action, pos),
+            tempo_mod.nearest(s.progress, pos),
+        )
+
+    def fits_tempo(self, c: Chunk, tempo: float) -> bool:
+        """The chunk may be played at ``tempo`` (export/tempo.py's ``fits``)."""
+        return tempo == 1.0 or tempo_mod.fits(self.sessions[c.session], *self._positions(c, tempo))
+
+    @staticmethod
+    def _positions(c: Chunk, tempo: float) -> tuple[np.ndarray, np.ndarray]:
+        return tempo_mod.positions(c.start, c.frame_count, c.window, c.stride, c.count, tempo)
 
     def window_at(self, session: int, start: int) -> tuple[np.ndarray, Targets]:
         """One window the naive way: (T, H, 2W) frames and its one-frame-ahead target."""

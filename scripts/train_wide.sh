@@ -12,6 +12,7 @@
 #   HELD_OUT=1 scripts/train_wide.sh           # also render the partition's held-out people into DATA/realistic
 #                                              # (for wide_rule.py --held-out after a simulator change)
 #   SLOW=24 scripts/train_wide.sh              # also 24 people at wide walking paces (slow walkers)
+#   TEMPO=0.3 scripts/train_wide.sh            # play 30 % of the chunks at 0.65-1.3 x their tempo
 #   INIT=models/scotti-default.onnx EPOCHS=1 LR=3e-4 scripts/train_wide.sh
 #                                              # fine-tune a model (e.g. after a labelling change)
 #
@@ -34,6 +35,8 @@ CLEAN=${CLEAN:-0}                  # 1: also train on clean copies (no effects) 
 STRIDE=${STRIDE:-16}
 MINUTES=${MINUTES:-0}              # training's --max-minutes (0: none)
 TRANSFER=${TRANSFER:-0.5}          # share of windows seen through a drawn foreign sensor
+TEMPO=${TEMPO:-0}                  # share of chunks played slower or faster (scotti train
+                                   # --tempo-stretch, export/tempo.py; 0: off)
 WORKERS=${WORKERS:-$((JOBS > 2 ? JOBS - 2 : 0))}
 MORE=${MORE:-48}                   # people rendered through wide insoles (subject-033 on)
 SLOW=${SLOW:-0}                    # people after them (subject-081 on) also drawn at wide walking
@@ -160,12 +163,13 @@ form=()
 [[ $FORM != paper ]] && form=(--arch "$FORM")
 transfer=()
 [[ $TRANSFER != 0 ]] && transfer=(--sensor-transfer "$TRANSFER")
+[[ $TEMPO != 0 ]] && transfer+=(--tempo-stretch "$TEMPO")
 init=(--config small)  # --init takes the size from its weights
 [[ -n $INIT ]] && init=(--init "$INIT")
 echo "train_wide: training $RUN on $DEVICE"
 mkdir -p "$RUN"
 # The card quotes this (experiments/card_training.py): how the weights were made.
-echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
 "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
   --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
   --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
