@@ -11,6 +11,9 @@ beyond what the file cannot say, then replayed through the daemon's path
 person does is known from the sources (the table ``RECORDINGS`` below, with the
 spans of quiet standing read off the force trace). Per file and model:
 
+- still: the share of predictions for a time where both feet stayed on the
+  ground for 1.5 s or more in a walking file (``still_slots``): not walking,
+  and not known to be quiet standing, so scored as neither and never wrong;
 - walking / standing: the share of predictions for a time in a walking
   (standing) span whose action is ``walking`` (``standing``), flagged or not;
 - out_of_range, unfamiliar: the share of predictions carrying that flag
@@ -46,6 +49,9 @@ from common import table as markdown_table
 REALDATA = ROOT.parent / "shared" / "realdata"
 WORK = ROOT / "data" / "realdata"
 CONFIDENT: Final = 0.9
+STILL_S: Final = 1.5  # both feet on the ground this long: nobody walks there (still_slots)
+UNSCORED: Final = -2  # truth where the person stands still in a walking file (not known)
+FRAME_HZ: Final = 16.0
 BEGIN, END = "<!-- real-data:begin -->", "<!-- real-data:end -->"
 
 
@@ -96,16 +102,48 @@ def import_file(rec: Recording, realdata: Path, work: Path) -> Path:
     return out
 
 
-def truth_at(rec: Recording, t: np.ndarray) -> np.ndarray:
-    """The action the person does at each time: walking (running) or standing."""
+def truth_at(rec: Recording, t: np.ndarray, still: np.ndarray | None = None) -> np.ndarray:
+    """The action the person does at each time: walking (running) or standing.
+
+    ``still`` (bool per time) marks where ``still_slots`` found no step: there
+    the person does not walk, and what they do instead is not known
+    (``UNSCORED``) unless a span of quiet standing says so.
+    """
     from scotti.models.contract import ACTIONS
 
     moving = "walking"
     out = np.full(t.shape, ACTIONS.index(moving))
+    if still is not None and rec.activity != "standing":
+        out[still] = UNSCORED
     for a, b in rec.standing:
         out[(t >= a) & (t <= b)] = ACTIONS.index("standing")
     if rec.activity == "standing":
         out[:] = ACTIONS.index("standing")
+    return out
+
+
+def still_slots(session: Path) -> np.ndarray:
+    """(N,) bool: slots in a stretch of ``STILL_S`` or more where both feet carry load.
+
+    A walker lifts a foot every step (double support lasts 0.1-0.3 s in these
+    files, docs/real-data.md); both feet on the ground for 1.5 s is not
+    walking, whatever the file's source says the person does (Moticon's
+    "some walking steps" end in 4 s of both feet loaded). Contact as
+    experiments/real_vs_sim_gait.py counts it: a foot above 5 % of the
+    body-weight proxy.
+    """
+    import real_vs_sim_gait as gait
+    from scotti.export.data import load_session
+
+    frames = load_session(session, gait.CACHE).frames
+    loads = gait.foot_loads(gait.loaded_kpa(frames))
+    bw = float(np.median(loads.sum(axis=1)))
+    both = (loads > gait.CONTACT * bw).all(axis=1)
+    out = np.zeros(len(both), dtype=bool)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], both.astype(np.int8), [0]])))
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        if b - a >= round(STILL_S * FRAME_HZ):
+            out[a:b] = True
     return out
 
 
@@ -116,6 +154,7 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
     from scotti.models.ood import withheld
 
     runtimes = [open_step_model(m, threads=1) for m in models]  # either form of the model
+    still = still_slots(session)
     replays = replay_session_models(session, runtimes)
     rows = []
     walking, standing = ACTIONS.index("walking"), ACTIONS.index("standing")
@@ -125,14 +164,15 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
             rows.append({"file": rec.name, "model": label(model), "predictions": 0})
             continue
         ext = np.array([m.ext for m in made], dtype=np.int64)
-        t = (ext - ext.min() + 40) / 16.0  # the first prediction is for frame T=40
-        truth = truth_at(rec, t)
+        slots = ext - ext.min() + 40  # the first prediction is for frame T=40
+        t = slots / FRAME_HZ
+        truth = truth_at(rec, t, still[np.minimum(slots, len(still) - 1)])
         probs = np.stack([m.probs for m in made])
         action = probs.argmax(axis=1)
         confident = probs.max(axis=1) > CONFIDENT
         flagged = np.array([withheld(set(m.flags)) is not None for m in made])
         flags = [set(m.flags) for m in made]
-        wrong = action != truth
+        wrong = (action != truth) & (truth != UNSCORED)
         on_walk, on_stand = truth == walking, truth == standing
         seen = np.unique(action, return_counts=True)
         rows.append(
@@ -140,6 +180,7 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
                 "file": rec.name,
                 "model": label(model),
                 "predictions": len(made),
+                "still": _share(truth == UNSCORED),
                 "walking_windows": int(on_walk.sum()),
                 "walking": _share(action[on_walk] == walking),
                 "standing_windows": int(on_stand.sum()),
@@ -189,7 +230,8 @@ def _pct(value: float | None) -> str:
 def table(recordings: list[Recording], rows: list[dict[str, Any]], command: str) -> str:
     by_file = {r.name: r for r in recordings}
     models = list(dict.fromkeys(r["model"] for r in rows))
-    header = ["file", "sensor", "does", "steps /min", "model", "windows", "walking", "standing"]
+    header = ["file", "sensor", "does", "steps /min", "model", "windows", "still"]
+    header += ["walking", "standing"]
     header += ["out_of_range", "unfamiliar", "confident wrong", "of which unflagged"]
     per_file = []
     for row in rows:
@@ -201,12 +243,12 @@ def table(recordings: list[Recording], rows: list[dict[str, Any]], command: str)
         shares = ["walking", "standing", "out_of_range", "unfamiliar", "confident_wrong"]
         per_file.append(
             [row["file"], rec.sensor, does, _cadence(row.get("cadence"))]
-            + [row["model"], str(row["predictions"])]
+            + [row["model"], str(row["predictions"]), _pct(row.get("still"))]
             + [_pct(row.get(k)) for k in [*shares, "confident_wrong_unflagged"]]
             + [", ".join(f"{a} {n}" for a, n in top)]
         )
     lines = [f"Written by `{command}` on {time.strftime('%Y-%m-%d')}.", ""]
-    lines += markdown_table([*header, "read as (most)"], per_file, "lllrlrrrrrrrl")
+    lines += markdown_table([*header, "read as (most)"], per_file, "lllrlrrrrrrrrl")
     lines += ["", "Pooled over the files (both feet present), per model:", ""]
     pooled = []
     for model in models:

@@ -55,3 +55,36 @@ def test_a_real_cut_is_imported_scored_and_tabled(
     text = real_data.table([rec], [row | {"cadence": cadence}], "python experiments/real_data.py")
     assert f"| GaCo01_01_first5s | gaitpdb, 8 sensors | walking | {cadence:.0f} |" in text
     assert "Pooled over the files" in text
+
+
+def test_where_the_person_stands_still_a_walking_file_is_not_scored() -> None:
+    rec = real_data.Recording("x/a.txt", "s", "walking", standing=((0.0, 1.0),))
+    still = np.array([True, False, True, True])
+    truth = real_data.truth_at(rec, np.array([0.5, 2.0, 3.0, 9.0]), still)
+    from scotti.models.contract import ACTIONS
+
+    # A declared span of quiet standing stays standing; other still times are unscored.
+    assert truth[0] == ACTIONS.index("standing")
+    assert truth[1] == ACTIONS.index("walking")
+    assert truth[2:].tolist() == [real_data.UNSCORED] * 2
+
+
+@pytest.mark.slow
+def test_a_walk_that_ends_standing_has_its_end_found_and_left_unscored(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The committed 5 s of GaCo01 walking, then 3 s of its first row (both feet loaded).
+    lines = (FIXTURE / "GaCo01_01_first5s.txt").read_text().splitlines()
+    rest = lines[0].split("\t")[1:]
+    lines += ["\t".join([f"{5.0 + k / 100:.4f}", *rest]) for k in range(300)]
+    (tmp_path / "walk_then_stand.txt").write_text("\n".join(lines) + "\n")
+    monkeypatch.setattr(real_vs_sim_gait, "CACHE", tmp_path / "cache")
+    rec = real_data.Recording("walk_then_stand.txt", "gaitpdb, 8 sensors", "walking")
+    session = real_data.import_file(rec, tmp_path, tmp_path / "work")
+    still = real_data.still_slots(session)
+    assert still[-40:].all()  # the last 2.5 s: both feet down
+    assert not still[16:64].any()  # 1-4 s: walking
+    (row,) = real_data.score_file(rec, session, [MODEL])
+    # The last 3 s are 48 predictions; the step into the stand may add a few frames.
+    assert 48 <= round(row["still"] * row["predictions"]) <= 60
+    assert row["walking_windows"] == round(row["predictions"] * (1 - row["still"]))
