@@ -16,6 +16,9 @@ spans of quiet standing read off the force trace). Per file and model:
   and not known to be quiet standing, so scored as neither and never wrong;
 - walking / standing: the share of predictions for a time in a walking
   (standing) span whose action is ``walking`` (``standing``), flagged or not;
+  walking, published (pooled table): the share of walking predictions that
+  say ``walking`` and go out without a withholding flag, what a subscriber
+  acts on;
 - out_of_range, unfamiliar: the share of predictions carrying that flag
   (models/ood.py); one-foot recordings must be out_of_range;
 - confident wrong: the share of predictions at probability > 0.9 for an action
@@ -183,6 +186,7 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
                 "still": _share(truth == UNSCORED),
                 "walking_windows": int(on_walk.sum()),
                 "walking": _share(action[on_walk] == walking),
+                "walking_published": _share((action == walking)[on_walk] & ~flagged[on_walk]),
                 "standing_windows": int(on_stand.sum()),
                 "standing": _share(action[on_stand] == standing),
                 "out_of_range": _share(np.array(["out_of_range" in f for f in flags])),
@@ -257,14 +261,16 @@ def table(recordings: list[Recording], rows: list[dict[str, Any]], command: str)
             [
                 model,
                 _pooled(mine, "walking", "walking_windows"),
+                _pooled(mine, "walking_published", "walking_windows"),
                 _pooled(mine, "standing", "standing_windows"),
                 _pooled(mine, "unfamiliar", "predictions"),
                 _pooled(mine, "confident_wrong", "predictions"),
                 _pooled(mine, "confident_wrong_unflagged", "predictions"),
             ]
         )
-    header = ["model", "walking", "standing", "unfamiliar", "confident wrong", "unflagged"]
-    lines += markdown_table(header, pooled, "lrrrrr")
+    header = ["model", "walking", "walking, published", "standing", "unfamiliar"]
+    header += ["confident wrong", "unflagged"]
+    lines += markdown_table(header, pooled, "lrrrrrr")
     return "\n".join(lines) + "\n"
 
 

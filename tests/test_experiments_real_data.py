@@ -48,6 +48,9 @@ def test_a_real_cut_is_imported_scored_and_tabled(
         assert 0.0 <= row[key] <= 1.0
     assert sum(row["actions"].values()) == row["predictions"]
     assert row["confident_wrong_unflagged"] <= row["confident_wrong"]
+    # Published walking: read as walking and not withheld, so never above walking, and
+    # below it by at most the flagged share.
+    assert row["walking"] - row["unfamiliar"] - 1e-9 <= row["walking_published"] <= row["walking"]
     monkeypatch.setattr(real_vs_sim_gait, "CACHE", tmp_path / "cache")
     cadence = real_data.cadence_of(session)
     assert cadence is not None
@@ -55,6 +58,7 @@ def test_a_real_cut_is_imported_scored_and_tabled(
     text = real_data.table([rec], [row | {"cadence": cadence}], "python experiments/real_data.py")
     assert f"| GaCo01_01_first5s | gaitpdb, 8 sensors | walking | {cadence:.0f} |" in text
     assert "Pooled over the files" in text
+    assert "| model | walking | walking, published | standing |" in text
 
 
 def test_where_the_person_stands_still_a_walking_file_is_not_scored() -> None:
