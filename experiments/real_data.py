@@ -138,13 +138,12 @@ def still_slots(session: Path) -> np.ndarray:
     import real_vs_sim_gait as gait
     from scotti.export.data import load_session
 
-    frames = load_session(session, gait.CACHE).frames
-    loads = gait.foot_loads(gait.loaded_kpa(frames))
+    s = load_session(session, gait.CACHE)
+    loads = gait.foot_loads(gait.loaded_kpa(s.frames))
     bw = float(np.median(loads.sum(axis=1)))
     both = (loads > gait.CONTACT * bw).all(axis=1)
     out = np.zeros(len(both), dtype=bool)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], both.astype(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
+    for a, b in gait.runs_of(both, s.segment):
         if b - a >= round(STILL_S * FRAME_HZ):
             out[a:b] = True
     return out

@@ -161,9 +161,9 @@ resume=()
 [[ -f $RUN/last.pt ]] && resume=(--resume)
 form=()
 [[ $FORM != paper ]] && form=(--arch "$FORM")
-transfer=()
-[[ $TRANSFER != 0 ]] && transfer=(--sensor-transfer "$TRANSFER")
-[[ $TEMPO != 0 ]] && transfer+=(--tempo-stretch "$TEMPO")
+augment=()  # the augmentations asked for beyond the recipe's
+[[ $TRANSFER != 0 ]] && augment+=(--sensor-transfer "$TRANSFER")
+[[ $TEMPO != 0 ]] && augment+=(--tempo-stretch "$TEMPO")
 init=(--config small)  # --init takes the size from its weights
 [[ -n $INIT ]] && init=(--init "$INIT")
 echo "train_wide: training $RUN on $DEVICE"
@@ -173,7 +173,7 @@ echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE L
 "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
   --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
   --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
-  --max-crosstalk 0.03 --ema 0.999 "${transfer[@]}" "${form[@]}" \
+  --max-crosstalk 0.03 --ema 0.999 "${augment[@]}" "${form[@]}" \
   --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" --seed "$SEED" \
   --cache "$CACHE" --no-progress "${watch[@]}" "${resume[@]}"
 
