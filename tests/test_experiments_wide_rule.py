@@ -43,6 +43,30 @@ def test_real_files_are_pooled_as_the_real_data_table_pools_them() -> None:
     assert real_data._pct(share) == real_data._pooled(rows, "walking", "walking_windows")
 
 
+def real_row(model: Path, walking: float, published: float, unflagged: float) -> dict:
+    return {
+        "model": real_data.label(model),
+        "predictions": 100,
+        "walking_windows": 100,
+        "walking": walking,
+        "walking_published": published,
+        "confident_wrong_unflagged": unflagged,
+    }
+
+
+def test_a_candidate_that_reads_more_walking_but_publishes_less_fails_line_2() -> None:
+    cand, ship = Path("runs/c/models/c.onnx"), Path("models/s.onnx")
+    # v28's case: reads 92 % against 88 %, publishes 58 % against 79 %.
+    rows = [real_row(cand, 0.92, 0.58, 0.0), real_row(ship, 0.88, 0.79, 0.0)]
+    lines = {ln.what: ln for ln in wide_rule.real_figure_lines(rows, cand, ship)}
+    assert lines["real files: walking share"].passed
+    published = lines["real files: walking published"]
+    assert (published.candidate, published.shipped, published.passed) == (0.58, 0.79, False)
+    assert wide_rule.verdict(list(lines.values())).endswith("line 2 of the rule fails")
+    rows = [real_row(cand, 0.92, 0.80, 0.0), real_row(ship, 0.88, 0.79, 0.0)]
+    assert all(ln.passed for ln in wide_rule.real_figure_lines(rows, cand, ship))
+
+
 def test_the_held_out_people_are_partition_p1s_test_people() -> None:
     import json
 
