@@ -142,7 +142,8 @@ def ood_markdown(ood: dict[str, Any] | None) -> list[str]:
     lines += [
         f"`unfamiliar`: {ood['method']} (E={ood['dim']}, shrinkage {ood['shrinkage']:.4f}), "
         f"statistics of {ood['train_windows']} windows of the training subjects "
-        f"({', '.join(ood['train_subjects'])}); threshold **{ood['threshold']:.2f}** "
+        f"({', '.join(ood['train_subjects'])}){_drawn(ood.get('windows_drawn'))}; "
+        f"threshold **{ood['threshold']:.2f}** "
         + ("on the score, each action's own below, from the " if ood.get("actions") else "= the ")
         + f"{ood['threshold_percentile']:g}th percentile over {ood['held_out_windows']} windows "
         f"of the held-out ({ood['held_out_split']}) subjects "
@@ -169,6 +170,18 @@ def ood_markdown(ood: dict[str, Any] | None) -> list[str]:
         f"{_shares(ood.get('input_checks_on_held_out'))}. Figures: docs/ood.md.",
     ]
     return lines
+
+
+def _drawn(drawn: dict[str, Any] | None) -> str:
+    """How both sides' windows were drawn (export/calibration_draws.py), if not as recorded."""
+    if not drawn or drawn.get("as_recorded", True):
+        return ""
+    low, high = drawn["tempo_range"]
+    return (
+        f", both sides drawn as training drew them ({100 * drawn['sensor_transfer']:g} % "
+        f"through foreign insoles, {100 * drawn['tempo_stretch']:g} % at tempi "
+        f"{low:g}-{high:g})"
+    )
 
 
 def _shares(shares: dict[str, float] | None) -> str:

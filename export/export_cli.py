@@ -5,11 +5,13 @@ NAME.card.md (plus NAME.int8.onnx / NAME.int8.window.onnx with --int8), only
 after onnxruntime agreed with torch; prints the differences it measured.
 With ``--calibrate``, the unfamiliar score is calibrated on those session
 files (the checkpoint's training subjects for the statistics, its held-out
-subjects for the threshold; export/ood_calibration.py) and both graphs carry
-the statistics; the same held-out subjects fit the progress calibration
-(export/progress_fit.py). An export whose files exist is refused unless
-``--force`` (firmware_protocol/overwrite.py): it replaces them all, an int8
-copy it does not write again included. Exit 0 on success, 2 for a bad
+subjects for the threshold, as recorded, or with ``--calibrate-as-trained``
+drawn through the foreign insoles and tempi the checkpoint was trained with;
+export/ood_calibration.py) and both graphs carry the statistics; the same
+held-out subjects fit the progress calibration (export/progress_fit.py). An
+export whose files exist is refused unless ``--force``
+(firmware_protocol/overwrite.py): it replaces them all, an int8 copy it does
+not write again included. Exit 0 on success, 2 for a bad
 checkpoint or argument or an export that exists, 1 when a proof fails.
 """
 
@@ -79,6 +81,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="windows per side (training, held out) for the calibration (default 4000)",
     )
     parser.add_argument(
+        "--calibrate-as-trained",
+        action="store_true",
+        help="draw the unfamiliar score's windows through the foreign insoles and tempi the "
+        "checkpoint was trained with (default: as recorded; docs/ood.md says what it trades)",
+    )
+    parser.add_argument(
         "--progress-windows",
         type=int,
         default=20000,
@@ -109,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
             args.ood_windows,
             args.cache_dir,
             progress_windows=args.progress_windows,
+            as_trained=args.calibrate_as_trained,
         )
     try:
         result = export_checkpoint(
@@ -147,6 +156,12 @@ def run(args: argparse.Namespace) -> int:
             f"of {ood['held_out_windows']} {ood['held_out_split']} windows), statistics of "
             f"{ood['train_windows']} training windows, shrinkage {ood['shrinkage']:.3f}"
         )
+        drawn = ood.get("windows_drawn") or {}
+        if not drawn.get("as_recorded", True):
+            print(
+                f"  windows drawn as trained: {drawn['sensor_transfer']:g} through foreign "
+                f"insoles, {drawn['tempo_stretch']:g} at other tempi"
+            )
         if card.get("int8_ood"):
             int8_threshold = card["int8_ood"]["threshold"]
             print(f"  int8 graphs: their own statistics, threshold {int8_threshold:.2f}")

@@ -18,12 +18,13 @@ import os
 import tempfile
 import warnings
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import onnx
 import torch
+from scotti.export.calibration_draws import InputDraws
 from scotti.export.card import card_markdown, file_entry, jsonable, tool_versions
 from scotti.export.errors import ExportError
 from scotti.export.kv_export import KV_GRAPH, KvStepGraph, kv_metadata, prove_kv, step_example
@@ -93,6 +94,7 @@ class Checkpoint:
     training_data: Any = None
     metrics: Any = None
     epoch: int | None = None
+    options: dict[str, Any] | None = None  # the last training run's (train_options.py)
 
 
 @dataclass(frozen=True)
@@ -164,6 +166,7 @@ def load_checkpoint(path: Path) -> Checkpoint:
         training_data=raw.get("training_data"),
         metrics=raw.get("metrics"),
         epoch=int(epoch) if isinstance(epoch, int) else None,
+        options=raw.get("options") if isinstance(raw.get("options"), dict) else None,
     )
 
 
@@ -333,6 +336,8 @@ def export_model(
     # Subnormal weights would slow every call of a runtime that keeps them (subnormals.py).
     zeroed = zero_subnormal_weights(model)
     sets = gather(ckpt.training_data, calibration) if calibration is not None else None
+    if calibration is not None and calibration.as_trained:
+        calibration = replace(calibration, draws=InputDraws.from_options(ckpt.options))
     name = out.with_suffix("").name
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f".{name}.", dir=out.parent) as tmp:

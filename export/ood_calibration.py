@@ -13,7 +13,10 @@ window's action is its target slot's label, as training reads it). Each
 action's threshold is the ``percentile`` of the distances to its mean of the
 held-out subjects' windows the model calls that action (thinned the same
 way): about 1 % of the windows of people the model never saw are called
-unfamiliar, by construction, and about 1 % of each action's.
+unfamiliar, by construction, and about 1 % of each action's. With
+``scotti export --calibrate-as-trained`` both sides' windows are drawn as the
+checkpoint's training drew them, through foreign insoles and at other tempi
+(export/calibration_draws.py; docs/ood.md says what that trades).
 
 The same windows also measure the input checks (models/input_checks.py):
 the share of real windows flagged ``unloaded`` or ``out_of_range``, which
@@ -23,11 +26,12 @@ should be about 0, goes into the card.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scotti.export.calibration_draws import InputDraws, drawn_window
 from scotti.export.data import SessionArrays, find_sessions, load_session
 from scotti.export.errors import ExportError
 from scotti.export.windows import WindowDataset
@@ -50,6 +54,10 @@ class Calibration:
     # than ``progress_min_windows`` of them keeps the head's output as it is.
     progress_windows: int = 20000
     progress_min_windows: int = 500
+    # How the unfamiliar score's windows are drawn (InputDraws(): as recorded). With
+    # ``as_trained`` export replaces them by the checkpoint's own (its ``options``).
+    draws: InputDraws = field(default_factory=InputDraws)
+    as_trained: bool = False
 
 
 def split_subjects(training_data: Any) -> tuple[list[str], list[str], str]:
@@ -69,19 +77,30 @@ def split_subjects(training_data: Any) -> tuple[list[str], list[str], str]:
     raise ExportError(msg)
 
 
-def _window_batches(
-    sessions: Sequence[SessionArrays], max_windows: int, batch: int = 64
+def window_batches(
+    sessions: Sequence[SessionArrays],
+    max_windows: int,
+    draws: InputDraws | None = None,
+    side: int = 0,
+    batch: int = 64,
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """At most ``max_windows`` usable windows, evenly over time, in batches: (b, T, H, 2W)
     float32 (a batch at a time: thousands of windows would take gigabytes at once) and
-    (b,) the action of each window's target slot (slot t + T, ``WindowDataset``)."""
+    (b,) the action of each window's target slot (slot t + T, ``WindowDataset``).
+    With active ``draws`` each window is drawn as training drew it (``side`` seeds them)."""
     data = WindowDataset(sessions, WINDOW)
     stride = max(1, -(-data.count() // max(max_windows, 1)))
     starts = [(i, int(t)) for i in range(len(sessions)) for t in data.starts(i, stride=stride)]
+    rng = draws.generator(side) if draws is not None and draws.active else None
     for k in range(0, len(starts), batch):
         chunk = starts[k : k + batch]
-        windows = np.stack([sessions[i].frames[t : t + WINDOW] for i, t in chunk])
-        actions = np.array([sessions[i].action[t + WINDOW] for i, t in chunk], dtype=np.int64)
+        if rng is not None and draws is not None:
+            drawn = [drawn_window(data, i, t, draws, rng) for i, t in chunk]
+            windows = np.stack([w for w, _ in drawn])
+            actions = np.array([a for _, a in drawn], dtype=np.int64)
+        else:
+            windows = np.stack([sessions[i].frames[t : t + WINDOW] for i, t in chunk])
+            actions = np.array([sessions[i].action[t + WINDOW] for i, t in chunk], dtype=np.int64)
         yield windows.astype(np.float32), actions
 
 
@@ -93,11 +112,17 @@ class Measured:
     input_flags: dict[str, float]  # share of the windows each input check flags
 
 
-def measure(graph: ScottiRuntime, sessions: Sequence[SessionArrays], max_windows: int) -> Measured:
+def measure(
+    graph: ScottiRuntime,
+    sessions: Sequence[SessionArrays],
+    max_windows: int,
+    draws: InputDraws | None = None,
+    side: int = 0,
+) -> Measured:
     """Pooled vectors of the windows, their labels, and the share the input checks flag."""
     pooled, actions, predicted = [], [], []
     flagged = dict.fromkeys((input_checks.UNLOADED, input_checks.OUT_OF_RANGE), 0)
-    for windows, labels in _window_batches(sessions, max_windows):
+    for windows, labels in window_batches(sessions, max_windows, draws, side):
         result = graph.run_windows(windows, batch_size=len(windows))
         if result.pooled is None:
             msg = f"{graph.path.name} has no pooled output to calibrate"
@@ -150,8 +175,9 @@ def calibrate(
 ) -> OodStats:
     """Fit the OOD statistics of an exported window graph; one ``ExportError`` line on misfit."""
     graph = ScottiRuntime(window_graph_path, threads)
-    train = measure(graph, sets.train, request.max_windows)
-    held = measure(graph, sets.held_out, request.max_windows)
+    draws = request.draws
+    train = measure(graph, sets.train, request.max_windows, draws, side=0)
+    held = measure(graph, sets.held_out, request.max_windows, draws, side=1)
     if len(train.pooled) < 2 or len(held.pooled) < 1:
         msg = "too few usable windows in the calibration sessions"
         raise ExportError(msg)
@@ -163,6 +189,7 @@ def calibrate(
         "train_subjects": sorted({a.subject for a in sets.train}),
         "held_out_subjects": sorted({a.subject for a in sets.held_out}),
         "held_out_split": sets.held_kind,
+        "windows_drawn": draws.describe(),
         "input_checks_on_held_out": held.input_flags,
         "input_checks_on_train": train.input_flags,
     }
