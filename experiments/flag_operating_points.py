@@ -19,8 +19,9 @@ answered wrong and sent unflagged, and of those the confident ones (top
 probability > 0.9, experiments/real_data.py's CONFIDENT).
 
 It replays nothing through the daemon (the window graph, as export
-calibrates) and trains nothing; about 8 minutes and 13 GiB on 2 cores with
-data/corpus21 (every training session is decoded into memory, as export does).
+calibrates) and trains nothing; about 8 minutes and over 10 GiB of memory on
+2 cores with data/corpus21 (every training session is decoded into memory,
+as export does).
 """
 
 from __future__ import annotations
