@@ -10,7 +10,8 @@ threshold fitted on windows as recorded or drawn as it was trained
 (export/calibration_draws.py), at any percentile. Each choice is one
 operating point: this command fits them all on the same pooled vectors of
 the windows the model's card names (training subjects for the statistics,
-held-out ones for the threshold) and scores each on people that neither
+held-out ones for the threshold; their clean copies left out, as
+scripts/train_wide.sh calibrates) and scores each on people that neither
 training nor calibration saw (p1's test people, experiments/ood_scores.py's
 HELD_OUT), read three ways: as recorded, drawn as trained (other seeds), and
 every window through a drawn foreign insole. Per way: the share of
@@ -136,6 +137,17 @@ def markdown(rows: Sequence[dict[str, Any]], command: str) -> str:
     return "\n".join(lines + table(header, body, "lllrrrrrrr")) + "\n"
 
 
+def calibration_files(sessions: Path) -> tuple[Path, ...]:
+    """The session files under ``sessions`` but the clean copies (``clean/``), as
+    scripts/train_wide.sh calibrates: the same people without the effects."""
+    files = sorted(
+        f for f in sessions.rglob("*.ses") if "clean" not in f.relative_to(sessions).parts
+    )
+    if not files:
+        raise ExperimentError(f"{sessions}: no session files")
+    return tuple(files)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python experiments/flag_operating_points.py")
     p.add_argument("--model", type=Path, required=True, help="a calibrated export")
@@ -177,7 +189,9 @@ def measure_all(args: argparse.Namespace) -> list[dict[str, Any]]:
     if not trained.active:
         raise ExperimentError(f"{args.checkpoint}: trained without foreign insoles or tempi")
     split = {"train_subjects": card["train_subjects"], "test_subjects": card["held_out_subjects"]}
-    sets = gather({"split": split}, Calibration((args.sessions,), cache_dir=args.cache_dir))
+    sets = gather(
+        {"split": split}, Calibration(calibration_files(args.sessions), cache_dir=args.cache_dir)
+    )
     held_out = [next(args.sessions.glob(f"*/{s}.ses"), None) for s in HELD_OUT]
     if any(h is None for h in held_out):
         raise ExperimentError(f"{args.sessions}: no session of {', '.join(HELD_OUT)}")

@@ -3,12 +3,10 @@
 The ``unfamiliar`` score says how far a window is from what the model was
 trained on (export/ood_calibration.py). A model trained with
 ``--sensor-transfer`` and ``--tempo-stretch`` learnt windows read through
-foreign insoles and played slower or faster; statistics fitted on the
-corpus's windows as recorded call exactly those windows unfamiliar. runs/v28
-(half its chunks through foreign insoles, 30 % at another tempo) read
-real walking on 92 % of the windows but withheld 43 % of the real windows
-(the shipped model 22 %), correct walking included: its flag called
-"unfamiliar" what it had been taught.
+foreign insoles and played slower or faster, while statistics fitted on the
+corpus's windows as recorded call exactly those windows unfamiliar: runs/v28
+read real walking on 92 % of the windows, and its flag withheld a quarter or
+more of the real windows, correct walking included.
 
 So the calibration can draw its windows the way the checkpoint's last training
 run did (its ``options``: ``sensor_transfer``, ``tempo_stretch``,
@@ -22,10 +20,10 @@ seeded with the run's seed and the side, so an export is repeatable.
 It is not the default (``scotti export --calibrate-as-trained`` asks for it):
 measured on people neither training nor calibration saw
 (experiments/flag_operating_points.py, docs/ood.md), it moves the flag along
-one trade rather than making it a better detector of wrong answers. Fewer
-right answers are withheld and more wrong ones are sent: v28 calibrated so
-published 92 % of the real walking windows (58 % as recorded) but sent 2 %
-of the real windows as confident wrong answers without a flag (0 %).
+one trade rather than making it a better detector of wrong answers: fewer
+right answers withheld, more wrong ones sent. On the real files v28 so
+calibrated sent 2 % of the windows as confident wrong answers without a flag,
+where as recorded it sent none.
 """
 
 from __future__ import annotations

@@ -64,3 +64,11 @@ def test_every_choice_is_scored_and_a_higher_percentile_withholds_less() -> None
     for q in ("90", "95", "99"):
         assert text.count(f"\n| recorded | recorded | {q} |") == 1
     assert "| as trained | as trained | 99 |" in text
+
+
+def test_the_clean_copies_are_left_out_of_the_calibration(tmp_path: Path) -> None:
+    for folder in ("realistic", "clean", "slow"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "subject-000.ses").write_bytes(b"")
+    files = fop.calibration_files(tmp_path)
+    assert [f.parent.name for f in files] == ["realistic", "slow"]
