@@ -162,6 +162,11 @@ def run(args: argparse.Namespace) -> int:
                 f"  windows drawn as trained: {drawn['sensor_transfer']:g} through foreign "
                 f"insoles, {drawn['tempo_stretch']:g} at other tempi"
             )
+        elif args.calibrate_as_trained:
+            print(
+                "  windows as recorded: the checkpoint names no foreign insoles or tempi "
+                "in its training options"
+            )
         if card.get("int8_ood"):
             int8_threshold = card["int8_ood"]["threshold"]
             print(f"  int8 graphs: their own statistics, threshold {int8_threshold:.2f}")

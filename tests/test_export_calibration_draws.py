@@ -161,3 +161,10 @@ def test_the_cli_draws_as_trained_only_when_asked(
         drawn[name] = '"as_recorded": true' in card
     assert drawn == {"plain": True, "trained": False}
     assert "windows drawn as trained: 1 through foreign insoles, 0.5" in capsys.readouterr().out
+    # Asked of a checkpoint trained without them: as recorded, and it says why.
+    torch.save({**ckpt, "options": TrainOptions().to_dict()}, tmp_path / "plain.pt")
+    out = tmp_path / "plain" / "p.onnx"
+    args = ["export", str(tmp_path / "plain.pt"), "-o", str(out), *common, "--calibrate-as-trained"]
+    assert scotti_main(args) == 0
+    assert '"as_recorded": true' in out.with_suffix(".card.json").read_text()
+    assert "names no foreign insoles or tempi" in capsys.readouterr().out
