@@ -54,7 +54,6 @@ WORK = ROOT / "data" / "realdata"
 CONFIDENT: Final = 0.9
 STILL_S: Final = 1.5  # both feet on the ground this long: nobody walks there (still_slots)
 UNSCORED: Final = -2  # truth where the person stands still in a walking file (not known)
-FRAME_HZ: Final = 16.0
 BEGIN, END = "<!-- real-data:begin -->", "<!-- real-data:end -->"
 
 
@@ -137,6 +136,7 @@ def still_slots(session: Path) -> np.ndarray:
     """
     import real_vs_sim_gait as gait
     from scotti.export.data import load_session
+    from scotti.models.contract import FRAME_RATE_HZ
 
     s = load_session(session, gait.CACHE)
     loads = gait.foot_loads(gait.loaded_kpa(s.frames))
@@ -144,14 +144,14 @@ def still_slots(session: Path) -> np.ndarray:
     both = (loads > gait.CONTACT * bw).all(axis=1)
     out = np.zeros(len(both), dtype=bool)
     for a, b in gait.runs_of(both, s.segment):
-        if b - a >= round(STILL_S * FRAME_HZ):
+        if b - a >= round(STILL_S * FRAME_RATE_HZ):
             out[a:b] = True
     return out
 
 
 def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[str, Any]]:
     from scotti.evaluation.replay import replay_session_models
-    from scotti.models.contract import ACTIONS
+    from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
     from scotti.models.kv_streaming import open_step_model
     from scotti.models.ood import withheld
 
@@ -167,7 +167,7 @@ def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[s
             continue
         ext = np.array([m.ext for m in made], dtype=np.int64)
         slots = ext - ext.min() + 40  # the first prediction is for frame T=40
-        t = slots / FRAME_HZ
+        t = slots / FRAME_RATE_HZ
         truth = truth_at(rec, t, still[np.minimum(slots, len(still) - 1)])
         probs = np.stack([m.probs for m in made])
         action = probs.argmax(axis=1)

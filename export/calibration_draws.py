@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 from scotti.export.sensor_transfer import draw_transfer, render
@@ -79,6 +79,9 @@ class InputDraws:
     def generator(self, side: int) -> np.random.Generator:
         """The draws of one side (0: training subjects, 1: held out), repeatable."""
         return np.random.default_rng([self.seed, 7919, side])
+
+
+AS_RECORDED: Final = InputDraws()  # no draws: the windows as the sessions hold them
 
 
 def drawn_window(

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scotti.export.calibration_draws import InputDraws, drawn_window
+from scotti.export.calibration_draws import AS_RECORDED, InputDraws, drawn_window
 from scotti.export.data import SessionArrays, find_sessions, load_session
 from scotti.export.errors import ExportError
 from scotti.export.windows import WindowDataset
@@ -80,7 +80,7 @@ def split_subjects(training_data: Any) -> tuple[list[str], list[str], str]:
 def window_batches(
     sessions: Sequence[SessionArrays],
     max_windows: int,
-    draws: InputDraws | None = None,
+    draws: InputDraws = AS_RECORDED,
     side: int = 0,
     batch: int = 64,
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -91,10 +91,10 @@ def window_batches(
     data = WindowDataset(sessions, WINDOW)
     stride = max(1, -(-data.count() // max(max_windows, 1)))
     starts = [(i, int(t)) for i in range(len(sessions)) for t in data.starts(i, stride=stride)]
-    rng = draws.generator(side) if draws is not None and draws.active else None
+    rng = draws.generator(side) if draws.active else None
     for k in range(0, len(starts), batch):
         chunk = starts[k : k + batch]
-        if rng is not None and draws is not None:
+        if rng is not None:
             drawn = [drawn_window(data, i, t, draws, rng) for i, t in chunk]
             windows = np.stack([w for w, _ in drawn])
             actions = np.array([a for _, a in drawn], dtype=np.int64)
@@ -116,7 +116,7 @@ def measure(
     graph: ScottiRuntime,
     sessions: Sequence[SessionArrays],
     max_windows: int,
-    draws: InputDraws | None = None,
+    draws: InputDraws = AS_RECORDED,
     side: int = 0,
 ) -> Measured:
     """Pooled vectors of the windows, their labels, and the share the input checks flag."""
