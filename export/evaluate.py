@@ -26,16 +26,26 @@ def chunked_outputs(
     model: Scotti, chunk_frames: Sequence[torch.Tensor], window: int, stride: int
 ) -> ScottiOutputs:
     """Outputs for every window of every chunk, each frame through the CNN once."""
+    return chunked_outputs_pooled(model, chunk_frames, window, stride)[0]
+
+
+def chunked_outputs_pooled(
+    model: Scotti, chunk_frames: Sequence[torch.Tensor], window: int, stride: int
+) -> tuple[ScottiOutputs, torch.Tensor]:
+    """``chunked_outputs`` and the pooled vectors (B, E) the heads read."""
     lengths = [f.shape[0] for f in chunk_frames]
     emb = model.embed_frames(torch.cat(list(chunk_frames)))  # (sum L, E)
     if model.cfg.arch == "streaming":  # a chunk is a stream: its later windows get history
         runs = torch.split(emb, lengths)
         if len(set(lengths)) == 1:
-            return model.forward_windows_pooled(torch.stack(runs), stride)[0]
-        outs = [model.forward_windows_pooled(r[None], stride)[0] for r in runs]
-        return ScottiOutputs(*(torch.cat(parts) for parts in zip(*outs, strict=True)))
+            return model.forward_windows_pooled(torch.stack(runs), stride)
+        outs = [model.forward_windows_pooled(r[None], stride) for r in runs]
+        heads = ScottiOutputs(
+            *(torch.cat(parts) for parts in zip(*(o for o, _ in outs), strict=True))
+        )
+        return heads, torch.cat([p for _, p in outs])
     windows = [unfold_windows(e, window, stride) for e in torch.split(emb, lengths)]
-    return model.forward_embeddings(torch.cat(windows))  # (B, T, E) -> heads
+    return model.forward_embeddings_pooled(torch.cat(windows))  # (B, T, E) -> heads, pooled
 
 
 def to_targets(targets: Sequence[Targets]) -> ScottiTargets:

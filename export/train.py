@@ -33,6 +33,7 @@ from typing import Any
 
 import torch
 from scotti.export import distributed
+from scotti.export.anchor import Anchor
 from scotti.export.checkpoint import save_checkpoint
 from scotti.export.devices import autocast, batch_to_device, pin_batch
 from scotti.export.distributed import DistContext
@@ -104,6 +105,7 @@ class TrainState:
     # resume reports the same)
     epoch_loss_sum: float = 0.0
     epoch_windows: int = 0
+    epoch_anchor_sum: float = 0.0  # the --keep-near term's sum over the epoch's windows
 
 
 class Trainer:
@@ -121,8 +123,12 @@ class Trainer:
         device: torch.device | None = None,
         dist_ctx: DistContext | None = None,
         watched: Sequence[Watched] = (),
+        anchor: Anchor | None = None,
     ) -> None:
         self.device = device or torch.device("cpu")
+        # --keep-near: the pull of the pooled vectors towards the initial weights' (anchor.py)
+        self.anchor = anchor.to(self.device) if anchor is not None else None
+        self.anchor_terms: list[float] = []  # every step's term in this process, for tests
         self.watched = list(watched)  # scored after every epoch (export/watch.py)
         self.dist = dist_ctx or DistContext()
         self.model = model.to(self.device)
@@ -172,6 +178,10 @@ class Trainer:
 
     def train_step(self, frames: list[torch.Tensor], targets: ScottiTargets) -> tuple[float, int]:
         """One optimiser step; returns the mean loss and the window count over all ranks."""
+        anchor_term = None
+        if self.anchor is not None:  # a dropout-free pass of its own (anchor.py says why)
+            with autocast(self.device, self.opts.precision):
+                anchor_term = self.anchor.term(self.model, frames, self.opts.stride)
         self.model.train()
         for module in self.frozen:
             module.eval()  # frozen: batch-norm statistics and dropout as they were
@@ -180,6 +190,10 @@ class Trainer:
         # The loss in float32 whatever the forward pass ran in (a no-op for fp32).
         outputs = ScottiOutputs(*(o.float() for o in outputs))
         loss, _ = scotti_loss(outputs, targets, self.opts.loss_weights)
+        if self.anchor is not None and anchor_term is not None:
+            self.anchor_terms.append(float(anchor_term.detach()))
+            self.state.epoch_anchor_sum += float(anchor_term.detach())
+            loss = loss + self.anchor.weight * anchor_term
         if not torch.isfinite(loss):
             msg = (
                 f"loss is {float(loss.detach())} at step {self.state.global_step + 1}: lower --lr, "
@@ -323,6 +337,11 @@ class Trainer:
             "seconds": seconds,
             "lr": float(self.scheduler.get_last_lr()[0]),
         }
+        if self.anchor is not None:  # this process's windows (rank 0's under torchrun)
+            record["keep_near"] = {
+                "weight": self.anchor.weight,
+                "distance": st.epoch_anchor_sum / max(1, st.step_in_epoch),  # mean per step
+            }
         val = self._validate()
         if val is not None:
             record["val"] = val
@@ -339,7 +358,7 @@ class Trainer:
         st.history.append(record)
         st.epoch += 1
         st.step_in_epoch = 0
-        st.epoch_loss_sum, st.epoch_windows = 0.0, 0
+        st.epoch_loss_sum, st.epoch_windows, st.epoch_anchor_sum = 0.0, 0, 0.0
         score = float(record["val"]["loss"] if val is not None else record["train_loss"])
         better = score < st.best_loss
         if better:
@@ -389,7 +408,11 @@ class Trainer:
             "metrics": self.last_metrics,
             "history": st.history,
             "best_loss": st.best_loss,
-            "running": {"loss_sum": st.epoch_loss_sum, "windows": st.epoch_windows},
+            "running": {
+                "loss_sum": st.epoch_loss_sum,
+                "windows": st.epoch_windows,
+                "anchor_sum": st.epoch_anchor_sum,
+            },
         }
 
     def save(self, *names: str) -> None:
@@ -429,6 +452,7 @@ class Trainer:
             best_loss=float(ckpt.get("best_loss", math.inf)),
             epoch_loss_sum=float(ckpt["running"]["loss_sum"]),
             epoch_windows=int(ckpt["running"]["windows"]),
+            epoch_anchor_sum=float(ckpt["running"].get("anchor_sum", 0.0)),
         )
         self.last_metrics = dict(ckpt.get("metrics", {}))
         rng = ckpt["rng"]

@@ -119,6 +119,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="validate, pick best.pt and export an exponential moving average of the weights, "
         "updated every step with this decay (e.g. 0.999; 0 = off)",
     )
+    parser.add_argument(
+        "--keep-near",
+        type=float,
+        default=d.keep_near,
+        metavar="WEIGHT",
+        help="with --init: add WEIGHT x the relative squared distance of each window's pooled "
+        "vector to what the --init weights give for it, so a fine-tune keeps the "
+        "representation the unfamiliar flag is calibrated on (export/anchor.py; 0 = off)",
+    )
     w = d.loss_weights
     parser.add_argument(
         "--loss-weights",

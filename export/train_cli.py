@@ -25,6 +25,7 @@ from typing import Any
 
 import torch
 from scotti.export import distributed
+from scotti.export.anchor import Anchor
 from scotti.export.checkpoint import load_checkpoint
 from scotti.export.devices import check_precision, resolve_device
 from scotti.export.distributed import DistContext, context_from_environment
@@ -138,6 +139,12 @@ def _options(args: argparse.Namespace) -> TrainOptions:
     if not args.min_delta >= 0.0:
         msg = f"--min-delta must be at least 0, got {args.min_delta}"
         raise TrainCliError(msg)
+    if not args.keep_near >= 0.0:  # also catches NaN
+        msg = f"--keep-near must be at least 0 (0 = off), got {args.keep_near}"
+        raise TrainCliError(msg)
+    if args.keep_near > 0.0 and args.init is None:
+        msg = "--keep-near keeps the model near its --init weights: give --init"
+        raise TrainCliError(msg)
     return TrainOptions(
         epochs=args.epochs,
         batch=args.batch,
@@ -162,6 +169,7 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         patience=args.patience,
         min_delta=args.min_delta,
         ema=args.ema,
+        keep_near=args.keep_near,
     )
 
 
@@ -249,6 +257,11 @@ def train(
     if args.benchmark:
         _benchmark(model, data, opts, args, device)
         return None
+    if opts.keep_near > 0.0 and ctx.distributed:
+        # Its pass runs the model outside DDP's wrapper, whose gradients DDP would not average.
+        msg = "--keep-near trains in one process: run it without torchrun"
+        raise TrainCliError(msg)
+    anchor = _anchor(opts, model, init, training_data)
     if ctx.distributed:
         # The same weights everywhere (DDP checks), but each rank its own dropout draws.
         torch.manual_seed(opts.seed + 7919 * (ctx.rank + 1))
@@ -272,6 +285,7 @@ def train(
         device=device,
         dist_ctx=ctx,
         watched=watched,
+        anchor=anchor,
     )
     if ckpt is not None:
         _warn_changed_options(ckpt.get("options", {}), opts.to_dict())
@@ -378,6 +392,21 @@ def _initial_checkpoint(path: Path) -> dict[str, Any]:
         log.info("--init: weights read back from %s (largest difference to it %.1e)", path, worst)
         return ckpt
     return load_checkpoint(path)
+
+
+def _anchor(
+    opts: TrainOptions, model: Scotti, init: dict[str, Any] | None, training_data: dict[str, Any]
+) -> Anchor | None:
+    """--keep-near's reference: the --init weights (read again from where the run first
+    read them when it resumes, since the model then holds the checkpoint's)."""
+    if opts.keep_near <= 0.0:
+        return None
+    if init is None:
+        init = _initial_checkpoint(Path(training_data["init"]))
+    reference = Scotti(model.cfg)
+    load_initial_weights(reference, init["model"])
+    log.info("--keep-near %g: pooled vectors held near %s", opts.keep_near, training_data["init"])
+    return Anchor(reference, opts.keep_near)
 
 
 def _frozen_note(freeze: tuple[str, ...]) -> str:

@@ -37,6 +37,7 @@ class TrainOptions:
     patience: int = 4  # epochs without a validation improvement before stopping; 0 = never
     min_delta: float = 1e-3  # what counts as an improvement of the validation loss
     ema: float = 0.0  # decay of an exponential moving average of the weights; 0 = off
+    keep_near: float = 0.0  # weight of the pull of pooled vectors to --init's (anchor.py); 0 = off
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
