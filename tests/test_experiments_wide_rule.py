@@ -129,3 +129,15 @@ def test_the_scene_lines_render_each_scene_once_and_score_both_models(
     rendered = session.stat().st_mtime_ns
     wide_rule.scene_lines(MODEL, MODEL, [squat])
     assert session.stat().st_mtime_ns == rendered  # not rendered again
+
+
+def test_a_missing_recalibrated_shipped_model_is_named_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    candidate = tmp_path / "candidate.onnx"
+    candidate.write_bytes(b"")
+    missing = tmp_path / "recalibrated.onnx"
+    argv = [str(candidate), "--shipped", str(candidate), "--shipped-flag", str(missing)]
+    assert wide_rule.main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{missing}: no such model" in err
