@@ -77,8 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--ood-windows",
         type=_threads,
-        default=4000,
-        help="windows per side (training, held out) for the calibration (default 4000)",
+        default=Calibration.max_windows,
+        help="windows per side (training, held out) for the calibration, thinned evenly "
+        f"(default {Calibration.max_windows}: every held-out window of a p1 run)",
     )
     parser.add_argument(
         "--calibrate-as-trained",
