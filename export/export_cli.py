@@ -78,8 +78,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ood-windows",
         type=_threads,
         default=Calibration.max_windows,
-        help="windows per side (training, held out) for the calibration, thinned evenly "
-        f"(default {Calibration.max_windows}: every held-out window of a p1 run)",
+        help="training windows for the unfamiliar score's statistics, thinned evenly "
+        f"(default {Calibration.max_windows}; more shrinks the covariance less: docs/ood.md)",
+    )
+    parser.add_argument(
+        "--ood-held-out-windows",
+        type=_threads,
+        default=Calibration.held_out_windows,
+        help="held-out windows for its thresholds, thinned evenly "
+        f"(default {Calibration.held_out_windows}: every held-out window of a p1 run)",
     )
     parser.add_argument(
         "--calibrate-as-trained",
@@ -114,11 +121,12 @@ def run(args: argparse.Namespace) -> int:
             return 2
         calibration = Calibration(
             tuple(args.calibrate),
-            args.ood_percentile,
-            args.ood_windows,
-            args.cache_dir,
+            percentile=args.ood_percentile,
+            max_windows=args.ood_windows,
+            cache_dir=args.cache_dir,
             progress_windows=args.progress_windows,
             as_trained=args.calibrate_as_trained,
+            held_out_windows=args.ood_held_out_windows,
         )
     try:
         result = export_checkpoint(
