@@ -43,10 +43,10 @@ before the next candidate (runs/v31) was scored: experiments/
 flag_threshold_noise.py found that the draw of the 4,000 held-out windows a
 flag's thresholds were fitted on moves the shipped model's published real
 walking by 6 points (sd), so a candidate calibrated on another draw could
-pass or fail by 1.2 points (v29) on the draw alone. Export now fits on every
-held-out window (40,000 a side at most, docs/ood.md), and the shipped
-model's published share is read from its own weights with the flag fitted
-the same way (``--shipped-flag``, experiments/recalibrate_default.py); its
+pass or fail by 1.2 points (v29) on the draw alone. Export now fits the
+thresholds on every held-out window (``--ood-held-out-windows``, docs/ood.md),
+and the shipped model's published share is read from its own weights with
+the flag fitted the same way (``--shipped-flag``, experiments/recalibrate_default.py); its
 other figures from the shipped graph as it is.
 
 Each part runs what its own command runs (``scotti eval --json``, the
