@@ -224,7 +224,7 @@ def markdown(rows: Sequence[dict[str, Any]], command: str) -> str:
         for r in rows
     ]
     lines = [f"`{command}` ({utc_now()}, {rows[0]['draws']} resamples a row):", ""]
-    return "\n".join([*lines, *table(header, body, "lrrrrr")])
+    return "\n".join([*lines, *table(header, body, "lrrrrr")]) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
