@@ -4,12 +4,13 @@
         --model runs/X/models/scotti-ship.onnx [--windows 4000 40000] [--draws 200] \\
         [--sessions data/corpus21] [--write docs/ood.md]
 
-The ``unfamiliar`` flag's per-action thresholds are the 99th percentile of
-the distances of held-out windows the model calls that action (models/ood.py);
-``scotti export --calibrate`` takes at most ``--ood-windows`` (4,000) of the
-held-out people's windows, so an action's threshold is about its fifth
-largest distance among 300-500 windows. This command asks how much that draw
-alone moves what a subscriber gets on the real recordings:
+The ``unfamiliar`` flag's per-action thresholds are the 99th percentile of the
+distances of held-out windows the model calls that action (models/ood.py).
+Every shipped card's were fitted on 4,000 of the held-out people's windows, so
+an action's threshold was about its fifth largest distance among 300-500
+windows (``scotti export --ood-held-out-windows`` now takes them all). This
+command asks how much that draw alone moves what a subscriber gets on the real
+recordings:
 
 1. the model's own statistics (means and whitening, from its graph) and the
    held-out people its card names (found under ``--sessions``, the clean

@@ -3,18 +3,17 @@ the threshold from held-out ones.
 
 The checkpoint names the subjects it was trained on and those it held out
 (``training_data.split``: ``train_subjects``, and ``validation_subjects`` when
-the trainer drew a validation split, else ``test_subjects``). The session files
-given to ``scotti export --calibrate`` are grouped by subject; the usable
-windows of the training subjects (as training draws them,
-``WindowDataset``), thinned evenly to at most ``max_windows`` (training) and
-``held_out_windows``, go through
-the exported window graph, and each action's mean of their pooled vectors
-and the shrunk covariance around those means are fitted (models/ood.py; a
-window's action is its target slot's label, as training reads it). Each
-action's threshold is the ``percentile`` of the distances to its mean of the
-held-out subjects' windows the model calls that action (thinned the same
-way): about 1 % of the windows of people the model never saw are called
-unfamiliar, by construction, and about 1 % of each action's. With
+the trainer drew a validation split, else ``test_subjects``). The session
+files given to ``scotti export --calibrate`` are grouped by subject; the
+usable windows of the training subjects (as training draws them,
+``WindowDataset``), thinned evenly to at most ``max_windows``, go through the
+exported window graph, and each action's mean of their pooled vectors and the
+shrunk covariance around those means are fitted (models/ood.py; a window's
+action is its target slot's label, as training reads it). Each action's
+threshold is the ``percentile`` of the distances to its mean of the held-out
+subjects' windows the model calls that action (thinned evenly to at most
+``held_out_windows``): about 1 % of the windows of people the model never saw
+are called unfamiliar, by construction, and about 1 % of each action's. With
 ``scotti export --calibrate-as-trained`` both sides' windows are drawn as the
 checkpoint's training drew them, through foreign insoles and at other tempi
 (export/calibration_draws.py; docs/ood.md says what that trades).

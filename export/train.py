@@ -23,11 +23,9 @@ that much training.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Sequence
 from contextlib import closing
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +48,7 @@ from scotti.export.prefetch import prefetched
 from scotti.export.stop_signals import StopRequest
 from scotti.export.throughput import measure_throughput, unfold_frames
 from scotti.export.train_options import TrainOptions
+from scotti.export.train_state import TrainState, as_values, from_values
 from scotti.export.watch import Watched, watch_record
 from scotti.export.windows import WindowDataset
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
@@ -90,22 +89,6 @@ class ChunkedWindows(torch.nn.Module):
 
     def forward(self, frames: list[torch.Tensor]) -> ScottiOutputs:
         return chunked_outputs(self.model, frames, self.model.cfg.window, self.stride)
-
-
-@dataclass
-class TrainState:
-    """Where a run is: completed epochs, steps into the current one, and history."""
-
-    epoch: int = 0
-    step_in_epoch: int = 0  # steps of this rank's share of the epoch's plan
-    global_step: int = 0
-    history: list[dict[str, Any]] = field(default_factory=list)
-    best_loss: float = math.inf
-    # running sums of the epoch in progress, over all ranks (kept so a mid-epoch
-    # resume reports the same)
-    epoch_loss_sum: float = 0.0
-    epoch_windows: int = 0
-    epoch_anchor_sum: float = 0.0  # the --keep-near term's sum over the epoch's windows
 
 
 class Trainer:
@@ -178,10 +161,7 @@ class Trainer:
 
     def train_step(self, frames: list[torch.Tensor], targets: ScottiTargets) -> tuple[float, int]:
         """One optimiser step; returns the mean loss and the window count over all ranks."""
-        anchor_term = None
-        if self.anchor is not None:  # a dropout-free pass of its own (anchor.py says why)
-            with autocast(self.device, self.opts.precision):
-                anchor_term = self.anchor.term(self.model, frames, self.opts.stride)
+        pull = self._anchor_pull(frames)  # before the training pass: it runs in eval mode
         self.model.train()
         for module in self.frozen:
             module.eval()  # frozen: batch-norm statistics and dropout as they were
@@ -190,10 +170,8 @@ class Trainer:
         # The loss in float32 whatever the forward pass ran in (a no-op for fp32).
         outputs = ScottiOutputs(*(o.float() for o in outputs))
         loss, _ = scotti_loss(outputs, targets, self.opts.loss_weights)
-        if self.anchor is not None and anchor_term is not None:
-            self.anchor_terms.append(float(anchor_term.detach()))
-            self.state.epoch_anchor_sum += float(anchor_term.detach())
-            loss = loss + self.anchor.weight * anchor_term
+        if pull is not None:
+            loss = loss + pull
         if not torch.isfinite(loss):
             msg = (
                 f"loss is {float(loss.detach())} at step {self.state.global_step + 1}: lower --lr, "
@@ -216,6 +194,16 @@ class Trainer:
             [float(loss.detach()) * n, n], self.dist, self.device
         )
         return loss_sum / windows, int(windows)
+
+    def _anchor_pull(self, frames: list[torch.Tensor]) -> torch.Tensor | None:
+        """--keep-near's weighted term for this batch (None without it), recorded."""
+        if self.anchor is None:
+            return None
+        with autocast(self.device, self.opts.precision):  # a dropout-free pass (anchor.py)
+            term = self.anchor.term(self.model, frames, self.opts.stride)
+        self.anchor_terms.append(float(term.detach()))
+        self.state.epoch_anchor_sum += self.anchor_terms[-1]
+        return self.anchor.weight * term
 
     # --- the loop --------------------------------------------------------------
 
@@ -337,7 +325,7 @@ class Trainer:
             "seconds": seconds,
             "lr": float(self.scheduler.get_last_lr()[0]),
         }
-        if self.anchor is not None:  # this process's windows (rank 0's under torchrun)
+        if self.anchor is not None:  # one process only (train_cli refuses torchrun)
             record["keep_near"] = {
                 "weight": self.anchor.weight,
                 "distance": st.epoch_anchor_sum / max(1, st.step_in_epoch),  # mean per step
@@ -397,22 +385,13 @@ class Trainer:
             **averaged,
             "optimizer": self.optimizer.state_dict(),
             "scheduler": self.scheduler.state_dict(),
-            "epoch": st.epoch,
-            "step_in_epoch": st.step_in_epoch,
-            "global_step": st.global_step,
+            **as_values(st),
             "total_steps": self.total_steps,
             "world_size": self.dist.world_size,
             "rng": rng,  # numpy draws: seeded by (seed, epoch)
             "options": self.opts.to_dict(),
             "training_data": self.training_data,
             "metrics": self.last_metrics,
-            "history": st.history,
-            "best_loss": st.best_loss,
-            "running": {
-                "loss_sum": st.epoch_loss_sum,
-                "windows": st.epoch_windows,
-                "anchor_sum": st.epoch_anchor_sum,
-            },
         }
 
     def save(self, *names: str) -> None:
@@ -444,16 +423,7 @@ class Trainer:
         # A run resumed with --ema that had none starts its average at the next step.
         load_optimizer_state(self.optimizer, ckpt["optimizer"])
         self.scheduler.load_state_dict(ckpt["scheduler"])
-        self.state = TrainState(
-            epoch=int(ckpt["epoch"]),
-            step_in_epoch=int(ckpt["step_in_epoch"]),
-            global_step=int(ckpt["global_step"]),
-            history=list(ckpt.get("history", [])),
-            best_loss=float(ckpt.get("best_loss", math.inf)),
-            epoch_loss_sum=float(ckpt["running"]["loss_sum"]),
-            epoch_windows=int(ckpt["running"]["windows"]),
-            epoch_anchor_sum=float(ckpt["running"].get("anchor_sum", 0.0)),
-        )
+        self.state = from_values(ckpt)
         self.last_metrics = dict(ckpt.get("metrics", {}))
         rng = ckpt["rng"]
         by_rank = rng.get("by_rank")

@@ -124,9 +124,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=d.keep_near,
         metavar="WEIGHT",
-        help="with --init: add WEIGHT x the relative squared distance of each window's pooled "
-        "vector to what the --init weights give for it, so a fine-tune keeps the "
-        "representation the unfamiliar flag is calibrated on (export/anchor.py; 0 = off)",
+        help="with --init: add WEIGHT x the relative squared distance of the pooled vectors of "
+        "each batch's first chunk (a dropout-free pass) to what the --init weights give for "
+        "them, so a fine-tune keeps the representation the unfamiliar flag is calibrated on "
+        "(export/anchor.py; 0 = off)",
     )
     w = d.loss_weights
     parser.add_argument(

@@ -15,20 +15,15 @@ from scotti.cli.main import main
 from scotti.export.anchor import Anchor, relative_distance
 from scotti.export.data import load_session
 from scotti.export.evaluate import chunked_outputs_pooled
-from scotti.export.model import Scotti, ScottiConfig
+from scotti.export.model import Scotti
 from scotti.export.train import Trainer, TrainOptions
 from scotti.export.windows import WindowDataset
 
-from tests.support.export_sessions import TINY_MODEL, write_session
+from tests.support.export_sessions import TINY_MODEL, tiny_model, write_session
 
 pytestmark = pytest.mark.torch
 
 TINY: dict[str, Any] = TINY_MODEL
-
-
-def tiny(seed: int) -> Scotti:
-    torch.manual_seed(seed)
-    return Scotti(ScottiConfig.from_dict(TINY))
 
 
 def frames_of(path: Path, start: int, count: int) -> torch.Tensor:
@@ -49,7 +44,7 @@ def test_relative_distance_is_zero_for_the_same_vectors_and_scale_free() -> None
 def test_the_term_is_zero_at_the_start_and_pulls_only_the_trained_model(tmp_path: Path) -> None:
     write_session(tmp_path / "a.scotti", 80, subject="a")
     frames = [frames_of(tmp_path / "a.scotti", 0, TINY["window"] + 6)]
-    model = tiny(0)
+    model = tiny_model(0)
     anchor = Anchor(model, weight=1.0)
     model.train()
     # Without dropout on either side the same weights are at distance 0, though the
@@ -79,11 +74,11 @@ def test_a_fine_tune_with_the_pull_stays_nearer_its_start(tmp_path: Path) -> Non
     write_session(tmp_path / "a.scotti", 160, subject="a")
     data = WindowDataset([load_session(tmp_path / "a.scotti")], window=TINY["window"])
     frames = [frames_of(tmp_path / "a.scotti", 0, 120)]
-    start = tiny(3)
+    start = tiny_model(3)
     opts = TrainOptions(epochs=2, batch=8, chunk=4, lr=3e-3, progress_bar=False, seed=5)
     drifts = {}
     for weight in (0.0, 100.0):
-        model = tiny(3)
+        model = tiny_model(3)
         anchor = Anchor(start, weight) if weight else None
         trainer = Trainer(model, data, None, opts, anchor=anchor)
         trainer.fit(max_steps=12)

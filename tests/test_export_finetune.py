@@ -14,24 +14,18 @@ from scotti.cli.main import main
 from scotti.export.data import load_session
 from scotti.export.errors import ExportError
 from scotti.export.losses import LossWeights
-from scotti.export.model import Scotti, ScottiConfig
 from scotti.export.train import Trainer, TrainOptions, freeze_parts, load_initial_weights
 from scotti.export.windows import WindowDataset
 
-from tests.support.export_sessions import TINY_MODEL, write_session
+from tests.support.export_sessions import TINY_MODEL, tiny_model, write_session
 
 pytestmark = pytest.mark.torch
 
 TINY: dict[str, Any] = TINY_MODEL
 
 
-def tiny(seed: int) -> Scotti:
-    torch.manual_seed(seed)
-    return Scotti(ScottiConfig.from_dict(TINY))
-
-
 def test_init_copies_weights_and_keeps_known_action_rows() -> None:
-    source, target = tiny(1), tiny(2)
+    source, target = tiny_model(1), tiny_model(2)
     state = {k: v.clone() for k, v in source.state_dict().items()}
     # A checkpoint from before the contract grew: one action fewer.
     state["action_head.3.weight"] = state["action_head.3.weight"][:-1]
@@ -51,7 +45,7 @@ def test_init_copies_weights_and_keeps_known_action_rows() -> None:
 def test_frozen_parts_do_not_move(tmp_path: Path) -> None:
     write_session(tmp_path / "a.scotti", 80, subject="a")
     data = WindowDataset([load_session(tmp_path / "a.scotti")], window=TINY["window"])
-    model = tiny(0)
+    model = tiny_model(0)
     before = {k: v.clone() for k, v in model.state_dict().items()}
     opts = TrainOptions(epochs=1, batch=8, chunk=4, progress_bar=False, freeze=("encoder",))
     trainer = Trainer(model, data, None, opts)
@@ -69,7 +63,7 @@ def test_only_the_progress_head_moves_when_the_rest_is_frozen(tmp_path: Path) ->
     """Fine-tuning one task: the other outputs stay bit for bit what they were."""
     write_session(tmp_path / "a.scotti", 80, subject="a")
     data = WindowDataset([load_session(tmp_path / "a.scotti")], window=TINY["window"])
-    model = tiny(0)
+    model = tiny_model(0)
     before = {k: v.clone() for k, v in model.state_dict().items()}
     rest = ("cnn", "encoder", "pose_head", "action_head")
     # Weight decay on: it would move a head whose loss weight is 0 but that is not frozen.
@@ -84,7 +78,7 @@ def test_only_the_progress_head_moves_when_the_rest_is_frozen(tmp_path: Path) ->
     assert moved
     assert all(k.startswith("progress_head.") for k in moved), moved
     with pytest.raises(ExportError, match="nothing would be trained"):
-        freeze_parts(tiny(1), [*rest, "progress_head"])
+        freeze_parts(tiny_model(1), [*rest, "progress_head"])
 
 
 def test_cli_init_takes_the_size_from_the_checkpoint(

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scotti.firmware_protocol import (
@@ -22,6 +22,9 @@ from scotti.firmware_protocol import (
     encode_packet,
 )
 from scotti.models import contract
+
+if TYPE_CHECKING:
+    from scotti.export.model import Scotti
 
 ROWS, COLS = contract.FRAME_ROWS, contract.FRAME_COLS
 ROW_BLOCK = 8  # rows per packet, as the simulator sends them (4 packets per foot frame)
@@ -37,6 +40,15 @@ TINY_MODEL: dict[str, Any] = {
     "conv_channels": [4, 4],
     "dropout": 0.0,
 }
+
+
+def tiny_model(seed: int) -> Scotti:
+    """A ``Scotti`` of ``TINY_MODEL``'s size with seeded weights (needs torch)."""
+    import torch
+    from scotti.export.model import Scotti, ScottiConfig
+
+    torch.manual_seed(seed)
+    return Scotti(ScottiConfig.from_dict(TINY_MODEL))
 
 
 def foot_counts(k: int, foot: int) -> np.ndarray:
