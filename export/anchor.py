@@ -11,12 +11,13 @@ give for the same input.
 
 The term is a relative squared distance, sum |p - p0|^2 / sum |p0|^2 over the
 windows, so its weight does not depend on the embedding's scale. Both sides
-run in eval mode: with the model's dropout on, the distance to the reference
-is about 0.07 at the first step (the shipped model against itself), five times
-what a whole fine-tune moved it (runs/v29: 0.014 on held-out people), and its
-gradient would be mostly dropout's noise. So the trained model runs a second,
-dropout-free pass over the first chunk of each batch (about a quarter of its
-windows) for this term, and the reference runs without gradients.
+run in eval mode: with the model's dropout on, the shipped model is farther
+from itself at the first step than a whole fine-tune (runs/v29) moved its
+pooled vectors, and the gradient would be mostly dropout's noise. So the
+trained model runs a second, dropout-free pass over the first chunk of each
+batch (about a quarter of its windows) for this term, and the reference runs
+without gradients. Weigh it by its gradient, not its value:
+experiments/anchor_gradients.py prints both against the task's.
 """
 
 from __future__ import annotations
