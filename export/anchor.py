@@ -18,6 +18,16 @@ trained model runs a second, dropout-free pass over the first chunk of each
 batch (about a quarter of its windows) for this term, and the reference runs
 without gradients. Weigh it by its gradient, not its value:
 experiments/anchor_gradients.py prints both against the task's.
+
+That eval-mode pass (``--keep-near-pass eval``) reads the trained model's moving
+batch-norm statistics, which a fine-tune moves, so part of its pull chases them
+(runs/v31: the pull's gradient 2-10 times the task's). ``--keep-near-pass
+matched`` compares the training pass itself instead: the reference replays it
+in training mode with the same dropout masks (the random generator rewound to
+where the training pass began) and so with its own batch statistics of the
+same batch. The term is then exactly 0 until the weights move, costs one
+gradient-free pass of the reference over the whole batch and no second pass of
+the trained model, and has no running statistics to chase.
 """
 
 from __future__ import annotations
@@ -29,12 +39,18 @@ import torch
 from scotti.export.evaluate import chunked_outputs_pooled
 from scotti.export.model import Scotti
 
+PASSES = ("eval", "matched")  # --keep-near-pass
+
 
 class Anchor:
     """A frozen copy of the initial weights and the weight of the pull towards them."""
 
-    def __init__(self, initial: Scotti, weight: float) -> None:
+    def __init__(self, initial: Scotti, weight: float, pass_: str = "eval") -> None:
+        if pass_ not in PASSES:
+            msg = f"unknown --keep-near-pass {pass_!r} (one of {', '.join(PASSES)})"
+            raise ValueError(msg)
         self.weight = weight
+        self.matched = pass_ == "matched"
         self.model = copy.deepcopy(initial).eval()
         for p in self.model.parameters():
             p.requires_grad_(False)
@@ -59,6 +75,50 @@ class Anchor:
         finally:
             model.train(was_training)
         return relative_distance(pooled.float(), reference.float())
+
+    def matched_term(
+        self,
+        model: Scotti,
+        chunk_frames: Sequence[torch.Tensor],
+        stride: int,
+        pooled: torch.Tensor,
+        rng_before: RngState,
+    ) -> torch.Tensor:
+        """The relative squared distance of ``pooled`` (the training pass's vectors of every
+        window of the batch) to the reference's replay of that pass: each module in the
+        trained model's mode, the random generator at ``rng_before`` (so the same dropout
+        masks), batch statistics of the same batch. The generator and the reference's
+        running statistics are put back afterwards, so training draws what it would have."""
+        after = rng_state(pooled.device)
+        buffers = {k: b.clone() for k, b in self.model.named_buffers()}
+        for mine, theirs in zip(self.model.modules(), model.modules(), strict=True):
+            mine.training = theirs.training
+        try:
+            set_rng_state(rng_before, pooled.device)
+            with torch.no_grad():
+                _, reference = chunked_outputs_pooled(
+                    self.model, chunk_frames, self.model.cfg.window, stride
+                )
+        finally:
+            set_rng_state(after, pooled.device)
+            self.model.load_state_dict(buffers, strict=False)
+            self.model.eval()
+        return relative_distance(pooled.float(), reference.float())
+
+
+RngState = tuple[torch.Tensor, torch.Tensor | None]
+
+
+def rng_state(device: torch.device) -> RngState:
+    """The generators dropout draws from: the CPU's, and the GPU's on a GPU."""
+    gpu = torch.cuda.get_rng_state(device) if device.type == "cuda" else None
+    return torch.get_rng_state(), gpu
+
+
+def set_rng_state(state: RngState, device: torch.device) -> None:
+    torch.set_rng_state(state[0])
+    if state[1] is not None:
+        torch.cuda.set_rng_state(state[1], device)
 
 
 def relative_distance(pooled: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:

@@ -31,7 +31,7 @@ from typing import Any
 
 import torch
 from scotti.export import distributed
-from scotti.export.anchor import Anchor
+from scotti.export.anchor import Anchor, RngState, rng_state
 from scotti.export.checkpoint import save_checkpoint
 from scotti.export.devices import autocast, batch_to_device, pin_batch
 from scotti.export.distributed import DistContext
@@ -39,7 +39,7 @@ from scotti.export.early_stop import plateau
 from scotti.export.epoch_log import log_epoch, write_history
 from scotti.export.epochs import PlannedChunk, batch_tensors, plan_epoch, warmup_cosine
 from scotti.export.errors import ExportError
-from scotti.export.evaluate import chunked_outputs, evaluate
+from scotti.export.evaluate import chunked_outputs_pooled, evaluate
 from scotti.export.finetune import FREEZE_GROUPS, freeze_parts, load_initial_weights
 from scotti.export.losses import ScottiTargets, scotti_loss
 from scotti.export.model import Scotti, ScottiOutputs
@@ -80,15 +80,16 @@ class TrainingDivergedError(ExportError):
 
 
 class ChunkedWindows(torch.nn.Module):
-    """The training forward pass as one module's ``forward``, so DDP's hooks see it."""
+    """The training forward pass as one module's ``forward``, so DDP's hooks see it: the
+    heads' outputs and the pooled vectors they read (which --keep-near-pass matched holds)."""
 
     def __init__(self, model: Scotti, stride: int) -> None:
         super().__init__()
         self.model = model
         self.stride = stride
 
-    def forward(self, frames: list[torch.Tensor]) -> ScottiOutputs:
-        return chunked_outputs(self.model, frames, self.model.cfg.window, self.stride)
+    def forward(self, frames: list[torch.Tensor]) -> tuple[ScottiOutputs, torch.Tensor]:
+        return chunked_outputs_pooled(self.model, frames, self.model.cfg.window, self.stride)
 
 
 class Trainer:
@@ -121,6 +122,13 @@ class Trainer:
         self.run_dir = run_dir
         self.training_data = training_data or {}
         self.frozen = freeze_parts(model, opts.freeze)
+        if opts.norm_statistics == "kept":
+            # An exported graph folded the batch norm into the projection and left the
+            # identity: batch statistics would standardise again what the graph already
+            # had, and the first step would train another function than the graph's
+            # (the shipped model's pooled vectors move farther than a whole fine-tune
+            # moved them: experiments/norm_statistics.py). Its scale and shift train.
+            self.frozen.append(model.cnn.norm)
         self.forward = distributed.wrap(ChunkedWindows(model, opts.stride), self.dist, self.device)
         self.optimizer = adam(
             [p for p in model.parameters() if p.requires_grad],
@@ -165,8 +173,12 @@ class Trainer:
         self.model.train()
         for module in self.frozen:
             module.eval()  # frozen: batch-norm statistics and dropout as they were
+        matched = self.anchor is not None and self.anchor.matched
+        rng_before = rng_state(self.device) if matched else None  # the masks it replays
         with autocast(self.device, self.opts.precision):
-            outputs = self.forward(frames)
+            outputs, pooled = self.forward(frames)
+            if rng_before is not None:
+                pull = self._matched_pull(frames, pooled, rng_before)
         # The loss in float32 whatever the forward pass ran in (a no-op for fp32).
         outputs = ScottiOutputs(*(o.float() for o in outputs))
         loss, _ = scotti_loss(outputs, targets, self.opts.loss_weights)
@@ -196,11 +208,24 @@ class Trainer:
         return loss_sum / windows, int(windows)
 
     def _anchor_pull(self, frames: list[torch.Tensor]) -> torch.Tensor | None:
-        """--keep-near's weighted term for this batch (None without it), recorded."""
-        if self.anchor is None:
+        """--keep-near-pass eval's weighted term for this batch (None otherwise), recorded."""
+        if self.anchor is None or self.anchor.matched:
             return None
         with autocast(self.device, self.opts.precision):  # a dropout-free pass (anchor.py)
             term = self.anchor.term(self.model, frames, self.opts.stride)
+        return self._recorded(term)
+
+    def _matched_pull(
+        self, frames: list[torch.Tensor], pooled: torch.Tensor, rng_before: RngState
+    ) -> torch.Tensor:
+        """--keep-near-pass matched's weighted term, recorded: the training pass's pooled
+        vectors against the reference's replay of it (anchor.py)."""
+        assert self.anchor is not None
+        term = self.anchor.matched_term(self.model, frames, self.opts.stride, pooled, rng_before)
+        return self._recorded(term)
+
+    def _recorded(self, term: torch.Tensor) -> torch.Tensor:
+        assert self.anchor is not None
         self.anchor_terms.append(float(term.detach()))
         self.state.epoch_anchor_sum += self.anchor_terms[-1]
         return self.anchor.weight * term
@@ -328,6 +353,7 @@ class Trainer:
         if self.anchor is not None:  # one process only (train_cli refuses torchrun)
             record["keep_near"] = {
                 "weight": self.anchor.weight,
+                "pass": "matched" if self.anchor.matched else "eval",
                 "distance": st.epoch_anchor_sum / max(1, st.step_in_epoch),  # mean per step
             }
         val = self._validate()

@@ -6,11 +6,12 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from scotti.export.anchor import PASSES
 from scotti.export.devices import DEVICES, PRECISIONS
 from scotti.export.finetune import FREEZE_GROUPS
 from scotti.export.model import ARCHES
 from scotti.export.run_dir import RUN_FILES
-from scotti.export.train_options import TrainOptions
+from scotti.export.train_options import NORM_STATISTICS, TrainOptions
 from scotti.export.validation import VAL_FRACTION
 
 # Named model sizes. "paper" is the paper's E=512; "small" trains in hours on
@@ -128,6 +129,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "each batch's first chunk (a dropout-free pass) to what the --init weights give for "
         "them, so a fine-tune keeps the representation the unfamiliar flag is calibrated on "
         "(export/anchor.py; 0 = off)",
+    )
+    parser.add_argument(
+        "--norm-statistics",
+        choices=NORM_STATISTICS,
+        default=None,
+        help="the frame CNN's batch norm while training: 'batch' normalises by each batch "
+        "(its running statistics follow), 'kept' by the statistics it has, as at inference "
+        "(default: kept for --init from an exported graph, which folded them away; batch "
+        "otherwise)",
+    )
+    parser.add_argument(
+        "--keep-near-pass",
+        choices=PASSES,
+        default=d.keep_near_pass,
+        help="what --keep-near compares: 'eval', a dropout-free pass of the first chunk; "
+        "'matched', the training pass of every window against the --init weights' replay of "
+        "it with the same dropout masks and batch statistics (0 until the weights move)",
     )
     w = d.loss_weights
     parser.add_argument(

@@ -170,7 +170,15 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         min_delta=args.min_delta,
         ema=args.ema,
         keep_near=args.keep_near,
+        keep_near_pass=args.keep_near_pass,
+        norm_statistics=args.norm_statistics or _default_norm_statistics(args.init),
     )
+
+
+def _default_norm_statistics(init: Path | None) -> str:
+    """'kept' for a fine-tune of an exported graph: its batch norm is the identity after
+    folding (graph_weights.py), and batch statistics would standardise its input again."""
+    return "kept" if init is not None and Path(init).suffix == ".onnx" else "batch"
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -405,8 +413,11 @@ def _anchor(
         init = _initial_checkpoint(Path(training_data["init"]))
     reference = Scotti(model.cfg)
     load_initial_weights(reference, init["model"])
-    log.info("--keep-near %g: pooled vectors held near %s", opts.keep_near, training_data["init"])
-    return Anchor(reference, opts.keep_near)
+    log.info(
+        "--keep-near %g (%s passes): pooled vectors held near %s",
+        opts.keep_near, opts.keep_near_pass, training_data["init"],
+    )  # fmt: skip
+    return Anchor(reference, opts.keep_near, opts.keep_near_pass)
 
 
 def _frozen_note(freeze: tuple[str, ...]) -> str:

@@ -38,6 +38,14 @@ class TrainOptions:
     min_delta: float = 1e-3  # what counts as an improvement of the validation loss
     ema: float = 0.0  # decay of an exponential moving average of the weights; 0 = off
     keep_near: float = 0.0  # weight of the pull of pooled vectors to --init's (anchor.py); 0 = off
+    keep_near_pass: str = "eval"  # which passes it compares: "eval" or "matched" (anchor.py)
+    # "batch": the frame CNN's batch norm normalises by each batch and its running
+    # statistics follow; "kept": it runs on the statistics it has, as at inference.
+    # scotti train picks "kept" for --init from an exported graph (NORM_STATISTICS).
+    norm_statistics: str = "batch"
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+NORM_STATISTICS = ("batch", "kept")

@@ -41,6 +41,7 @@ TEMPO=${TEMPO:-0}                  # share of chunks played slower or faster (sc
                                    # --tempo-stretch, export/tempo.py; 0: off)
 KEEP_NEAR=${KEEP_NEAR:-0}          # with INIT: weight of the pull of the pooled vectors towards
                                    # INIT's (scotti train --keep-near, export/anchor.py; 0: off)
+KEEP_NEAR_PASS=${KEEP_NEAR_PASS:-eval}  # what the pull compares: eval or matched (--keep-near-pass)
 WORKERS=${WORKERS:-$((JOBS > 2 ? JOBS - 2 : 0))}
 MORE=${MORE:-48}                   # people rendered through wide insoles (subject-033 on)
 SLOW=${SLOW:-0}                    # people after them (subject-081 on) also drawn at wide walking
@@ -173,14 +174,14 @@ form=()
 augment=()  # the augmentations asked for beyond the recipe's
 [[ $TRANSFER != 0 ]] && augment+=(--sensor-transfer "$TRANSFER")
 [[ $TEMPO != 0 ]] && augment+=(--tempo-stretch "$TEMPO")
-[[ $KEEP_NEAR != 0 ]] && augment+=(--keep-near "$KEEP_NEAR")
+[[ $KEEP_NEAR != 0 ]] && augment+=(--keep-near "$KEEP_NEAR" --keep-near-pass "$KEEP_NEAR_PASS")
 init=(--config small)  # --init takes the size from its weights
 [[ -n $INIT ]] && init=(--init "$INIT")
 if [[ $EXPORT_ONLY != 1 ]]; then
   echo "train_wide: training $RUN on $DEVICE"
   mkdir -p "$RUN"
   # The card quotes this (experiments/card_training.py): how the weights were made.
-  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO KEEP_NEAR=$KEEP_NEAR SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
   "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
     --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
     --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \

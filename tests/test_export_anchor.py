@@ -12,7 +12,7 @@ pytest.importorskip("torch")
 import numpy as np
 import torch
 from scotti.cli.main import main
-from scotti.export.anchor import Anchor, relative_distance
+from scotti.export.anchor import Anchor, relative_distance, rng_state
 from scotti.export.data import load_session
 from scotti.export.evaluate import chunked_outputs_pooled
 from scotti.export.model import Scotti
@@ -118,3 +118,68 @@ def test_cli_keep_near_needs_init_records_its_term_and_resumes(
     assert history[1]["keep_near"]["distance"] > 0.0  # the weights have moved by then
     ckpt = torch.load(second / "last.pt", weights_only=True)
     assert ckpt["options"]["keep_near"] == 5.0
+
+
+def test_the_matched_pass_replays_the_training_pass_exactly(tmp_path: Path) -> None:
+    """Same weights, same dropout masks, same batch statistics: 0 though dropout is on;
+    the generator and the reference's running statistics are left as they were."""
+    write_session(tmp_path / "a.scotti", 80, subject="a")
+    frames = [frames_of(tmp_path / "a.scotti", 0, TINY["window"] + 6)]
+    model = tiny_model(0, dropout=0.3)  # masks to replay
+    anchor = Anchor(model, weight=1.0, pass_="matched")
+    buffers = {k: b.clone() for k, b in anchor.model.named_buffers()}
+    model.train()
+    before = rng_state(torch.device("cpu"))
+    _, pooled = chunked_outputs_pooled(model, frames, TINY["window"], 2)
+    after = torch.get_rng_state()
+    assert float(anchor.matched_term(model, frames, 2, pooled, before).detach()) == 0.0
+    assert torch.equal(torch.get_rng_state(), after)  # training draws on as it would have
+    for k, b in anchor.model.named_buffers():
+        assert torch.equal(b, buffers[k]), k
+    # Another draw of the masks is not the same pass: dropout alone moves the vectors,
+    # which is what the eval pass avoided and the matched pass replays away.
+    _, other = chunked_outputs_pooled(model, frames, TINY["window"], 2)
+    assert float(relative_distance(other.detach(), pooled.detach())) > 0.0
+    with torch.no_grad():
+        model.pool_weights.add_(torch.linspace(-1, 1, model.pool_weights.numel()))
+    before = rng_state(torch.device("cpu"))
+    _, pooled = chunked_outputs_pooled(model, frames, TINY["window"], 2)
+    term = anchor.matched_term(model, frames, 2, pooled, before)
+    assert float(term.detach()) > 0.0
+    term.backward()  # type: ignore[no-untyped-call]
+    assert model.pool_weights.grad is not None
+    assert model.pool_weights.grad.abs().sum() > 0
+    assert all(p.grad is None for p in anchor.model.parameters())
+
+
+def test_a_matched_pull_keeps_a_fine_tune_nearer_its_start(tmp_path: Path) -> None:
+    write_session(tmp_path / "a.scotti", 160, subject="a")
+    data = WindowDataset([load_session(tmp_path / "a.scotti")], window=TINY["window"])
+    frames = [frames_of(tmp_path / "a.scotti", 0, 120)]
+    start = tiny_model(3, dropout=0.3)
+    # The norm on its own statistics, as a fine-tune of a graph runs it: the pull holds
+    # the training pass, and inference (what _drift reads) then differs only by dropout.
+    opts = TrainOptions(
+        epochs=2, batch=8, chunk=4, lr=3e-3, progress_bar=False, seed=5, norm_statistics="kept"
+    )
+    drifts, first_losses = {}, {}
+    for weight in (0.0, 100.0):
+        model = tiny_model(3, dropout=0.3)
+        anchor = Anchor(start, weight, pass_="matched") if weight else None
+        trainer = Trainer(model, data, None, opts, anchor=anchor)
+        trainer.fit(max_steps=12)
+        drifts[weight] = _drift(model, start, frames)
+        first_losses[weight] = trainer.step_losses[0]
+        if anchor is not None:
+            assert len(trainer.anchor_terms) == len(trainer.step_losses) > 1
+            assert trainer.anchor_terms[0] == 0.0  # the replay of the first step is exact
+            assert trainer.anchor_terms[-1] > 0.0
+    # The replay leaves the generator as it was: the first step's loss (its dropout
+    # masks, its batch) is the same with and without the pull.
+    assert first_losses[100.0] == first_losses[0.0]
+    assert drifts[100.0] < 0.5 * drifts[0.0], drifts
+
+
+def test_an_unknown_pass_is_refused() -> None:
+    with pytest.raises(ValueError, match="keep-near-pass"):
+        Anchor(tiny_model(0), 1.0, pass_="train")

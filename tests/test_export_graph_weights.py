@@ -134,3 +134,24 @@ def test_train_init_takes_a_graph(tmp_path: Path, capsys: pytest.CaptureFixture[
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
     assert "no.window.onnx, not found" in err[0]
+
+
+def test_a_fine_tune_of_a_graph_keeps_its_norm_statistics(tmp_path: Path) -> None:
+    """The graph folded its batch norm away (identity statistics): a fine-tune runs it on
+    them, as inference does, unless asked to normalise by batches."""
+    write_session(tmp_path / "a.scotti", 120, subject="a")
+    base = [str(tmp_path / "a.scotti"), "--epochs", "1", "--batch", "8", "--chunk", "4"]
+    folded = checkpoint_from_graph(TINY_STEP)["model"]
+    stats = ("cnn.norm.running_mean", "cnn.norm.running_var")
+    runs = {}
+    for name, extra in (("default", []), ("batch", ["--norm-statistics", "batch"])):
+        run = tmp_path / name
+        assert main(["train", *base, "-o", str(run), "--init", str(TINY_STEP), *extra]) == 0
+        runs[name] = torch.load(run / "last.pt", weights_only=True)
+    kept = runs["default"]
+    assert kept["options"]["norm_statistics"] == "kept"
+    for key in stats:
+        assert torch.equal(kept["model"][key], folded[key]), key
+    assert not torch.equal(kept["model"]["cnn.norm.weight"], folded["cnn.norm.weight"])  # trains
+    assert runs["batch"]["options"]["norm_statistics"] == "batch"
+    assert not torch.equal(runs["batch"]["model"][stats[0]], folded[stats[0]])

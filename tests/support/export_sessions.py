@@ -42,13 +42,13 @@ TINY_MODEL: dict[str, Any] = {
 }
 
 
-def tiny_model(seed: int) -> Scotti:
+def tiny_model(seed: int, dropout: float = 0.0) -> Scotti:
     """A ``Scotti`` of ``TINY_MODEL``'s size with seeded weights (needs torch)."""
     import torch
     from scotti.export.model import Scotti, ScottiConfig
 
     torch.manual_seed(seed)
-    return Scotti(ScottiConfig.from_dict(TINY_MODEL))
+    return Scotti(ScottiConfig.from_dict({**TINY_MODEL, "dropout": dropout}))
 
 
 def foot_counts(k: int, foot: int) -> np.ndarray:
