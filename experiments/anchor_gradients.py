@@ -1,7 +1,7 @@
 """How hard ``--keep-near`` pulls against the task: gradient norms of both on real batches.
 
     python experiments/anchor_gradients.py --checkpoint runs/v31-keep-near/best.pt \\
-        [--init models/scotti-default.onnx] [--weight 10] \\
+        [--init models/scotti-default.onnx] [--weight 10] [--pass eval|matched] \\
         [--session data/corpus21/realistic/subject-000.ses] [--batches 5]
 
 For the ``--init`` weights themselves and for a trained checkpoint, on a few
@@ -10,8 +10,11 @@ spread over the session): the pull's term (export/anchor.py), the norm of its
 weighted gradient, the task loss (the recipe's weights 0.01, 1, 3) and the
 norm of its gradient. Training clips the sum of both to a norm of 1, so where
 the pull's norm is several times the task's, most of every step goes to it.
-The trained model runs each chunk in training mode first (as a step does), so
-its batch-norm statistics move as they do in training. A few seconds on a CPU.
+With ``--pass eval`` the trained model runs each chunk in training mode first (as
+a step does), so its batch-norm statistics move as they do in training. With
+``--pass matched`` the pull is read off the training pass itself, replayed by
+the reference (export/anchor.py), the norm on its own statistics as a
+fine-tune of a graph runs it (``--norm-statistics kept``). A few seconds on a CPU.
 """
 
 from __future__ import annotations
@@ -38,13 +41,14 @@ def main(argv: list[str] | None = None) -> int:
         "--session", type=Path, default=ROOT / "data/corpus21/realistic/subject-000.ses"
     )
     parser.add_argument("--batches", type=int, default=5)
+    parser.add_argument("--pass", dest="pass_", choices=("eval", "matched"), default="eval")
     args = parser.parse_args(argv)
 
     import torch
-    from scotti.export.anchor import Anchor
+    from scotti.export.anchor import Anchor, rng_state
     from scotti.export.checkpoint import load_checkpoint
     from scotti.export.data import load_session
-    from scotti.export.evaluate import chunked_outputs
+    from scotti.export.evaluate import chunked_outputs_pooled
     from scotti.export.finetune import load_initial_weights
     from scotti.export.graph_weights import checkpoint_from_graph
     from scotti.export.losses import LossWeights, ScottiTargets, scotti_loss
@@ -56,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = ScottiConfig.from_dict(init["config"])
     reference = Scotti(cfg)
     load_initial_weights(reference, init["model"])
-    anchor = Anchor(reference, args.weight)
+    anchor = Anchor(reference, args.weight, args.pass_)
     data = WindowDataset([load_session(args.session)], window=cfg.window)
     chunks = list(data.chunks(stride=STRIDE, chunk=CHUNK))
     picked = [
@@ -81,15 +85,19 @@ def main(argv: list[str] | None = None) -> int:
                 torch.from_numpy(t.progress),
             )  # fmt: skip
             model.train()
+            if anchor.matched:
+                model.cnn.norm.eval()  # --norm-statistics kept, as the fine-tune runs it
             model.zero_grad()
-            task, _ = scotti_loss(
-                chunked_outputs(model, frames, cfg.window, STRIDE), targets,
-                LossWeights(*LOSS_WEIGHTS),
-            )  # fmt: skip
-            task.backward()  # type: ignore[no-untyped-call]
+            before = rng_state(torch.device("cpu"))
+            outputs, pooled = chunked_outputs_pooled(model, frames, cfg.window, STRIDE)
+            task, _ = scotti_loss(outputs, targets, LossWeights(*LOSS_WEIGHTS))
+            task.backward(retain_graph=True)  # type: ignore[no-untyped-call]
             task_norm = grad_norm(model)
             model.zero_grad()
-            term = anchor.term(model, frames, STRIDE)
+            if anchor.matched:
+                term = anchor.matched_term(model, frames, STRIDE, pooled, before)
+            else:
+                term = anchor.term(model, frames, STRIDE)
             (args.weight * term).backward()  # type: ignore[no-untyped-call]
             print(
                 f"{name:10s} pull term {float(term.detach()):.4f}, gradient {grad_norm(model):.2f}"
