@@ -92,6 +92,19 @@ def _load(path: Path) -> tuple[dict[str, np.ndarray], list[np.ndarray], dict[str
     return named, matmuls, config
 
 
+def has_folded_norm(state: dict[str, torch.Tensor]) -> bool:
+    """Whether the frame CNN's batch norm has the statistics a graph's weights are read
+    back with (mean 0, variance 1 - eps, below): weights from a graph, or fine-tuned from
+    one with the statistics kept. Scale and shift may have trained; a norm that ran on
+    batch statistics never ends on exactly these."""
+    mean, var = state.get("cnn.norm.running_mean"), state.get("cnn.norm.running_var")
+    if mean is None or var is None:
+        return False
+    return bool(torch.all(mean == 0)) and bool(
+        torch.allclose(var.float(), torch.full_like(var.float(), 1.0 - 1e-5), rtol=0, atol=1e-7)
+    )
+
+
 def _state(path: Path) -> tuple[ScottiConfig, dict[str, torch.Tensor]]:
     named, matmuls, config = _load(path)
     try:

@@ -136,7 +136,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="the frame CNN's batch norm while training: 'batch' normalises by each batch "
         "(its running statistics follow), 'kept' by the statistics it has, as at inference "
-        "(default: kept for --init from an exported graph, which folded them away; batch "
+        "(default: kept for --init weights whose statistics an exported graph folded "
+        "away, read back from it or fine-tuned from it so; a resumed run's own; batch "
         "otherwise)",
     )
     parser.add_argument(

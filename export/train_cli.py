@@ -30,7 +30,7 @@ from scotti.export.checkpoint import load_checkpoint
 from scotti.export.devices import check_precision, resolve_device
 from scotti.export.distributed import DistContext, context_from_environment
 from scotti.export.errors import ExportError
-from scotti.export.graph_weights import checkpoint_from_graph
+from scotti.export.graph_weights import checkpoint_from_graph, has_folded_norm
 from scotti.export.losses import LossWeights
 from scotti.export.model import ModelConfigError, Scotti, ScottiConfig
 from scotti.export.run_data import RunData, load_sessions, prepare, same_session_files
@@ -171,14 +171,19 @@ def _options(args: argparse.Namespace) -> TrainOptions:
         ema=args.ema,
         keep_near=args.keep_near,
         keep_near_pass=args.keep_near_pass,
-        norm_statistics=args.norm_statistics or _default_norm_statistics(args.init),
+        norm_statistics=args.norm_statistics or "batch",  # or as the weights say: run_training
     )
 
 
-def _default_norm_statistics(init: Path | None) -> str:
-    """'kept' for a fine-tune of an exported graph: its batch norm is the identity after
-    folding (graph_weights.py), and batch statistics would standardise its input again."""
-    return "kept" if init is not None and Path(init).suffix == ".onnx" else "batch"
+def _default_norm_statistics(ckpt: dict[str, Any] | None, init: dict[str, Any] | None) -> str:
+    """--norm-statistics when not given: a resumed run's own; for --init, 'kept' where the
+    weights' batch norm has a graph's folded statistics (graph_weights.has_folded_norm:
+    batch statistics would standardise its input again), 'batch' otherwise."""
+    if ckpt is not None:
+        return str(ckpt.get("options", {}).get("norm_statistics", "batch"))
+    if init is not None and has_folded_norm(init["model"]):
+        return "kept"
+    return "batch"
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -227,6 +232,8 @@ def train(
     if args.resume and ckpt is None:
         log.info("no %s yet: starting a new run", resume_from)
     init = _initial_checkpoint(args.init) if args.init is not None and ckpt is None else None
+    if args.norm_statistics is None:
+        opts = dataclasses.replace(opts, norm_statistics=_default_norm_statistics(ckpt, init))
     if init is not None and args.config is not None:
         msg = "--init takes the model size from its checkpoint; leave out --config"
         raise TrainCliError(msg)

@@ -41,7 +41,7 @@ class TrainOptions:
     keep_near_pass: str = "eval"  # which passes it compares: "eval" or "matched" (anchor.py)
     # "batch": the frame CNN's batch norm normalises by each batch and its running
     # statistics follow; "kept": it runs on the statistics it has, as at inference.
-    # scotti train picks "kept" for --init from an exported graph (NORM_STATISTICS).
+    # scotti train picks "kept" for --init weights with a graph's folded statistics.
     norm_statistics: str = "batch"
 
     def to_dict(self) -> dict[str, Any]:

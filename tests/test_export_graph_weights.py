@@ -155,3 +155,29 @@ def test_a_fine_tune_of_a_graph_keeps_its_norm_statistics(tmp_path: Path) -> Non
     assert not torch.equal(kept["model"]["cnn.norm.weight"], folded["cnn.norm.weight"])  # trains
     assert runs["batch"]["options"]["norm_statistics"] == "batch"
     assert not torch.equal(runs["batch"]["model"][stats[0]], folded[stats[0]])
+    # Resumed without the option, a run goes on as it began.
+    again = ["train", *base, "-o", str(tmp_path / "default"), "--resume", "--epochs", "2"]
+    assert main(again) == 0
+    resumed = torch.load(tmp_path / "default" / "last.pt", weights_only=True)
+    assert resumed["options"]["norm_statistics"] == "kept"
+    assert torch.equal(resumed["model"][stats[0]], folded[stats[0]])
+
+
+def test_weights_with_a_graphs_norm_are_told_from_trained_ones(tmp_path: Path) -> None:
+    """--norm-statistics' default reads the weights, not the file name: a checkpoint
+    saved from a graph's weights keeps them too; one trained on batches does not."""
+    from scotti.export.graph_weights import has_folded_norm
+
+    folded = checkpoint_from_graph(TINY_STEP)
+    assert has_folded_norm(folded["model"])
+    trained = torch.load(TINY_CHECKPOINT, weights_only=True)["model"]
+    assert not has_folded_norm(trained)
+    assert not has_folded_norm({})  # no batch norm at all
+    saved = tmp_path / "from-graph.pt"
+    torch.save({"config": folded["config"], "model": folded["model"]}, saved)
+    write_session(tmp_path / "a.scotti", 120, subject="a")
+    base = [str(tmp_path / "a.scotti"), "--epochs", "1", "--batch", "8", "--chunk", "4"]
+    assert main(["train", *base, "-o", str(tmp_path / "r"), "--init", str(saved)]) == 0
+    ckpt = torch.load(tmp_path / "r" / "last.pt", weights_only=True)
+    assert ckpt["options"]["norm_statistics"] == "kept"
+    assert has_folded_norm(ckpt["model"])  # a fine-tune so kept reads as one again
