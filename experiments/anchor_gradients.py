@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     import torch
-    from scotti.export.anchor import Anchor, rng_state
+    from scotti.export.anchor import Anchor
     from scotti.export.checkpoint import load_checkpoint
     from scotti.export.data import load_session
     from scotti.export.evaluate import chunked_outputs_pooled
@@ -53,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     from scotti.export.graph_weights import checkpoint_from_graph
     from scotti.export.losses import LossWeights, ScottiTargets, scotti_loss
     from scotti.export.model import Scotti, ScottiConfig
+    from scotti.export.rng_state import rng_state
     from scotti.export.windows import WindowDataset
 
     torch.manual_seed(0)

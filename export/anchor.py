@@ -38,6 +38,7 @@ from collections.abc import Sequence
 import torch
 from scotti.export.evaluate import chunked_outputs_pooled
 from scotti.export.model import Scotti
+from scotti.export.rng_state import RngState, rng_state, set_rng_state
 
 PASSES = ("eval", "matched")  # --keep-near-pass
 
@@ -104,21 +105,6 @@ class Anchor:
             self.model.load_state_dict(buffers, strict=False)
             self.model.eval()
         return relative_distance(pooled.float(), reference.float())
-
-
-RngState = tuple[torch.Tensor, torch.Tensor | None]
-
-
-def rng_state(device: torch.device) -> RngState:
-    """The generators dropout draws from: the CPU's, and the GPU's on a GPU."""
-    gpu = torch.cuda.get_rng_state(device) if device.type == "cuda" else None
-    return torch.get_rng_state(), gpu
-
-
-def set_rng_state(state: RngState, device: torch.device) -> None:
-    torch.set_rng_state(state[0])
-    if state[1] is not None:
-        torch.cuda.set_rng_state(state[1], device)
 
 
 def relative_distance(pooled: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:

@@ -46,6 +46,16 @@ def freeze_parts(model: Scotti, groups: Sequence[str]) -> list[torch.nn.Module]:
     return modules
 
 
+def kept_norm(model: Scotti) -> torch.nn.Module:
+    """``--norm-statistics kept``: the frame CNN's batch norm, to be kept in eval mode
+    while training (its scale and shift still train). An exported graph folded the norm
+    into the projection and left the identity: batch statistics would standardise
+    again what the graph already had, and the first step would train another function
+    than the graph's (experiments/norm_statistics.py: farther than a whole fine-tune
+    moved the shipped model's pooled vectors)."""
+    return model.cnn.norm
+
+
 def load_initial_weights(model: Scotti, state: dict[str, torch.Tensor]) -> list[str]:
     """Start from another run's weights (``--init``); returns what could not be copied whole.
 

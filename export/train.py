@@ -31,7 +31,7 @@ from typing import Any
 
 import torch
 from scotti.export import distributed
-from scotti.export.anchor import Anchor, RngState, rng_state
+from scotti.export.anchor import Anchor
 from scotti.export.checkpoint import save_checkpoint
 from scotti.export.devices import autocast, batch_to_device, pin_batch
 from scotti.export.distributed import DistContext
@@ -40,11 +40,12 @@ from scotti.export.epoch_log import log_epoch, write_history
 from scotti.export.epochs import PlannedChunk, batch_tensors, plan_epoch, warmup_cosine
 from scotti.export.errors import ExportError
 from scotti.export.evaluate import chunked_outputs_pooled, evaluate
-from scotti.export.finetune import FREEZE_GROUPS, freeze_parts, load_initial_weights
+from scotti.export.finetune import FREEZE_GROUPS, freeze_parts, kept_norm, load_initial_weights
 from scotti.export.losses import ScottiTargets, scotti_loss
 from scotti.export.model import Scotti, ScottiOutputs
 from scotti.export.optimizer import adam, load_optimizer_state
 from scotti.export.prefetch import prefetched
+from scotti.export.rng_state import RngState, rng_state, set_rng_state
 from scotti.export.stop_signals import StopRequest
 from scotti.export.throughput import measure_throughput, unfold_frames
 from scotti.export.train_options import TrainOptions
@@ -123,12 +124,7 @@ class Trainer:
         self.training_data = training_data or {}
         self.frozen = freeze_parts(model, opts.freeze)
         if opts.norm_statistics == "kept":
-            # An exported graph folded the batch norm into the projection and left the
-            # identity: batch statistics would standardise again what the graph already
-            # had, and the first step would train another function than the graph's
-            # (the shipped model's pooled vectors move farther than a whole fine-tune
-            # moved them: experiments/norm_statistics.py). Its scale and shift train.
-            self.frozen.append(model.cnn.norm)
+            self.frozen.append(kept_norm(model))
         self.forward = distributed.wrap(ChunkedWindows(model, opts.stride), self.dist, self.device)
         self.optimizer = adam(
             [p for p in model.parameters() if p.requires_grad],
@@ -386,19 +382,13 @@ class Trainer:
 
     # --- checkpoints -------------------------------------------------------------
 
-    def _rng_state(self) -> dict[str, torch.Tensor]:
-        state = {"torch": torch.get_rng_state()}
-        if self.device.type == "cuda":  # dropout on a GPU draws from the GPU's generator
-            state["cuda"] = torch.cuda.get_rng_state(self.device)
-        return state
-
     def checkpoint(self) -> dict[str, Any]:
         """The run as plain values (a collective under torchrun: every rank calls it)."""
         st = self.state
         distributed.sync_buffers(self.model, self.dist)
-        rng: dict[str, Any] = dict(self._rng_state())
+        rng: dict[str, Any] = dict(rng_state(self.device))
         if self.dist.distributed:
-            rng["by_rank"] = distributed.gather(self._rng_state(), self.dist)
+            rng["by_rank"] = distributed.gather(rng_state(self.device), self.dist)
         averaged = {}
         if self.averaged is not None:  # "model" is the average: what export and --init read
             averaged = {
@@ -455,6 +445,4 @@ class Trainer:
         by_rank = rng.get("by_rank")
         if isinstance(by_rank, list) and len(by_rank) == self.dist.world_size:
             rng = by_rank[self.dist.rank]
-        torch.set_rng_state(rng["torch"])
-        if self.device.type == "cuda" and "cuda" in rng:
-            torch.cuda.set_rng_state(rng["cuda"], self.device)
+        set_rng_state(rng, self.device)

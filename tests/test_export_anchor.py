@@ -12,10 +12,11 @@ pytest.importorskip("torch")
 import numpy as np
 import torch
 from scotti.cli.main import main
-from scotti.export.anchor import Anchor, relative_distance, rng_state
+from scotti.export.anchor import Anchor, relative_distance
 from scotti.export.data import load_session
 from scotti.export.evaluate import chunked_outputs_pooled
 from scotti.export.model import Scotti
+from scotti.export.rng_state import rng_state
 from scotti.export.train import Trainer, TrainOptions
 from scotti.export.windows import WindowDataset
 

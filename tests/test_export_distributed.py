@@ -18,7 +18,7 @@ from scotti.export.distributed import DistContext, context_from_environment, sha
 from scotti.export.errors import ExportError
 from scotti.export.model import Scotti
 from scotti.export.train import TrainOptions, plan_epoch
-from scotti.export.train_cli import parse_config
+from scotti.export.train_cli_options import parse_config
 from scotti.export.windows import WindowDataset
 
 from tests.support.ddp_train import weights_digest
