@@ -31,11 +31,16 @@ VERBS: dict[str, tuple[str, str]] = {
     ),
 }
 # "verb action" pairs implemented outside the verb's room: ``session export`` runs the
-# model, which firmware_protocol (the owner of ``session``) must not import.
+# model and ``session relabel`` the labelling convention, which firmware_protocol (the
+# owner of ``session``) must not import.
 VERB_ACTIONS: dict[tuple[str, str], tuple[str, str]] = {
     ("session", "export"): (
         "scotti.daemon.outputs.export_cli",
         "replay a session through the model into an MCAP file (Foxglove, ROS 2)",
+    ),
+    ("session", "relabel"): (
+        "scotti.sim.relabel",
+        "remake simulated sessions' progress labels by today's labelling convention",
     ),
 }
 

@@ -8,6 +8,7 @@ every command line they run is logged to be quoted in the docs.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -36,8 +37,37 @@ IMG = DOCS / "img"
 COMMANDS: list[str] = []
 
 
+# What a rendered session depends on besides its scene: the simulator, the labelling
+# convention (models/) and the session format. A render kept under data/ by an
+# experiment is made again when these change (``render_is_current``): kept renders
+# keyed on the scene alone went on carrying the labels of the day they were made.
+RENDER_CODE = ("sim/**/*.py", "models/*.py", "firmware_protocol/*.py")
+
+
 class ExperimentError(Exception):
     """A step failed: one line for the user."""
+
+
+def simulator_digest() -> str:
+    """A hash of every source file that makes a rendered session (``RENDER_CODE``)."""
+    h = hashlib.sha256()
+    for pattern in RENDER_CODE:
+        for path in sorted(ROOT.glob(pattern)):
+            h.update(str(path.relative_to(ROOT)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def render_is_current(rendered: Path) -> bool:
+    """Whether ``rendered`` exists and was made by the simulator as it is now (its
+    stamp, ``NAME.simulator``, written by ``stamp_render``)."""
+    stamp = rendered.with_name(rendered.name + ".simulator")
+    return rendered.exists() and stamp.is_file() and stamp.read_text() == simulator_digest()
+
+
+def stamp_render(rendered: Path) -> None:
+    """Record that ``rendered`` was made by the simulator as it is now."""
+    rendered.with_name(rendered.name + ".simulator").write_text(simulator_digest())
 
 
 def scotti_command(*args: str | Path) -> list[str]:

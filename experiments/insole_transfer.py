@@ -46,8 +46,10 @@ from common import (
     ROOT,
     ExperimentError,
     from_root,
+    render_is_current,
     run,
     scotti_command,
+    stamp_render,
     table,
     utc_now,
     write_between_markers,
@@ -298,11 +300,15 @@ def sensor_figures(
 
 
 def simulate_people() -> None:
-    """The three people of the table, simulated once (kept under data/insole_transfer)."""
-    if not (PEOPLE / "manifest.json").is_file():
-        # No manifest: a render that was cut short; its files are made again.
+    """The three people of the table, simulated once (kept under data/insole_transfer;
+    again after a change of the simulator or the labelling convention, and then every
+    sensor's copy of them too: ``render_path`` keys on the people's files)."""
+    manifest = PEOPLE / "manifest.json"
+    # No manifest: a render that was cut short; its files are made again.
+    if not render_is_current(manifest):
         cmd = scotti_command("sim", "corpus", "-o", PEOPLE, *CORPUS, "--force")
         run(cmd, WORK / "sim.log")
+        stamp_render(manifest)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,18 +1,21 @@
 """Where the stepping actions' repetition cuts fall against what the insoles show.
 
-    python experiments/label_cuts.py [SESSIONS...] [--cache-dir data/cache]
+    python experiments/label_cuts.py [SESSIONS...] [--cache-dir data/cache] [--strike-share 0.3]
 
 A cut the pressure maps mark (a foot landing) can be learnt to the frame; a cut
 in the middle of single support can only be guessed from the time since the
 last strike, and a model hedges there. For walking, side walking, walking in
 place and walking backward, every run of the action in the sessions (default:
-subject-000 of the realistic corpus) is cut twice, with the indicator of
-models/progress.py and with its negative (cutting at its other extreme), and
-each cut is compared with the nearest foot strike: the frame where a foot's
-total count rises through 30 % of its 95th percentile. Printed per action and
-sign: the cuts, the median frames between cuts, and the offset to the nearest
-strike (mean and spread, frames; negative = before the strike, which a causal
-model cannot yet see).
+subject-000 of the realistic corpus) is cut three times: at the peaks of the
+indicator of models/progress.py, at those of its negative (its other
+extreme), and on the frame after each landing (the candidate convention,
+``run_progress`` with ``step_cut="after_landing"``, models/touchdown.py).
+Each cut is compared with the nearest foot strike: the frame where a foot's
+total count rises through ``--strike-share`` of its 95th percentile (0.3; 0.05
+takes the first frame of load). Printed per action and cut: the cuts, the
+median frames between cuts, and the offset to the nearest strike (mean and
+spread, frames; negative = before the strike, which a causal model cannot yet
+see).
 """
 
 from __future__ import annotations
@@ -24,18 +27,18 @@ import numpy as np
 from common import REALISTIC
 from scotti.export.data import find_sessions, load_session
 from scotti.models.contract import ACTIONS
-from scotti.models.progress import progress_indicator, repetition_cuts
+from scotti.models.progress import PeakParams, progress_indicator, repetition_cuts, run_progress
 
 STEPPING = ("walking", "side_walking", "in_place_walking", "backward_walking")
 STRIKE_SHARE = 0.3  # of a foot's 95th-percentile total count
 
 
-def strikes(load: np.ndarray) -> np.ndarray:
-    """Frames where either foot's total count rises through ``STRIKE_SHARE`` of its p95."""
+def strikes(load: np.ndarray, share: float = STRIKE_SHARE) -> np.ndarray:
+    """Frames where either foot's total count rises through ``share`` of its p95."""
     found: list[int] = []
     for side in range(load.shape[1]):
         x = load[:, side] / max(float(np.percentile(load[:, side], 95)), 1.0)
-        found += (np.flatnonzero((x[1:] >= STRIKE_SHARE) & (x[:-1] < STRIKE_SHARE)) + 1).tolist()
+        found += (np.flatnonzero((x[1:] >= share) & (x[:-1] < share)) + 1).tolist()
     return np.array(sorted(found), dtype=np.int64)
 
 
@@ -53,12 +56,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python experiments/label_cuts.py", description=__doc__)
     parser.add_argument("sessions", nargs="*", type=Path)
     parser.add_argument("--cache-dir", type=Path)
+    parser.add_argument("--strike-share", type=float, default=STRIKE_SHARE)
     args = parser.parse_args(argv)
     paths = find_sessions(args.sessions or [REALISTIC / "subject-000.ses"])
     print("action            sign       cuts  period  offset to strike: mean  spread (frames)")
     for name in STEPPING:
         a = ACTIONS.index(name)
-        for label, sign in (("indicator", 1.0), ("negated", -1.0)):
+        for label, sign in (("indicator", 1.0), ("negated", -1.0), ("after landing", 0.0)):
             offsets: list[int] = []
             periods: list[int] = []
             for path in paths:
@@ -68,9 +72,13 @@ def main(argv: list[str] | None = None) -> int:
                     [s.frames[:, :, :width].sum((1, 2)), s.frames[:, :, width:].sum((1, 2))], 1
                 ).astype(np.float64)
                 for start, end in runs(s.action, a):
-                    h = sign * progress_indicator(s.keypoints[start:end], a)
-                    cuts = repetition_cuts(h)
-                    found = strikes(load[start:end])
+                    if sign == 0.0:  # as the candidate convention cuts it
+                        params = PeakParams(step_cut="after_landing")
+                        _, repetition = run_progress(s.keypoints[start:end], a, params)
+                        cuts = np.flatnonzero(np.diff(repetition) > 0) + 1
+                    else:
+                        cuts = repetition_cuts(sign * progress_indicator(s.keypoints[start:end], a))
+                    found = strikes(load[start:end], args.strike_share)
                     if found.size == 0:
                         continue
                     offsets += [int(c - found[np.argmin(np.abs(found - c))]) for c in cuts]

@@ -72,7 +72,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import insole_transfer
 import real_data
-from common import ROOT, ExperimentError, scotti_command
+from common import ROOT, ExperimentError, render_is_current, scotti_command, stamp_render
 
 # The paper's bar (Table 2, real people) and the rule's margins against the shipped model.
 PAPER_APP: Final = 0.8952
@@ -209,16 +209,19 @@ def scene_line(scene: str, metric: str, candidate: float, shipped: float) -> Lin
 
 def scene_lines(candidate: Path, shipped: Path, scenes: Sequence[Path] | None = None) -> list[Line]:
     """Line 4: each scene file (all of sim/scenes unless SCENES) rendered into WORK once
-    (again when the scene file is newer), both models scored on the same replay."""
+    (again when the scene file is newer, or the simulator or the labelling convention
+    changed), both models scored on the same replay."""
     WORK.mkdir(parents=True, exist_ok=True)
     lines: list[Line] = []
     for scene in scenes if scenes is not None else sorted(SCENES.glob("*.toml")):
         session = WORK / f"{scene.stem}.scotti"
-        if not session.is_file() or session.stat().st_mtime < scene.stat().st_mtime:
+        stale = not render_is_current(session)
+        if stale or session.stat().st_mtime < scene.stat().st_mtime:
             part = WORK / f".{scene.stem}.part"
             cmd = scotti_command("sim", scene, "-o", part, "--force")
             subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
             part.replace(session)
+            stamp_render(session)
         cand, ship = (r["metrics"] for r in eval_json([session], [candidate, shipped]))
         name = scene.name
         lines.append(scene_line(name, "accuracy", cand["action_accuracy"], ship["action_accuracy"]))

@@ -41,10 +41,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info = sub.add_parser("info", help="summarise a session file")
     info.add_argument("file", metavar="FILE", help="a session file (.scotti)")
     info.add_argument("--json", action="store_true", help="print one JSON object instead")
-    # Listed for --help only: `scotti session export` runs the model, so the command line
-    # (cli/main.py) hands it to scotti.daemon.outputs.export_cli before it reaches here.
+    # Listed for --help only: `scotti session export` and `relabel` run the model's room, so
+    # the command line (cli/main.py) hands them to their modules before they reach here.
     sub.add_parser(
         "export", help="FILE --mcap OUT.mcap [--force]: predictions as a Foxglove recording"
+    )
+    sub.add_parser(
+        "relabel", help="SESSION... --out DIR: simulated sessions' progress labels remade"
     )
 
 

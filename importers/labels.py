@@ -20,10 +20,11 @@ last movement takes the standing after it up to that second, as a pause would.
 Where the keypoints do not show it (none, or masked), the segment file's action
 stands.
 
-Progress comes from the keypoints by the paper's indicators
-(models/progress.py), one run of one action at a time, never across a
-gap. Where the indicator cannot be computed (its keypoints are masked, or
-the action has none) progress stays NaN: missing, not invented.
+Progress comes from the keypoints by the paper's indicators, the stepping
+actions cut where a foot lands (models/progress.py ``run_progress``, as the
+simulator labels), one run of one action at a time, never across a gap.
+Where the indicator cannot be computed (its keypoints are masked, or the
+action has none) progress stays NaN: missing, not invented.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from scotti.importers.config import TIME_UNITS, LabelsConfig
 from scotti.importers.errors import InputError
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ, NO_ACTION
 from scotti.models.errors import ModelInputError
-from scotti.models.progress import progress_from_indicator, progress_indicator
+from scotti.models.progress import progress_indicator, run_progress
 from scotti.models.set_edges import set_edges
 
 # Actions that are states, not exercises: no repetitions, so no progress.
@@ -148,7 +149,7 @@ def frame_progress(
         seen = np.isfinite(h)
         if not seen.any():
             continue
-        p, rep = progress_from_indicator(h)
+        p, rep = run_progress(keypoints[start:end], a)  # the simulator's convention
         progress[start:end] = np.where(seen, p, np.nan)
         repetition[start:end] = rep
     return progress, repetition

@@ -141,8 +141,12 @@ def has_progress(action: int) -> bool:
 #   a segment of the segment file (two segments of one action with nothing
 #   between are one run).
 # - Repetitions are cut where the person rests (models/progress.py): squat and
-#   lunge standing tall, step-up on the floor, walking in place with both feet
-#   down, jump in the crouch; a repetition runs from its cut to the next.
+#   lunge standing tall, step-up on the floor, jump in the crouch; a repetition
+#   runs from its cut to the next. Walking, walking backward and walking in place
+#   run in steps, cut at the indicator's peaks (heel distance, minus the higher
+#   heel's height, heel displacement); the candidate convention cuts them on the
+#   frame after a foot lands (``PeakParams.step_cut``, models/touchdown.py).
+#   Side walking's repetition is its two-step cycle, cut at the heels' widest.
 # - A pause between repetitions, standing at that rest, is part of the set for
 #   its first ``SET_EDGE_REST_S``: it carries the set's action, progress ~0 (it
 #   belongs to the repetition that follows), and the repetition just finished is

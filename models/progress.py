@@ -37,16 +37,25 @@ Choices the paper leaves open, fixed here:
   standing frames read 1 after the last repetition and 0 after every other
   (12-37 % of the squared error of a trained model on squats, step-ups and
   lunges was on such frames).
-- Walking in place is cut where both feet are down, not at the top of a
-  swing: h is minus the higher heel's height, so a step runs double support
-  (0) -> the swing's top (0.5) -> double support (1). The paper's +height
-  cuts at the swing's top, in the middle of single support, which the
-  pressure maps do not mark (on a simulated corpus those cuts fell 3.2
-  frames before the next foot strike with a spread of 0.9 frames; the
-  double-support cuts 1.1 frames after it, spread 0.4; `python
-  experiments/label_cuts.py`). Walking, side walking and walking backward
-  keep the paper's indicators: their cuts already fall within a frame of a
-  foot strike.
+- Walking in place's h is minus the higher heel's height (a step runs double
+  support -> the swing's top, 0.5 -> double support), not the paper's +height,
+  whose peaks fall in the middle of single support, which the pressure maps do
+  not mark (3.2 frames before the next foot strike, spread 0.9).
+- Walking, walking backward and walking in place may be cut on the frame
+  after a foot lands instead (``PeakParams.step_cut = "after_landing"``, the
+  candidate convention; ``run_progress``, models/touchdown.py
+  ``step_starts``), the first frame whose prediction sees the landing: the
+  model predicts frame t from frames t-T..t-1. h's peaks fall half a frame
+  after the landing for walking (on its frame or the next, by the sampling's
+  luck) and 1.5 frames before it for walking backward, and the shipped model
+  hedges at 0.5 there (three quarters of walking's squared progress error;
+  `python experiments/progress_error_sites.py`); cut on the landing frame
+  itself, a model trained so hedged one frame earlier. The cuts fall +0.96
+  frames after the insole first loads (spread 0.18; `python
+  experiments/label_cuts.py data/corpus21/realistic/subject-013.ses
+  --strike-share 0.05`). Within a step, h gives the values, rescaled to start
+  at 0 on the cut and held from h's top to the next cut (``rise_from_cut``).
+  Side walking keeps h's peaks (its two-step cycle is not hedged: APP 0.95).
 - Peaks are found on h smoothed by a short moving average, with a minimum
   prominence (a share of the run's range, and an absolute floor in metres)
   and a minimum distance in frames (``PeakParams``). Values of p use raw h.
@@ -71,7 +80,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -84,6 +93,7 @@ from scotti.models.contract import (
     has_progress,
 )
 from scotti.models.errors import ModelInputError
+from scotti.models.touchdown import TOUCHDOWN_CUT, rise_from_cut, step_starts
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -112,6 +122,17 @@ class PeakParams:
     min_distance: int = 4  # frames between two cuts: 0.25 s, faster than any step
     rel_prominence: float = 0.25  # share of the smoothed run's range
     abs_prominence: float = 1e-3  # metres: a smaller wiggle is noise, not a repetition
+    # Where the stepping actions of touchdown.TOUCHDOWN_CUT start a step (STEP_CUTS).
+    step_cut: str = "peak"
+
+
+# How walking, walking backward and walking in place are cut into steps:
+# "peak", at the indicator's peaks (the convention in force: the shipped model was
+# trained on it); "after_landing", on the frame after each landing (the candidate
+# convention, docs/generalisation.md "Where a step starts": `scotti session relabel
+# --step-cut after_landing` writes a corpus so; it becomes the default when a model
+# trained on it ships, and with it every simulated label).
+STEP_CUTS: Final = ("peak", "after_landing")
 
 
 class ProgressLabels(NamedTuple):
@@ -170,16 +191,28 @@ def repetition_cuts(h: npt.ArrayLike, params: PeakParams = PeakParams()) -> IntA
 
 
 def progress_from_indicator(
-    h: npt.ArrayLike, params: PeakParams = PeakParams()
+    h: npt.ArrayLike, params: PeakParams = PeakParams(), cuts: npt.ArrayLike | None = None
 ) -> tuple[FloatArray, IntArray]:
-    """Progress (N,) in [0, 1] and repetition index (N,) for one run of one action."""
+    """Progress (N,) in [0, 1] and repetition index (N,) for one run of one action.
+
+    ``cuts``: where repetitions start (ascending frames inside the run, never 0),
+    the touch-downs of a stepping action; None cuts at the indicator's peaks.
+    With given cuts a repetition starts at 0 on its cut and its progress never
+    falls before the next: the indicator's top need not sit on a cut (walking
+    backward's lies 2.5 frames before it), so the indicator's value on the cut
+    is the new step's 0 and what follows its top is the step's end, 1.
+    """
     x = _finite(np.asarray(h, dtype=np.float64))
     n = x.size
     progress = np.full(n, 0.5)
     repetition = np.zeros(n, dtype=np.int64)
     if n == 0:
         return progress, repetition
-    cuts, final_rest = _cuts(x, params)
+    given = cuts is not None
+    if cuts is None:
+        cuts, final_rest = _cuts(x, params)
+    else:
+        cuts, final_rest = np.asarray(cuts, dtype=np.int64), False
     bounds = [0, *cuts.tolist(), n]
     first_complete = (int(cuts[0]), int(cuts[1])) if cuts.size >= 2 else None
     last_complete = (int(cuts[-2]), int(cuts[-1])) if cuts.size >= 2 else None
@@ -200,8 +233,30 @@ def progress_from_indicator(
         else:
             reference = first_complete if leading else last_complete
             top, bottom = _partial_extremes(x, start, end, reference)
-        progress[start:end] = _segment_progress(x[start:end], top, bottom, mid)
+        segment = _segment_progress(x[start:end], top, bottom, mid)
+        if given:
+            segment = rise_from_cut(segment, starts_at_cut=not leading)
+        progress[start:end] = segment
     return progress, repetition
+
+
+def run_progress(
+    keypoints: npt.ArrayLike, action: int, params: PeakParams = PeakParams()
+) -> tuple[FloatArray, IntArray]:
+    """Progress and repetition of one run of one repeated action, by the labelling
+    convention: the indicator's peaks; with ``params.step_cut = "after_landing"`` the
+    stepping actions of ``touchdown.TOUCHDOWN_CUT`` on the frame after each landing
+    (where the feet cannot be read, or land fewer than twice, at the peaks)."""
+    if params.step_cut not in STEP_CUTS:
+        msg = f"step_cut {params.step_cut!r} is not one of {', '.join(STEP_CUTS)}"
+        raise ModelInputError(msg)
+    h = progress_indicator(keypoints, action)
+    cuts = None
+    if params.step_cut == "after_landing" and action in TOUCHDOWN_CUT:
+        starts = step_starts(keypoints, params.min_distance)
+        if starts is not None and starts.size >= 2:
+            cuts = starts
+    return progress_from_indicator(h, params, cuts)
 
 
 def label_progress(
@@ -228,10 +283,7 @@ def label_progress(
         action = int(a[start])
         if not has_progress(action):
             continue
-        h = progress_indicator(k[start:end], action)
-        run_progress, run_repetition = progress_from_indicator(h, params)
-        progress[start:end] = run_progress
-        repetition[start:end] = run_repetition
+        progress[start:end], repetition[start:end] = run_progress(k[start:end], action, params)
     return ProgressLabels(progress, repetition)
 
 

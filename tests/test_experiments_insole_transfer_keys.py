@@ -71,3 +71,26 @@ def test_any_session_file_is_read_through_the_named_sensors(
 def test_a_missing_session_file_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     assert insole_transfer.main(["--people", "/nonexistent/x.scotti", "--only", "ours"]) == 2
     assert "x.scotti: no such session file" in capsys.readouterr().err
+
+
+def test_a_render_is_current_only_for_the_simulator_that_stamped_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Renders kept by the experiments (wide_rule's scenes, these people) carry a stamp
+    of the simulator and the labelling convention; a change of either, or no stamp,
+    makes them stale, so labels of an older convention are never scored."""
+    import common
+
+    code = tmp_path / "repo"
+    (code / "models").mkdir(parents=True)
+    labeller = code / "models" / "progress.py"
+    labeller.write_text("CUT = 'peak'\n")
+    monkeypatch.setattr(common, "ROOT", code)
+    rendered = tmp_path / "walking.scotti"
+    assert not common.render_is_current(rendered)  # not there
+    rendered.write_bytes(b"session")
+    assert not common.render_is_current(rendered)  # there, but never stamped
+    common.stamp_render(rendered)
+    assert common.render_is_current(rendered)
+    labeller.write_text("CUT = 'landing'\n")  # the labelling convention changes
+    assert not common.render_is_current(rendered)
