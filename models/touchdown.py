@@ -38,10 +38,11 @@ TOUCHDOWN_CUT: Final[frozenset[int]] = frozenset(
     ACTIONS.index(name) for name in ("walking", "backward_walking", "in_place_walking")
 )
 # A step starts this many frames after its landing: the model predicts frame t from
-# frames t-T..t-1 (models/contract.py), so frame L + 1 is the first whose input shows
-# a landing at L. Cut on the landing frame itself, the wrap was as unanswerable as
-# at the indicator's peak, one frame earlier: trained so (runs/v36-landing-s5), the
-# model hedged on the frame before each landing (docs/generalisation.md).
+# frames t-T..t-1 (evaluation/replay.py; the daemon publishes for the frame to
+# come), so frame L + 1 is the first whose input shows a landing at L. Cut on the
+# landing frame itself, the wrap was as unanswerable as at the indicator's peak,
+# one frame earlier: trained so (runs/v36-landing-s5), the model hedged on the
+# frame before each landing (docs/generalisation.md, "Where a step starts").
 SEEN_AFTER: Final = 1
 DOWN_M: Final = 0.005  # a foot's lowest point this near its resting height: down
 UP_M: Final = 0.010  # ... this far above it: up (between: as before)

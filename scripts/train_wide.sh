@@ -16,7 +16,9 @@
 #   TEMPO=0.3 scripts/train_wide.sh            # play 30 % of the chunks at 0.65-1.3 x their tempo
 #   INIT=... KEEP_NEAR=0.1 scripts/train_wide.sh  # fine-tune with the pooled vectors held near INIT's
 #   INIT=models/scotti-default.onnx EPOCHS=1 LR=3e-4 scripts/train_wide.sh
-#                                              # fine-tune a model (e.g. after a labelling change)
+#                                              # fine-tune a model (e.g. after a labelling change:
+#                                              # `scotti session relabel OLD --out DATA` remakes the
+#                                              # corpus's labels without rendering it again)
 #
 # Every step is checkpointed: the people already rendered and decoded are not redone,
 # and training resumes from RUN/last.pt. Nothing here needs a GPU.
