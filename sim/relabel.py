@@ -44,6 +44,10 @@ class Relabelled:
     labels: int = 0
     changed: int = 0  # labels whose progress or repetition moved
     largest_change: float = 0.0  # the largest |progress difference| where both are finite
+    # The source ended inside a record (a render cut short): the whole records are
+    # copied, the partial one cannot be, and the output says so.
+    cut_short: bool = False
+    bad_records: int = 0  # whole records of the source that could not be read (not copied)
 
 
 def relabel_session(source: Path, target: Path, params: PeakParams | None = None) -> Relabelled:
@@ -58,7 +62,9 @@ def relabel_session(source: Path, target: Path, params: PeakParams | None = None
             )
             raise SessionError(msg)
         old = [r for r in reader if isinstance(r, LabelRecord)]
-    report = Relabelled(target, labels=len(old))
+    report = Relabelled(
+        target, len(old), cut_short=reader.truncated, bad_records=reader.bad_records
+    )
     if not old:
         msg = f"{source}: no label records to remake"
         raise SessionError(msg)
@@ -150,9 +156,14 @@ def run(args: argparse.Namespace) -> int:
             print(f"scotti session relabel: {exc}", file=sys.stderr)
             failed += 1
             continue
+        lost = ""
+        if done.cut_short:
+            lost += "; the source is cut short: its partial last record is not in the copy"
+        if done.bad_records:
+            lost += f"; {done.bad_records} unreadable records of the source are not in the copy"
         print(
             f"{target}: {done.changed} of {done.labels} labels changed"
-            f" (largest progress change {done.largest_change:.2f})"
+            f" (largest progress change {done.largest_change:.2f}){lost}"
         )
     return 1 if failed else 0
 

@@ -114,3 +114,20 @@ def test_a_missing_path_is_a_usage_error(
 ) -> None:
     assert main(["session", "relabel", str(tmp_path / "none"), "--out", str(tmp_path)]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_a_source_cut_short_is_copied_whole_records_and_said(
+    old_and_new: tuple[Path, object], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    old_path, _ = old_and_new
+    data = old_path.read_bytes()
+    cut = tmp_path / "cut.ses"
+    cut.write_bytes(data[: len(data) - 7])  # a render killed inside its last record
+    out = tmp_path / "out"
+    assert main(["session", "relabel", str(cut), "--out", str(out)]) == 0
+    assert "cut short" in capsys.readouterr().out
+    with SessionReader(out / "cut.ses") as copy:
+        records = list(copy)
+        assert not copy.truncated  # the copy itself is whole
+    with SessionReader(cut) as source:
+        assert len(records) == len(list(source))  # every whole record of the source
