@@ -48,14 +48,21 @@ class ExperimentError(Exception):
     """A step failed: one line for the user."""
 
 
-def simulator_digest() -> str:
-    """A hash of every source file that makes a rendered session (``RENDER_CODE``)."""
+def source_digest(patterns: Sequence[str], root: Path | None = None) -> str:
+    """A hash of the files matching ``patterns`` under ``root`` (the repository):
+    their names and bytes. Caches key on it so that a code change remakes them."""
+    root = ROOT if root is None else root
     h = hashlib.sha256()
-    for pattern in RENDER_CODE:
-        for path in sorted(ROOT.glob(pattern)):
-            h.update(str(path.relative_to(ROOT)).encode())
+    for pattern in patterns:
+        for path in sorted(root.glob(pattern)):
+            h.update(str(path.relative_to(root)).encode())
             h.update(path.read_bytes())
     return h.hexdigest()[:16]
+
+
+def simulator_digest() -> str:
+    """A hash of every source file that makes a rendered session (``RENDER_CODE``)."""
+    return source_digest(RENDER_CODE)
 
 
 def render_is_current(rendered: Path) -> bool:

@@ -11,7 +11,6 @@ of any of those gives new keys, so a rerun after one redoes what it changed.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import time
@@ -21,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from common import ROOT, from_root
+from common import ROOT, from_root, source_digest
 from coverage_grid import Cell, digest
 from coverage_score import same_motion, score_scenes
 from scotti.models.kv_streaming import StepModel, open_step_model
@@ -41,12 +40,7 @@ CODE: Final = (
 
 def code_digest(root: Path = ROOT) -> str:
     """A hash of every source file in ``CODE`` (names and bytes)."""
-    h = hashlib.sha256()
-    for pattern in CODE:
-        for path in sorted(root.glob(pattern)):
-            h.update(str(path.relative_to(root)).encode())
-            h.update(path.read_bytes())
-    return h.hexdigest()[:16]
+    return source_digest(CODE, root)
 
 
 @dataclass(frozen=True)
