@@ -1,7 +1,7 @@
 """Where in a repetition does the progress error sit? Squared error by the label's tenth.
 
     python experiments/progress_error_sites.py --model models/scotti-default.onnx \
-        data/corpus7/realistic/subject-{005,007,010,013,014}.ses
+        data/corpus7/realistic/subject-{005,007,010,013,014}.ses [--show walking]
 
 Replays the session files through the daemon's streaming path (as ``scotti
 eval`` does) and pools every frame whose progress is labelled and predicted.
@@ -9,7 +9,9 @@ Per tenth of the label (0-0.1, ..., 0.9-1.0) it prints the share of frames,
 the mean prediction, the MSE and the share of the whole squared error; then,
 per action, the MSE and how much of the action's squared error lies at the
 sawtooth's ends (label below 0.1 or above 0.9: a repetition's last frames and
-the next one's first, where a standing-up body looks the same).
+the next one's first, where a standing-up body looks the same). ``--show
+ACTION`` also prints labels and predictions of that action frame by frame
+(its pooled frames ``--from`` on, 60 of them): where a model hedges at a wrap.
 
 Why: progress is a sawtooth. A repetition's last frames (label near 1) and
 the next one's first (near 0) are both someone standing upright, so a model
@@ -35,6 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python experiments/progress_error_sites.py")
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--model", type=Path, default=Path("models/scotti-default.onnx"))
+    parser.add_argument("--show", choices=contract.ACTIONS, help="print one action's frames")
+    parser.add_argument("--from", dest="first", type=int, default=200, metavar="N")
     args = parser.parse_args(argv)
     runtime = open_step_model(args.model, threads=1)  # either form, as the daemon
     truths, preds, actions = [], [], []
@@ -75,6 +79,11 @@ def main(argv: list[str] | None = None) -> int:
         f"all               {truth.size:7d}  {err.mean():.4f}  {ends.mean():11.1%}  "
         f"{err[ends].mean():.4f}  {err[ends].sum() / total:14.1%}  {err[~ends].mean():.4f}"
     )
+    if args.show is not None:
+        shown = np.flatnonzero(action == contract.ACTIONS.index(args.show))[args.first :][:60]
+        print(f"\n{args.show}, its pooled frames {args.first} on")
+        print("label      " + " ".join(f"{x:.2f}" for x in truth[shown]))
+        print("prediction " + " ".join(f"{x:.2f}" for x in pred[shown]))
     return 0
 
 
