@@ -29,7 +29,8 @@ from scotti.sim.motion import labels
 from scotti.sim.scene import ScriptEntry, SubjectModel, motion_from_segments, script_segments
 
 A = {name: i for i, name in enumerate(ACTIONS)}
-AFTER_LANDING = PeakParams(step_cut="after_landing")  # the candidate convention
+AFTER_LANDING = PeakParams(step_cut="after_landing")
+PEAK = PeakParams(step_cut="peak")
 SWING, SUPPORT = 6, 3  # frames a foot is in the air, and both feet down between steps
 
 
@@ -97,9 +98,9 @@ def test_walking_steps_start_at_0_after_each_landing_and_never_fall() -> None:
     # The walking indicator (heel distance) peaks mid-support, not at the landing.
     k[:, KP["left_heel"], 0] = 0.2 * np.cos(2 * np.pi * np.arange(n) / (SWING + SUPPORT))
     labels_ = label_progress(k, np.full(n, A["walking"]), AFTER_LANDING)
-    in_force = label_progress(k, np.full(n, A["walking"]))
+    at_peaks = label_progress(k, np.full(n, A["walking"]), PEAK)
     peaks, _ = progress_from_indicator(progress_indicator(k, A["walking"]))
-    np.testing.assert_allclose(in_force.progress, peaks.astype(np.float32))  # the default
+    np.testing.assert_allclose(at_peaks.progress, peaks.astype(np.float32))
     cuts = np.flatnonzero(np.diff(labels_.repetition) > 0) + 1
     np.testing.assert_array_equal(cuts, [a + SEEN_AFTER for a in landings if a + 1 < n])
     np.testing.assert_allclose(labels_.progress[cuts], 0.0, atol=1e-6)

@@ -1,6 +1,6 @@
 """``scotti session relabel``: a simulated session written under one labelling
-convention gets another's progress labels (here the candidate's: steps cut after
-each landing), and nothing else of it changes."""
+convention (the one in force) gets the other's progress labels (steps cut at
+the indicator's peaks or after each landing), and nothing else of it changes."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from scotti.cli.main import main
 from scotti.firmware_protocol.session import SessionReader, SessionWriter
 from scotti.firmware_protocol.session_records import LabelRecord, PacketRecord, SessionHeader
 from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
-from scotti.models.progress import PeakParams, label_progress
+from scotti.models.progress import STEP_CUTS, PeakParams, label_progress
 from scotti.sim.actions import Context
 from scotti.sim.motion import labels
 from scotti.sim.relabel import relabel_session
@@ -27,19 +27,20 @@ def _walk_motion():  # type: ignore[no-untyped-def]
     return motion_from_segments(ctx.body, ctx.subject, ctx.rate_hz, script_segments(ctx, entries))
 
 
-AFTER_LANDING = PeakParams(step_cut="after_landing")
+# The convention not in force: relabelling into it changes walking's labels.
+OTHER = PeakParams(step_cut=next(c for c in STEP_CUTS if c != PeakParams().step_cut))
 
 
 @pytest.fixture(scope="module")
 def old_and_new(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
-    """A walk and squats rendered under the convention in force (steps cut at the
-    indicator's peaks), and the same motion's labels with steps cut after landings."""
+    """A walk and squats rendered under the convention in force, and the same
+    motion's labels under the other."""
     motion = _walk_motion()
     truth = labels(motion)
-    after = label_progress(truth.keypoints, truth.action, AFTER_LANDING)
+    other = label_progress(truth.keypoints, truth.action, OTHER)
     path = tmp_path_factory.mktemp("relabel") / "old.ses"
     write_session(path, sim_input(motion), seed=4)
-    return path, after
+    return path, other
 
 
 def _records(path: Path) -> tuple[list[PacketRecord], list[LabelRecord]]:
@@ -54,9 +55,9 @@ def _records(path: Path) -> tuple[list[PacketRecord], list[LabelRecord]]:
 def test_relabelled_file_has_the_other_conventions_labels_and_the_same_packets(
     old_and_new: tuple[Path, object], tmp_path: Path
 ) -> None:
-    old_path, after = old_and_new
+    old_path, other = old_and_new
     out = tmp_path / "new.ses"
-    report = relabel_session(old_path, out, AFTER_LANDING)
+    report = relabel_session(old_path, out, OTHER)
     old_packets, old_labels = _records(old_path)
     new_packets, new_labels = _records(out)
     assert [(p.t_ns, p.data) for p in new_packets] == [(p.t_ns, p.data) for p in old_packets]
@@ -64,8 +65,8 @@ def test_relabelled_file_has_the_other_conventions_labels_and_the_same_packets(
         (r.seq, r.t_ns, r.action) for r in old_labels
     ]
     got = np.array([r.progress for r in new_labels], dtype=np.float32)
-    np.testing.assert_allclose(got, after.progress, atol=1e-6)  # type: ignore[attr-defined]
-    np.testing.assert_array_equal([r.rep for r in new_labels], after.repetition)  # type: ignore[attr-defined]
+    np.testing.assert_allclose(got, other.progress, atol=1e-6)  # type: ignore[attr-defined]
+    np.testing.assert_array_equal([r.rep for r in new_labels], other.repetition)  # type: ignore[attr-defined]
     walking = np.array([r.action for r in old_labels]) == ACTIONS.index("walking")
     was = np.array([r.progress for r in old_labels], dtype=np.float32)
     # The old file really was labelled otherwise: some walking frames moved, no squat did.
@@ -85,7 +86,7 @@ def test_the_command_writes_under_out_and_leaves_existing_files(
     (folder / "a.ses").write_bytes(old_path.read_bytes())
     out = tmp_path / "out"
     relabel = ["session", "relabel", str(tmp_path / "corpus"), "--out", str(out)]
-    assert main([*relabel, "--step-cut", "after_landing"]) == 0
+    assert main([*relabel, "--step-cut", OTHER.step_cut]) == 0
     written = out / "realistic" / "a.ses"
     assert written.is_file()
     assert "labels changed" in capsys.readouterr().out
