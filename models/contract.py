@@ -161,8 +161,9 @@ def has_progress(action: int) -> bool:
 #   the set for at most ``SET_EDGE_REST_S`` (a moment of getting ready, a hold
 #   at the top; it reads ~0 like a pause); beyond that it is ``standing``
 #   (models/set_edges.py applies both bounds to every source). "Still": no
-#   keypoint faster than ``STILL_SPEED_MPS``. A set with no movement at all
-#   keeps its label.
+#   keypoint faster than ``STILL_SPEED_MPS``. A "set" with no movement at all
+#   is no set: seen and straight-legged throughout it is ``standing`` (a squat
+#   of depth 0 is a person standing still); a held crouch keeps its label.
 # - After the last movement of a set of ``PAUSING_ACTIONS`` the still standing is
 #   the set's for exactly ``SET_EDGE_REST_S``, as a pause's is: until that second
 #   is over a set's end and a pause look the same, so the label may not tell them

@@ -28,7 +28,10 @@ Stillness is read from the keypoints of the run itself (pose frame, metres):
 a frame is still when no keypoint moved faster than ``STILL_SPEED_MPS`` since
 the previous frame (the run's first frame: up to the second). A frame with no
 keypoint seen in both is unknown, and an edge with an unknown frame is left as
-it is: what the keypoints do not show is not relabelled. Numpy only.
+it is: what the keypoints do not show is not relabelled. A run in which nothing
+moves at all is no set: seen and straight-legged throughout it is ``STANDING``
+(the same motion as standing gets standing's label), a held crouch keeps its
+label. Numpy only.
 """
 
 from __future__ import annotations
@@ -108,7 +111,13 @@ def set_edges(
         speed = frame_speeds(k[start:end], rate_hz)
         moving = np.flatnonzero(speed >= STILL_SPEED_MPS)
         if moving.size == 0:
-            continue  # no movement seen: nothing to measure the edges from
+            # Nothing moved: no set was done, whatever the source said (a squat of
+            # depth 0 is a person standing). Seen and straight-legged throughout, the
+            # run is the standing it shows; otherwise (a held crouch, an unseen frame)
+            # there is nothing to measure its edges from and it keeps its label.
+            if np.isfinite(speed).all() and _straight_legged(k[start:end]).all():
+                out[start:end] = STANDING
+            continue
         first, last = int(moving[0]), int(moving[-1])
         lead_known = bool(np.isfinite(speed[:first]).all())
         tail_known = bool(np.isfinite(speed[last + 1 :]).all())

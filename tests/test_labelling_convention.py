@@ -367,11 +367,49 @@ def test_what_the_keypoints_do_not_show_keeps_its_label() -> None:
     out = set_edges(masked, action, FRAME_RATE_HZ)
     assert (out[:10] == SQUAT).all()
     assert out[-1] == STANDING  # the trailing stand is seen: held to the bound
-    still = np.zeros((80, len(KEYPOINTS), 3))  # a "set" with no movement at all
-    np.testing.assert_array_equal(set_edges(still, np.full(80, SQUAT), FRAME_RATE_HZ), SQUAT)
     # Standing, transitions and actions without repetitions are never relabelled.
     for other in (STANDING, NO_ACTION):
         np.testing.assert_array_equal(set_edges(k, np.full(len(k), other), FRAME_RATE_HZ), other)
+
+
+def test_a_set_in_which_nothing_moves_is_the_standing_it_shows() -> None:
+    """A "squat set" standing straight and still throughout is standing, as the same
+    frames labelled standing are; held in a crouch or partly unseen, it keeps its label."""
+    standing = _bobbing(5.0, 0.0)[:80]  # the first 5 s: tall and still
+    assert frame_speeds(standing, FRAME_RATE_HZ).max() < STILL_SPEED_MPS
+    for action in (SQUAT, ACTIONS.index("lunge")):
+        out = set_edges(standing, np.full(len(standing), action), FRAME_RATE_HZ)
+        np.testing.assert_array_equal(out, STANDING)
+    # Inside a longer recording: the still run alone turns, its neighbours stay.
+    k = np.concatenate([_bobbing(0.0, 0.0), standing])
+    given = np.r_[np.full(len(k) - 80, ACTIONS.index("walking")), np.full(80, SQUAT)]
+    out = set_edges(k, given, FRAME_RATE_HZ)
+    np.testing.assert_array_equal(out[:-80], given[:-80])
+    np.testing.assert_array_equal(out[-80:], STANDING)
+    crouched = _bobbing(0.0, 0.0, pause=5.0, pause_low=True)
+    bent = knee_flexion_deg(crouched).min(axis=1) > 60.0
+    low = np.flatnonzero(bent & (frame_speeds(crouched, FRAME_RATE_HZ) == 0.0))
+    held_low = crouched[low[0] : low[0] + 60]  # still, knees bent 70 degrees
+    assert frame_speeds(held_low, FRAME_RATE_HZ).max() < STILL_SPEED_MPS
+    np.testing.assert_array_equal(set_edges(held_low, np.full(60, SQUAT), FRAME_RATE_HZ), SQUAT)
+    unseen = standing.copy()
+    unseen[40] = np.nan
+    np.testing.assert_array_equal(set_edges(unseen, np.full(80, SQUAT), FRAME_RATE_HZ), SQUAT)
+
+
+def test_a_scripted_squat_of_depth_0_is_labelled_standing(tmp_path: Path) -> None:
+    """The coverage grid's squat at the schema's smallest depth: the person never bends,
+    so every frame of the session says standing, as a scene of standing would."""
+    scene = tmp_path / "squat0.toml"
+    scene.write_text(
+        "seed = 1\nrate = 16.0\n[subject]\nheight_m = 1.75\nmass_kg = 72.0\n"
+        'style_seed = 11\n[[script]]\naction = "squat"\nreps = 4\ndepth = 0.0\n'
+    )
+    out = tmp_path / "squat0.ses"
+    assert main(["sim", str(scene), "-o", str(out)]) == 0
+    actions = np.array([label.action for label in read_session(out).labels])
+    assert actions.size > 100
+    np.testing.assert_array_equal(actions, STANDING)
 
 
 def test_a_gap_ends_a_run() -> None:
