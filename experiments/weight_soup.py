@@ -14,7 +14,8 @@ Every checkpoint must have the same config, the same weight names and shapes;
 are averaged tensor by tensor (integer buffers, such as a norm's batch count,
 must agree and are kept). The output holds what ``scotti export`` reads
 (config, weights, training data, options) plus ``soup``, the sources; its
-``metrics`` and ``history`` are the first source's, named as such. ``scotti
+``metrics`` and ``history`` are the first source's (``soup`` says whose). Read
+and written by export/checkpoint.py, as training does. ``scotti
 export`` then makes the graph as for any checkpoint (``EXPORT_ONLY=1
 scripts/train_wide.sh`` with ``RUN`` the output's folder).
 """
@@ -84,21 +85,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("checkpoints", nargs="+", type=Path)
     parser.add_argument("-o", "--output", type=Path, required=True)
     args = parser.parse_args(argv)
-    import torch
+    from scotti.export.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 
-    loaded = []
-    for path in args.checkpoints:
-        if not path.is_file():
-            print(f"weight_soup: {path}: no such checkpoint", file=sys.stderr)
-            return 2
-        loaded.append(torch.load(path, map_location="cpu", weights_only=False))
     try:
+        loaded = [load_checkpoint(path) for path in args.checkpoints]
         out = soup(loaded, [str(p) for p in args.checkpoints])
-    except SoupError as exc:
+    except (CheckpointError, SoupError) as exc:
         print(f"weight_soup: {exc}", file=sys.stderr)
         return 2
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(out, args.output)
+    save_checkpoint(out, args.output)
     print(f"weight_soup: {args.output}: the mean of {len(loaded)} checkpoints' weights")
     return 0
 

@@ -19,7 +19,7 @@ import weight_soup
 
 
 def _shifted(model: Scotti, by: float) -> Scotti:
-    """A copy with every float weight moved by ``by``."""
+    """A copy with every parameter moved by ``by`` (buffers as they were)."""
     other = Scotti(model.cfg)
     other.load_state_dict(model.state_dict())
     with torch.no_grad():
