@@ -30,7 +30,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -201,7 +201,7 @@ def measure_all(args: argparse.Namespace) -> list[dict[str, Any]]:
     train["as trained"] = through(graph, sets.train, n, trained, 0)
     held = {"recorded": through(graph, sets.held_out, n, recorded, 1)}
     held["as trained"] = through(graph, sets.held_out, n, trained, 1)
-    again = InputDraws(trained.sensor_transfer, trained.tempo_stretch, trained.tempo_range, 101)
+    again = replace(trained, seed=101)  # the same draws, another generator
     foreign = InputDraws(1.0, 0.0, trained.tempo_range, 103)
     m = args.judge_windows
     judges = {

@@ -34,7 +34,7 @@ from typing import Any, Final
 
 import numpy as np
 from scotti.export.sensor_transfer import draw_transfer, render
-from scotti.export.tempo import DEFAULT_RANGE, draw_tempo
+from scotti.export.tempo import DEFAULT_RANGE, EXTRA_RANGE, draw_tempo
 from scotti.export.windows import Chunk, WindowDataset
 
 
@@ -46,6 +46,9 @@ class InputDraws:
     tempo_stretch: float = 0.0  # share of windows played at a drawn tempo
     tempo_range: tuple[float, float] = DEFAULT_RANGE
     seed: int = 0
+    # After seed, so that positional construction keeps its meaning:
+    tempo_extra: float = 0.0  # a further share at a tempo drawn from tempo_extra_range
+    tempo_extra_range: tuple[float, float] = EXTRA_RANGE
 
     @classmethod
     def from_options(cls, options: Mapping[str, Any] | None) -> InputDraws:
@@ -53,28 +56,35 @@ class InputDraws:
         if not isinstance(options, Mapping):
             return cls()
         low, high = options.get("tempo_range") or DEFAULT_RANGE
+        extra_low, extra_high = options.get("tempo_extra_range") or EXTRA_RANGE
         return cls(
             sensor_transfer=float(options.get("sensor_transfer") or 0.0),
             tempo_stretch=float(options.get("tempo_stretch") or 0.0),
             tempo_range=(float(low), float(high)),
             seed=int(options.get("seed") or 0),
+            tempo_extra=float(options.get("tempo_extra") or 0.0),
+            tempo_extra_range=(float(extra_low), float(extra_high)),
         )
 
     @property
     def active(self) -> bool:
-        return self.sensor_transfer > 0.0 or self.tempo_stretch > 0.0
+        return self.sensor_transfer > 0.0 or self.tempo_stretch > 0.0 or self.tempo_extra > 0.0
 
     def describe(self) -> dict[str, Any]:
         """For the card: what the calibration windows were drawn with."""
         if not self.active:
             return {"as_recorded": True}
-        return {
+        described: dict[str, Any] = {
             "as_recorded": False,
             "sensor_transfer": self.sensor_transfer,
             "tempo_stretch": self.tempo_stretch,
             "tempo_range": list(self.tempo_range),
             "seed": self.seed,
         }
+        if self.tempo_extra > 0.0:  # named only where drawn: older cards stay as they were
+            described["tempo_extra"] = self.tempo_extra
+            described["tempo_extra_range"] = list(self.tempo_extra_range)
+        return described
 
     def generator(self, side: int) -> np.random.Generator:
         """The draws of one side (0: training subjects, 1: held out), repeatable."""
@@ -94,7 +104,9 @@ def drawn_window(
     """
     chunk = Chunk(session, start, 1, 1, data.window)
     sensor = draw_transfer(rng, draws.sensor_transfer)
-    tempo = draw_tempo(rng, draws.tempo_stretch, *draws.tempo_range)
+    tempo = draw_tempo(
+        rng, draws.tempo_stretch, *draws.tempo_range, draws.tempo_extra, draws.tempo_extra_range
+    )
     if not data.fits_tempo(chunk, tempo):
         tempo = 1.0
     frames = data.frames(chunk, tempo).astype(np.float32)

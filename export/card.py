@@ -177,10 +177,14 @@ def _drawn(drawn: dict[str, Any] | None) -> str:
     if not drawn or drawn.get("as_recorded", True):
         return ""
     low, high = drawn["tempo_range"]
+    extra = ""
+    if drawn.get("tempo_extra"):
+        extra_low, extra_high = drawn["tempo_extra_range"]
+        extra = f" and {100 * drawn['tempo_extra']:g} % at {extra_low:g}-{extra_high:g}"
     return (
         f", both sides drawn as training drew them ({100 * drawn['sensor_transfer']:g} % "
         f"through foreign insoles, {100 * drawn['tempo_stretch']:g} % at tempi "
-        f"{low:g}-{high:g})"
+        f"{low:g}-{high:g}{extra})"
     )
 
 

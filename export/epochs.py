@@ -48,7 +48,9 @@ def plan_epoch(dataset: WindowDataset, opts: TrainOptions, epoch: int) -> list[l
         # Neither draws from rng when it is off: plans without them stay as they were.
         crosstalk = draw_crosstalk(rng, opts.max_crosstalk)
         sensor = draw_transfer(rng, opts.sensor_transfer)
-        tempo = draw_tempo(rng, opts.tempo_stretch, *opts.tempo_range)
+        tempo = draw_tempo(
+            rng, opts.tempo_stretch, *opts.tempo_range, opts.tempo_extra, opts.tempo_extra_range
+        )
         if not dataset.fits_tempo(chunks[i], tempo):
             tempo = 1.0
         current.append(PlannedChunk(chunks[i], shifts, crosstalk, sensor, tempo))

@@ -169,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
         if not drawn.get("as_recorded", True):
             print(
                 f"  windows drawn as trained: {drawn['sensor_transfer']:g} through foreign "
-                f"insoles, {drawn['tempo_stretch']:g} at other tempi"
+                f"insoles, {drawn['tempo_stretch'] + drawn.get('tempo_extra', 0.0):g} "
+                "at other tempi"
             )
         elif args.calibrate_as_trained:
             print(

@@ -113,6 +113,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the tempi --tempo-stretch draws between, log-uniform (0.8: 20 %% slower)",
     )
     parser.add_argument(
+        "--tempo-extra",
+        type=float,
+        default=d.tempo_extra,
+        metavar="P",
+        help="augmentation: a further share of chunks (beside --tempo-stretch's) at a tempo "
+        "drawn from --tempo-extra-range, e.g. the extremes a scene may set (0 = off)",
+    )
+    parser.add_argument(
+        "--tempo-extra-range",
+        default=",".join(f"{t:g}" for t in d.tempo_extra_range),
+        metavar="LO,HI",
+        help="the tempi --tempo-extra draws between, log-uniform",
+    )
+    parser.add_argument(
         "--ema",
         type=float,
         default=d.ema,

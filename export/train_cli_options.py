@@ -57,15 +57,15 @@ def parse_loss_weights(text: str) -> LossWeights:
     return LossWeights(pose=pose, action=action, progress=progress)
 
 
-def tempo_range(text: str) -> tuple[float, float]:
+def tempo_range(text: str, flag: str = "--tempo-range") -> tuple[float, float]:
     """``--tempo-range LO,HI``: 0 < LO <= 1 <= HI <= 3 (a tempo of 1 must be drawable)."""
     try:
         low, high = (float(v) for v in text.split(","))
     except ValueError:
-        msg = f"--tempo-range must be two numbers LO,HI such as 0.65,1.3, got {text!r}"
+        msg = f"{flag} must be two numbers LO,HI such as 0.65,1.3, got {text!r}"
         raise TrainCliError(msg) from None
     if not (0.0 < low <= 1.0 <= high <= 3.0):  # also catches NaN
-        msg = f"--tempo-range must have 0 < LO <= 1 <= HI <= 3, got {text!r}"
+        msg = f"{flag} must have 0 < LO <= 1 <= HI <= 3, got {text!r}"
         raise TrainCliError(msg)
     return low, high
 
@@ -90,6 +90,13 @@ def options_from_args(args: argparse.Namespace) -> TrainOptions:
         msg = f"--tempo-stretch must be a share between 0 and 1, got {args.tempo_stretch}"
         raise TrainCliError(msg)
     tempo_range_ = tempo_range(args.tempo_range)
+    if not 0.0 <= args.tempo_extra <= 1.0 - args.tempo_stretch:  # also catches NaN
+        msg = (
+            "--tempo-extra must be a share between 0 and 1 - --tempo-stretch "
+            f"({1.0 - args.tempo_stretch:g}), got {args.tempo_extra}"
+        )
+        raise TrainCliError(msg)
+    tempo_extra_range = tempo_range(args.tempo_extra_range, "--tempo-extra-range")
     if not (args.ema == 0.0 or 0.0 < args.ema < 1.0):  # also catches NaN
         msg = f"--ema must be 0 (off) or a decay between 0 and 1, got {args.ema}"
         raise TrainCliError(msg)
@@ -118,6 +125,8 @@ def options_from_args(args: argparse.Namespace) -> TrainOptions:
         sensor_transfer=args.sensor_transfer,
         tempo_stretch=args.tempo_stretch,
         tempo_range=tempo_range_,
+        tempo_extra=args.tempo_extra,
+        tempo_extra_range=tempo_extra_range,
         loss_weights=parse_loss_weights(args.loss_weights),
         seed=args.seed,
         max_minutes=args.max_minutes,

@@ -8,6 +8,7 @@ from typing import Any
 
 from scotti.export.losses import LossWeights
 from scotti.export.tempo import DEFAULT_RANGE as DEFAULT_TEMPO_RANGE
+from scotti.export.tempo import EXTRA_RANGE as EXTRA_TEMPO_RANGE
 
 
 @dataclass(frozen=True)
@@ -26,6 +27,8 @@ class TrainOptions:
     sensor_transfer: float = 0.0  # share of chunks read through a drawn foreign insole
     tempo_stretch: float = 0.0  # share of chunks played at a drawn tempo (export/tempo.py)
     tempo_range: tuple[float, float] = DEFAULT_TEMPO_RANGE  # log-uniform between these
+    tempo_extra: float = 0.0  # a further share of chunks at a tempo from tempo_extra_range
+    tempo_extra_range: tuple[float, float] = EXTRA_TEMPO_RANGE
     seed: int = 0
     max_minutes: float = 0.0  # stop (and checkpoint) after this much training; 0 = no limit
     save_minutes: float = 10.0  # write last.pt after this much training since the last; 0 = off

@@ -15,6 +15,7 @@
 #   SLOW=24 scripts/train_wide.sh              # also 24 people at wide walking paces (slow walkers)
 #   TEMPO=0.3 scripts/train_wide.sh            # play 30 % of the chunks at 0.65-1.3 x their tempo
 #   TEMPO=0.5 TEMPO_RANGE=0.3,3 scripts/train_wide.sh  # half of them at 0.3-3 x (the scene schema's range)
+#   TEMPO=0.3 TEMPO_EXTRA=0.2 scripts/train_wide.sh     # 30 % at 0.65-1.3 x and 20 % more at 0.3-3 x
 #   INIT=... KEEP_NEAR=0.1 scripts/train_wide.sh  # fine-tune with the pooled vectors held near INIT's
 #   INIT=models/scotti-default.onnx EPOCHS=1 LR=3e-4 scripts/train_wide.sh
 #                                              # fine-tune a model (e.g. after a labelling change:
@@ -44,6 +45,8 @@ TEMPO=${TEMPO:-0}                  # share of chunks played slower or faster (sc
                                    # --tempo-stretch, export/tempo.py; 0: off)
 TEMPO_RANGE=${TEMPO_RANGE:-}       # LO,HI: the tempi TEMPO draws between (--tempo-range; empty:
                                    # scotti train's default, 0.65,1.3)
+TEMPO_EXTRA=${TEMPO_EXTRA:-0}      # a further share of chunks at a tempo from TEMPO_EXTRA_RANGE
+TEMPO_EXTRA_RANGE=${TEMPO_EXTRA_RANGE:-}  # LO,HI (empty: scotti train's default, 0.3,3)
 KEEP_NEAR=${KEEP_NEAR:-0}          # with INIT: weight of the pull of the pooled vectors towards
                                    # INIT's (scotti train --keep-near, export/anchor.py; 0: off)
 KEEP_NEAR_PASS=${KEEP_NEAR_PASS:-eval}  # what the pull compares: eval or matched (--keep-near-pass)
@@ -180,6 +183,8 @@ augment=()  # the augmentations asked for beyond the recipe's
 [[ $TRANSFER != 0 ]] && augment+=(--sensor-transfer "$TRANSFER")
 [[ $TEMPO != 0 ]] && augment+=(--tempo-stretch "$TEMPO")
 [[ $TEMPO != 0 && -n $TEMPO_RANGE ]] && augment+=(--tempo-range "$TEMPO_RANGE")
+[[ $TEMPO_EXTRA != 0 ]] && augment+=(--tempo-extra "$TEMPO_EXTRA")
+[[ $TEMPO_EXTRA != 0 && -n $TEMPO_EXTRA_RANGE ]] && augment+=(--tempo-extra-range "$TEMPO_EXTRA_RANGE")
 [[ $KEEP_NEAR != 0 ]] && augment+=(--keep-near "$KEEP_NEAR" --keep-near-pass "$KEEP_NEAR_PASS")
 init=(--config small)  # --init takes the size from its weights
 [[ -n $INIT ]] && init=(--init "$INIT")
@@ -187,7 +192,7 @@ if [[ $EXPORT_ONLY != 1 ]]; then
   echo "train_wide: training $RUN on $DEVICE"
   mkdir -p "$RUN"
   # The card quotes this (experiments/card_training.py): how the weights were made.
-  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO TEMPO_RANGE=$TEMPO_RANGE KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO TEMPO_RANGE=$TEMPO_RANGE TEMPO_EXTRA=$TEMPO_EXTRA TEMPO_EXTRA_RANGE=$TEMPO_EXTRA_RANGE KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
   "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
     --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
     --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \

@@ -41,6 +41,19 @@ def test_the_draws_are_read_from_a_checkpoints_training_options() -> None:
     assert InputDraws().describe() == {"as_recorded": True}
 
 
+def test_an_extra_tempo_share_is_read_drawn_and_described() -> None:
+    opts = TrainOptions(tempo_extra=0.2, tempo_extra_range=(0.4, 2.5), seed=3)
+    draws = InputDraws.from_options(opts.to_dict())
+    assert draws.tempo_extra == 0.2
+    assert draws.tempo_extra_range == (0.4, 2.5)
+    assert draws.active  # the extra share alone is a draw
+    described = draws.describe()
+    assert described["tempo_extra"] == 0.2
+    assert described["tempo_extra_range"] == [0.4, 2.5]
+    # Without it the description is what it was (cards written before it stay comparable).
+    assert "tempo_extra" not in TRAINED.describe()
+
+
 def test_windows_as_recorded_are_the_sessions_frames(tmp_path: Path) -> None:
     write_session(tmp_path / "a.ses", 200, subject="a")
     sessions = [load_session(tmp_path / "a.ses")]

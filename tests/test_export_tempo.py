@@ -9,6 +9,7 @@ plan of a run without the augmentation.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -116,6 +117,38 @@ def test_draws_stay_in_the_range_and_off_draws_nothing() -> None:
     assert a.random() == b.random()  # nothing was drawn
 
 
+def test_an_extra_share_draws_its_own_range_beside_the_first() -> None:
+    rng = np.random.default_rng(3)
+    n = 4000
+    draws = np.array([tempo.draw_tempo(rng, 0.3, 0.9, 1.1, 0.2, (2.0, 3.0)) for _ in range(n)])
+    near = (draws >= 0.9) & (draws <= 1.1) & (draws != 1.0)
+    extra = (draws >= 2.0) & (draws <= 3.0)
+    assert near.mean() == pytest.approx(0.3, abs=0.03)
+    assert extra.mean() == pytest.approx(0.2, abs=0.03)
+    assert (draws == 1.0).mean() == pytest.approx(0.5, abs=0.03)
+    assert near.sum() + extra.sum() + (draws == 1.0).sum() == n  # nothing anywhere else
+    # The extra share alone stretches every chunk it is given, within its own range.
+    alone = [tempo.draw_tempo(rng, 0.0, 0.65, 1.3, 1.0, (0.3, 3.0)) for _ in range(500)]
+    assert min(alone) >= 0.3
+    assert max(alone) <= 3.0
+    assert sum(d < 0.65 for d in alone) > 100
+    assert sum(d > 1.3 for d in alone) > 100
+
+
+def test_without_an_extra_share_the_draws_are_those_of_before_it_existed() -> None:
+    def before(rng: np.random.Generator, share: float, low: float, high: float) -> float:
+        # draw_tempo as it was before --tempo-extra (runs up to v41 were planned by it)
+        if share <= 0.0 or rng.random() >= share:
+            return 1.0
+        return float(math.exp(rng.uniform(math.log(low), math.log(high))))
+
+    a, b = np.random.default_rng(5), np.random.default_rng(5)
+    now = [tempo.draw_tempo(a, 0.3, 0.65, 1.3) for _ in range(300)]
+    then = [before(b, 0.3, 0.65, 1.3) for _ in range(300)]
+    assert now == then
+    assert a.random() == b.random()  # the generator is left where it was left before
+
+
 @pytest.mark.torch
 def test_the_plan_plays_chunks_at_their_tempo_and_is_unchanged_when_off() -> None:
     pytest.importorskip("torch")
@@ -157,16 +190,22 @@ def test_scotti_train_takes_the_flags_records_them_and_refuses_bad_ones(
     args += ["--config", json.dumps(TINY_MODEL), "--epochs", "1", "--batch", "8", "--chunk", "4"]
     args += ["--stride", "2", "--val-subjects", "b", "--test-fraction", "0", "--no-progress"]
     args += ["--device", "cpu"]
-    assert main(["train", *args, "--tempo-stretch", "0.5", "--tempo-range", "0.7,1.2"]) == 0
+    tempo_flags = ["--tempo-stretch", "0.5", "--tempo-range", "0.7,1.2"]
+    tempo_flags += ["--tempo-extra", "0.25", "--tempo-extra-range", "0.4,2.5"]
+    assert main(["train", *args, *tempo_flags]) == 0
     ckpt = torch.load(run / "last.pt", weights_only=True)
     assert ckpt["options"]["tempo_stretch"] == 0.5
     assert tuple(ckpt["options"]["tempo_range"]) == (0.7, 1.2)
+    assert ckpt["options"]["tempo_extra"] == 0.25
+    assert tuple(ckpt["options"]["tempo_extra_range"]) == (0.4, 2.5)
     assert np.isfinite(ckpt["history"][-1]["train_loss"])
     bad = [
         ("--tempo-stretch=1.5", "--tempo-stretch must be a share between 0 and 1"),
         ("--tempo-range=1.1,1.3", "--tempo-range must have 0 < LO <= 1 <= HI <= 3"),
         ("--tempo-range=0.8", "--tempo-range must be two numbers LO,HI"),
         ("--tempo-range=a,b", "--tempo-range must be two numbers LO,HI"),
+        ("--tempo-extra=1.5", "--tempo-extra must be a share between 0 and 1 - --tempo-stretch"),
+        ("--tempo-extra-range=1.1,2", "--tempo-extra-range must have 0 < LO <= 1 <= HI <= 3"),
     ]
     for flag, message in bad:
         assert main(["train", *args, "-o", str(tmp_path / "r"), flag]) == 2
