@@ -52,6 +52,10 @@ def test_an_extra_tempo_share_is_read_drawn_and_described() -> None:
     assert described["tempo_extra_range"] == [0.4, 2.5]
     # Without it the description is what it was (cards written before it stay comparable).
     assert "tempo_extra" not in TRAINED.describe()
+    # The card names both shares.
+    from scotti.export.card import _drawn
+
+    assert _drawn(described).endswith("0 % at tempi 0.65-1.3 and 20 % at 0.4-2.5)")
 
 
 def test_windows_as_recorded_are_the_sessions_frames(tmp_path: Path) -> None:
