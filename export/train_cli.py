@@ -261,8 +261,14 @@ def _benchmark(
 ) -> None:
     """Print naive vs chunked (fp32, CPU) and fp32 vs bf16 (chunked, on ``device``)."""
     cfg = model.cfg
-    plain = replace(opts, max_shift=0, max_crosstalk=0.0, sensor_transfer=0.0)
-    plain = replace(plain, tempo_stretch=0.0, tempo_extra=0.0)
+    plain = replace(
+        opts,
+        max_shift=0,
+        max_crosstalk=0.0,
+        sensor_transfer=0.0,
+        tempo_stretch=0.0,
+        tempo_extra=0.0,
+    )
     rates = measure_throughput(model, data.train, plain, args.benchmark)
     print(
         f"E={cfg.embed_dim} T={cfg.window} batch={opts.batch} chunk={opts.chunk} "
