@@ -7,12 +7,7 @@ from pathlib import Path
 import pytest
 from pydantic import BaseModel
 from scotti.daemon.input.speed import parse_speed
-from scotti.daemon.settings import (
-    MAX_PORTS_PER_PROCESS,
-    ConfigError,
-    load_settings,
-    sanitise_device_id,
-)
+from scotti.daemon.settings import ConfigError, load_settings, sanitise_device_id
 
 from tests.support.sessions import write_synthetic_session
 
@@ -317,27 +312,3 @@ def test_several_devices_record_into_a_directory(tmp_path: Path) -> None:
         load_settings({"record": tmp_path / "one.scotti"}, write(tmp_path, toml))
     s = load_settings({"record": tmp_path}, write(tmp_path, toml))
     assert s.record == tmp_path
-
-
-def _ports(count: int) -> str:
-    return "".join(f'[[devices]]\nid = "p{i}"\nport = "/dev/ttyACM{i}"\n' for i in range(count))
-
-
-def test_more_serial_ports_than_a_process_can_watch_are_refused(tmp_path: Path) -> None:
-    """pyserial's select() cannot watch a descriptor past 1024: 151 ports in one process
-    are refused in one line that says how many processes they need; 300 in two pass."""
-    most = MAX_PORTS_PER_PROCESS
-    with pytest.raises(ConfigError) as info:
-        load_settings({}, write(tmp_path, _ports(most + 1)))
-    text = str(info.value)
-    assert f"{most + 1} serial ports in one process" in text
-    assert "set processes = 2 or more" in text
-    assert "\n" not in text
-    assert len(load_settings({}, write(tmp_path, _ports(most))).device_list()) == most
-    two = load_settings({}, write(tmp_path, f"processes = 2\n{_ports(2 * most)}"))
-    assert len(two.device_list()) == 2 * most
-
-
-def test_simulated_devices_hold_no_port_and_are_not_counted(tmp_path: Path) -> None:
-    sims = "".join(f'[[devices]]\nid = "s{i}"\nsimulate = "demo"\n' for i in range(200))
-    assert len(load_settings({}, write(tmp_path, sims)).device_list()) == 200

@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Final, Literal, Protocol, TypeAlias
 
 import serial
-import serial_asyncio_fast
 from scotti.daemon.errors import DaemonError
+from scotti.daemon.input.serial_port import open_port
 from scotti.daemon.input.speed import Speed
 from scotti.daemon.waiting import Backoff
 
@@ -156,9 +156,7 @@ class SerialSource:
 
     async def _open(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         try:
-            reader, writer = await serial_asyncio_fast.open_serial_connection(
-                url=self.port, baudrate=self.baudrate, exclusive=True
-            )
+            reader, writer = await open_port(self.port, self.baudrate)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PortUnavailableError(explain_open_error(self.port, exc)) from None
         return reader, writer

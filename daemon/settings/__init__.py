@@ -67,10 +67,6 @@ __all__ = [
     "sanitise_device_id",
 ]
 
-# pyserial waits for a port with select(), which refuses descriptors from 1024 up; a daemon
-# holds about six a pair (777 at 128 pairs, docs/performance.md): 150 ports leave room for
-# its broker, outputs and clients.
-MAX_PORTS_PER_PROCESS: Final = 150
 DEFAULT_MODEL_NAME: Final = "scotti-default.onnx"  # preferred among the shipped step graphs
 
 
@@ -169,20 +165,6 @@ class Settings(BaseSettings):
         twice = sorted({i for i in ids if ids.count(i) > 1})
         if twice:
             msg = f"devices: id {twice[0]!r} given twice; each device needs its own id"
-            raise ValueError(msg)
-        ports = max(
-            (sum(d.port is not None for d in self.devices[i :: self.processes])
-             for i in range(self.processes)),
-            default=0,
-        )  # fmt: skip
-        if ports > MAX_PORTS_PER_PROCESS:
-            need = -(-sum(d.port is not None for d in self.devices) // MAX_PORTS_PER_PROCESS)
-            msg = (
-                f"processes: {ports} serial ports in one process; pyserial cannot watch a "
-                f"descriptor numbered 1024 or more, which is past about "
-                f"{MAX_PORTS_PER_PROCESS} ports a process (docs/performance.md): "
-                f"set processes = {need} or more"
-            )
             raise ValueError(msg)
         if self.processes > 1 and self.outputs.any:
             msg = (

@@ -9,9 +9,10 @@ step costs. This bench measures the part of that which no Python optimisation of
 ours can remove, on the same boards as ``bench`` (simulated people's frames played
 into pseudo-terminals, ``bench_boards``):
 
-- each board read through the daemon's own serial transport
-  (pyserial-asyncio-fast, ``await reader.read(READ_SIZE)`` in one task a board),
-  or (``raw``) with the least a Python reader can do: the port's descriptor in the
+- each board read through the daemon's own port (``serial_port.open_port``:
+  pyserial-asyncio-fast's transport, ``await reader.read(READ_SIZE)`` in one task a board),
+  or (``pyserial``) pyserial's own port, whose every read waits in ``select()``
+  first, or (``raw``) with the least a Python reader can do: the port's descriptor in the
   event loop's selector and one ``os.read`` a wake-up;
 - every pair-frame (eight packet delimiters: both feet's four packets) handed to
   one worker thread under a condition, as the engine's lanes are, and handed back
@@ -42,6 +43,7 @@ import tty
 from collections import deque
 from pathlib import Path
 
+from scotti.daemon.input.serial_port import open_port
 from scotti.daemon.input.sources import READ_SIZE
 from scotti.daemon.tools.bench_boards import play_boards, render_people
 from scotti.daemon.tools.bench_model import model_cpu_ms
@@ -111,13 +113,18 @@ class Hub:
         del self._buffer[:sent]
 
 
-async def _read_board(link: Path, board: int, hub: Hub) -> None:
-    """The daemon's way: pyserial-asyncio-fast's transport and a StreamReader."""
-    import serial_asyncio_fast
+async def _read_board(link: Path, board: int, hub: Hub, own_read: bool = False) -> None:
+    """The daemon's way: its port (pyserial-asyncio-fast's transport) and a StreamReader;
+    ``own_read``: pyserial's own port, whose read waits in select() first (the daemon's
+    before daemon/input/serial_port.py)."""
+    if own_read:
+        import serial_asyncio_fast
 
-    reader, writer = await serial_asyncio_fast.open_serial_connection(
-        url=str(link), baudrate=115200, exclusive=True
-    )
+        reader, writer = await serial_asyncio_fast.open_serial_connection(
+            url=str(link), baudrate=115200, exclusive=True
+        )
+    else:
+        reader, writer = await open_port(str(link), 115200)
     delimiters = 0
     try:
         while True:
@@ -129,7 +136,7 @@ async def _read_board(link: Path, board: int, hub: Hub) -> None:
                 delimiters -= DELIMITERS_PER_PAIR
                 hub.submit(board)
     finally:
-        writer.close()  # the port and pyserial's pipes: the next run's select() needs fds < 1024
+        writer.close()
 
 
 def _read_raw(link: Path, board: int, hub: Hub, opened: list[int]) -> None:
@@ -186,8 +193,9 @@ async def measure(
             raise RuntimeError(msg)
         hub = Hub(asyncio.get_running_loop(), out)
         opened: list[int] = []
-        if reader == "serial":
-            tasks = [asyncio.create_task(_read_board(p, i, hub)) for i, p in enumerate(links)]
+        if reader in ("serial", "pyserial"):
+            own = reader == "pyserial"
+            tasks = [asyncio.create_task(_read_board(p, i, hub, own)) for i, p in enumerate(links)]
         else:
             tasks = []
             for i, link in enumerate(links):
@@ -226,9 +234,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--readers",
         nargs="+",
-        choices=["serial", "raw"],
+        choices=["pyserial", "serial", "raw"],
         default=["serial", "raw"],
-        help="serial: the daemon's transport; raw: os.read in the loop's selector",
+        help="serial: the daemon's port; pyserial: pyserial's own read (select() first); "
+        "raw: os.read in the loop's selector",
     )
     args = p.parse_args(argv)
     if any(n < 1 for n in args.pairs) or args.seconds <= 0:
