@@ -103,6 +103,13 @@ def _corpus_parser() -> argparse.ArgumentParser:
         help="walking speeds of the typical adult population (1.05-1.65 m/s), or drawn "
         "uniformly over 0.5-1.65 m/s so that slow walkers are met too (sim/traits.py)",
     )
+    p.add_argument(
+        "--bodies",
+        choices=("typical", "wide"),
+        default="typical",
+        help="adults of 1.50-1.95 m, or height, mass and foot length drawn over what a "
+        "scene accepts (1.2-2.2 m, 30-200 kg, feet 0.15-0.35 m; sim/corpus.py wide_body)",
+    )
     return p
 
 
@@ -211,6 +218,7 @@ def _corpus(a: argparse.Namespace) -> int:
         effects=a.effects,
         insoles=a.insoles,
         paces=a.paces,
+        bodies=a.bodies,
         progress=lambda line: print(line, flush=True),  # a line per subject, as it is done
     )
     total = manifest["total_duration_s"]

@@ -12,9 +12,11 @@ The insole's parameters are drawn per subject (``insole.draw_insole``), the
 same in both copies. ``paces="wide"`` gives each person a walking speed drawn
 uniformly over everything a scene accepts (0.5-1.65 m/s, ``sim.traits``), so
 that about half of them walk as slowly as older people do, where the typical
-population walks at 1.05-1.65 m/s. The feet's shape and placement come from
-the subject's style seed and the session's seed (``foot.draw_feet``). The
-same arguments give the same files, byte for byte.
+population walks at 1.05-1.65 m/s. ``bodies="wide"`` draws each person's
+height, mass and foot length again over what the scene schema accepts
+(``wide_body``), where the typical population is adults of 1.50-1.95 m.
+The feet's shape and placement come from the subject's style seed and the
+session's seed (``foot.draw_feet``). The same arguments give the same files, byte for byte.
 """
 
 from __future__ import annotations
@@ -45,6 +47,38 @@ SET_S: Final = (30.0, 75.0)  # length of one set
 REST_S: Final = (5.0, 20.0)  # standing between sets
 MANIFEST: Final = "manifest.json"
 PaceSpread = Literal["typical", "wide"]
+BodySpread = Literal["typical", "wide"]
+# A wide body: body-mass index and foot length (a share of height) drawn uniformly in
+# these, then kept within the schema's mass and foot length (sim/scene.py SubjectModel).
+WIDE_BMI: Final = (16.0, 42.0)
+WIDE_FOOT_RATIO: Final = (0.125, 0.17)
+
+
+def _schema_range(field: str) -> tuple[float, float]:
+    """(ge, le) of a SubjectModel field: the range a scene may give."""
+    low = high = None
+    for m in SubjectModel.model_fields[field].metadata:
+        low = getattr(m, "ge", low)
+        high = getattr(m, "le", high)
+    assert low is not None
+    assert high is not None
+    return float(low), float(high)
+
+
+def wide_body(rng: np.random.Generator) -> dict[str, float]:
+    """Height uniform over the schema's whole range (1.2-2.2 m), a body-mass index of
+    16-42 and a foot of 0.125-0.17 x height, mass and foot kept within the schema:
+    children's and very tall people's bodies, thin and heavy, short and long feet."""
+    height = float(rng.uniform(*_schema_range("height_m")))
+    bmi = float(rng.uniform(*WIDE_BMI))
+    ratio = float(rng.uniform(*WIDE_FOOT_RATIO))
+    mass = float(np.clip(bmi * height**2, *_schema_range("mass_kg")))
+    foot = float(np.clip(ratio * height, *_schema_range("foot_length_m")))
+    return {
+        "height_m": round(height, 3),
+        "mass_kg": round(mass, 1),
+        "foot_length_m": round(foot, 4),
+    }
 
 
 def subject_scene(
@@ -56,6 +90,7 @@ def subject_scene(
     effects: EffectsPreset,
     insoles: InsoleSpread = "typical",
     paces: PaceSpread = "typical",
+    bodies: BodySpread = "typical",
 ) -> Scene:
     """The scene of one corpus subject (a lab session of all actions, derived seed, effects).
 
@@ -80,6 +115,9 @@ def subject_scene(
         speed = TRAIT_RANGES["walking_speed_mps"]
         pace = np.random.default_rng([corpus_seed, index, 0x9ACE]).uniform(speed.low, speed.high)
         person = person.model_copy(update={"walking_speed_mps": float(pace)})
+    if bodies == "wide":  # a generator of its own too: the style seed and the rest stay
+        body = wide_body(np.random.default_rng([corpus_seed, index, 0xB0D1]))
+        person = person.model_copy(update=body)
     return Scene(
         name=f"subject-{index:03d}",
         description=(
@@ -144,6 +182,7 @@ def write_corpus(
     first: int = 0,
     insoles: InsoleSpread = "typical",
     paces: PaceSpread = "typical",
+    bodies: BodySpread = "typical",
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Render every subject's session into ``out_dir`` and write the manifest.
@@ -166,6 +205,7 @@ def write_corpus(
             effects=effects,
             insoles=insoles,
             paces=paces,
+            bodies=bodies,
         )
         name = f"{scene.name}.ses"
         started = time.perf_counter()
@@ -200,6 +240,7 @@ def write_corpus(
         "effects": effects,
         "insoles": insoles,
         "paces": paces,
+        "bodies": bodies,
         "total_duration_s": sum(e["duration_s"] for e in entries),
         "sessions": entries,
     }

@@ -211,3 +211,21 @@ def test_corpus_with_wide_paces_records_each_persons_walking_speed(tmp_path: Pat
     ]
     assert speeds == pytest.approx(given)
     assert speeds != pytest.approx([p.traits.walking_speed_mps for p in people])
+
+
+def test_corpus_with_wide_bodies_records_and_renders_each_persons_body(tmp_path: Path) -> None:
+    out = tmp_path / "bodies"
+    argv = ["sim", "corpus", "-o", str(out), "--subjects", "3", "--minutes-per-action", "0.02"]
+    assert main([*argv, "--seed", "3", "--bodies", "wide", "--effects", "none"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["bodies"] == "wide"
+    people = draw_subjects(3, seed=3)
+    for i, entry in enumerate(manifest["sessions"]):
+        scene = subject_scene(
+            i, people[i], corpus_seed=3, minutes_per_action=0.02, effects="none", bodies="wide"
+        )
+        assert entry["subject"]["height_m"] == pytest.approx(scene.subject.height_m)
+        assert entry["subject"]["height_m"] != pytest.approx(people[i].height_m)
+        session = read_session(out / entry["file"])
+        assert session.header.scene["subject"]["foot_length_m"] == scene.subject.foot_length_m  # type: ignore[index]
+        assert len(session.labels) > 0

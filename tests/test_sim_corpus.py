@@ -75,3 +75,53 @@ def test_wide_paces_draw_slow_walkers_and_leave_everything_else_as_it_was() -> N
     assert cadences.min() < 90.0  # slower than anyone the typical population draws
     drawn = np.array([t.subject.subject().cadence_spm for t in typical])
     assert drawn.min() >= 95.0
+
+
+def test_wide_bodies_cover_the_schemas_bodies_and_leave_everything_else_as_it_was() -> None:
+    people = draw_subjects(64, seed=9)
+    typical = [
+        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects="realistic")
+        for i, s in enumerate(people)
+    ]
+    wide = [
+        subject_scene(
+            i, s, corpus_seed=9, minutes_per_action=0.1, effects="realistic", bodies="wide"
+        )
+        for i, s in enumerate(people)
+    ]
+    body = {"height_m": None, "mass_kg": None, "foot_length_m": None}
+    for t, w in zip(typical, wide, strict=True):
+        assert (w.seed, w.insole, w.effects, w.session) == (t.seed, t.insole, t.effects, t.session)
+        assert w.subject.style_seed == t.subject.style_seed
+        assert w.subject.model_copy(update=body) == t.subject.model_copy(update=body)
+    heights = np.array([w.subject.height_m for w in wide])
+    masses = np.array([w.subject.mass_kg for w in wide])
+    feet = np.array([w.subject.foot_length_m for w in wide], dtype=float)
+    # Within the schema, and well past the typical adults (1.50-1.95 m, feet 0.2-0.3 m).
+    assert heights.min() >= 1.2
+    assert heights.max() <= 2.2
+    assert masses.min() >= 30.0
+    assert masses.max() <= 200.0
+    assert feet.min() >= 0.15
+    assert feet.max() <= 0.35
+    assert heights.min() < 1.35
+    assert heights.max() > 2.05
+    assert feet.min() < 0.18
+    assert feet.max() > 0.32
+    assert masses.max() > 150.0
+    typical_heights = np.array([t.subject.height_m for t in typical])
+    assert typical_heights.min() >= 1.5  # the typical draw, as before
+
+
+def test_the_smallest_and_largest_wide_bodies_move() -> None:
+    """A child's body on the smallest insole and a 2.2 m one: the simulator takes both."""
+    people = draw_subjects(64, seed=9)
+    wide = [
+        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.05, effects="none", bodies="wide")
+        for i, s in enumerate(people)
+    ]
+    for scene in (min(wide, key=lambda w: w.subject.height_m),
+                  max(wide, key=lambda w: w.subject.height_m)):  # fmt: skip
+        motion = build_motion(scene)
+        assert np.isfinite(motion.world).all()
+        assert motion.subject.height_m == scene.subject.height_m
