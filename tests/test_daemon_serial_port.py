@@ -24,8 +24,7 @@ PAST_SELECT = 1100  # select() takes descriptors below 1024 only
 
 @contextlib.contextmanager
 def descriptors_past_select() -> Iterator[None]:
-    """Every descriptor below PAST_SELECT taken, so the next one opened is past it (the
-    board emulator, which waits with select() itself, started before)."""
+    """Every descriptor below PAST_SELECT taken, so the next one opened is past it."""
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if soft != resource.RLIM_INFINITY and soft < PAST_SELECT + 64:
         if hard != resource.RLIM_INFINITY and hard < PAST_SELECT + 64:
@@ -53,8 +52,6 @@ async def _read_all(reader: asyncio.StreamReader, n: int) -> bytes:
 def test_a_port_past_descriptor_1024_delivers_every_byte(
     board_factory: Factory, synthetic_session: SyntheticSession
 ) -> None:
-    board = board_factory(synthetic_session, speed="max")
-
     async def body() -> tuple[int, bytes]:
         reader, writer = await open_port(str(board.link), 115200)
         try:
@@ -64,7 +61,8 @@ def test_a_port_past_descriptor_1024_delivers_every_byte(
             writer.close()
             await asyncio.sleep(0.05)  # the transport closes the port on the loop's next turn
 
-    with descriptors_past_select():
+    with descriptors_past_select():  # the emulated board's pty past 1024 too
+        board = board_factory(synthetic_session, speed="max")
         fd, data = asyncio.run(body())
     assert fd >= PAST_SELECT  # pyserial's own read would raise ValueError from select() here
     assert data == synthetic_session.data

@@ -338,8 +338,10 @@ class BoardEmulator:
     def _write_some(self) -> None:
         leader = self._leader
         assert leader is not None  # plugged
-        _, writable, _ = select.select([], [leader], [], _POLL_S)
-        if writable:
+        # poll(), not select(): select() refuses descriptors from 1024 up (many devices).
+        poller = select.poll()
+        poller.register(leader, select.POLLOUT)
+        if poller.poll(_POLL_S * 1e3):
             try:
                 n = os.write(leader, self._pending)
             except BlockingIOError:

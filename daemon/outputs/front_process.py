@@ -152,7 +152,9 @@ class FrontProcess:
                 if left <= 0:
                     self.unsent += 1
                     return
-                select.select([], [self.channel], [], left)
+                poller = select.poll()  # select() refuses descriptors from 1024 up
+                poller.register(self.channel, select.POLLOUT)
+                poller.poll(left * 1e3)
             except OSError:  # the process is gone: said once by the reader
                 return
 
