@@ -5,9 +5,10 @@ pyserial-asyncio-fast puts the port's descriptor in the event loop's selector
 POSIX ``read`` then waits for the same descriptor again with ``select()``
 before its ``os.read``: a second system call per read for nothing, and
 ``select()`` refuses any descriptor numbered 1024 or more. A daemon holds about
-six descriptors a pair (docs/performance.md), so a process serving some 165
-pairs, or a port reopened while a browser view holds many sockets, got a port
-whose every read failed. ``LoopSerial.read`` is the one ``os.read``; what
+six descriptors a pair (docs/performance.md), so by that count a process
+serving some 165 pairs, or a port reopened while a browser view holds many
+sockets, would get a port whose every read fails (bench_floor's 210 ports in
+one process did). ``LoopSerial.read`` is the one ``os.read``; what
 pyserial's read says of a port that went away, it says the same way.
 
 Ports given as pyserial URLs (``socket://``, ``rfc2217://``, ``loop://``) open
