@@ -1,6 +1,7 @@
 """Simulated walking measured as gait, as experiments/real_vs_sim_gait.py measures it.
 
-    nice -n 19 python experiments/sim_walking_gait.py [--people 3] [--steps 24]
+    nice -n 19 python experiments/sim_walking_gait.py [--people 3] [--steps 24] \
+        [--trait push_off=0.3 --trait walking_speed_mps=0.8 ...]
 
 Renders a short clean walking scene (our own 32 x 22 grid, the ``realistic``
 insole, no transport effects) for each of the people of
@@ -8,6 +9,9 @@ insole, no transport effects) for each of the people of
 same bodies and styles, not their corpus sessions), decodes it with the
 project's reader (``scotti.export.data.load_session``) and prints the timing
 and load columns of real_vs_sim_gait's table plus the stance share of the stride.
+``--trait NAME=VALUE`` gives every person that trait (sim/traits.py; the
+scene schema checks it), e.g. a shuffler's ``push_off`` at a slow pace, to
+put beside the real walks of docs/real-data.md.
 Writes nothing outside a temporary folder; a few seconds per person.
 """
 
@@ -49,8 +53,11 @@ class Phases:
         return self.gait.swing_s / self.stride_s
 
 
-def person_scene(subject_index: int, steps: int, seed: int = 1) -> Scene:
-    """``steps`` walking steps of corpus person ``subject_index``, standing a second before."""
+def person_scene(
+    subject_index: int, steps: int, seed: int = 1, traits: dict[str, float] | None = None
+) -> Scene:
+    """``steps`` walking steps of corpus person ``subject_index``, standing a second before,
+    with ``traits`` given (the rest drawn from the person's style seed)."""
     from scotti.sim.scene import Scene, ScriptEntry, SubjectModel
     from scotti.sim.subjects import draw_subjects
 
@@ -58,7 +65,7 @@ def person_scene(subject_index: int, steps: int, seed: int = 1) -> Scene:
     return Scene(
         name=f"walking-{subject_index}",
         seed=seed,
-        subject=SubjectModel.of(subject),
+        subject=SubjectModel.of(subject).model_copy(update=traits or {}),
         script=[ScriptEntry(action="walking", reps=steps, stand_s=1.0)],
     )
 
@@ -85,6 +92,28 @@ def walking_phases(scene: Scene, workdir: Path, trim_s: float = 0.0) -> Phases:
     return Phases(g, 120.0 / g.cadence)
 
 
+def parse_traits(items: list[str]) -> dict[str, float]:
+    """``NAME=VALUE`` items as given traits, each a known trait within the schema's range."""
+    from scotti.sim.traits import TRAIT_RANGES
+
+    traits: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in TRAIT_RANGES:
+            msg = f"--trait {item!r}: want NAME=VALUE with NAME one of {', '.join(TRAIT_RANGES)}"
+            raise ValueError(msg)
+        r = TRAIT_RANGES[name]
+        try:
+            number = float(value)
+        except ValueError:
+            number = float("nan")
+        if not r.low <= number <= r.high:
+            msg = f"--trait {item!r}: {name} takes {r.low:g}..{r.high:g} {r.unit}".rstrip()
+            raise ValueError(msg)
+        traits[name] = number
+    return traits
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python experiments/sim_walking_gait.py",
@@ -96,13 +125,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--trim-s", type=float, default=0.0, help="leave out this much of each walk's ends"
     )
+    parser.add_argument(
+        "--trait",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="give every person this trait (repeatable), e.g. push_off=0.3",
+    )
     args = parser.parse_args(argv)
+    try:
+        traits = parse_traits(args.trait)
+    except ValueError as e:
+        parser.error(str(e))
     columns = gait.COLUMNS[:10]  # real_vs_sim_gait's timing-and-load table
     header = ["person", *[c[0] for c in columns], "stance % of stride"]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(FIRST_SUBJECT, FIRST_SUBJECT + args.people):
-            p = walking_phases(person_scene(i, args.steps), Path(tmp), args.trim_s)
+            p = walking_phases(person_scene(i, args.steps, traits=traits), Path(tmp), args.trim_s)
             cells = gait.row_of("", str(i), p.gait)[1:]
             rows.append([*cells[: 1 + len(columns)], f"{100 * p.stance_share:.0f}"])
             print(" | ".join(rows[-1]), flush=True)

@@ -14,6 +14,8 @@
 #                                              # (for wide_rule.py --held-out after a simulator change)
 #   SLOW=24 scripts/train_wide.sh              # also 24 people at wide walking paces (slow walkers)
 #   BODIES=24 scripts/train_wide.sh            # also 24 people of every body the scene schema accepts
+#   GAITS=24 scripts/train_wide.sh             # also 24 slow walkers of every push-off and touch-down
+#                                              # pitch the scene schema accepts (shufflers)
 #   TEMPO=0.3 scripts/train_wide.sh            # play 30 % of the chunks at 0.65-1.3 x their tempo
 #   TEMPO=0.5 TEMPO_RANGE=0.3,3 scripts/train_wide.sh  # half of them at 0.3-3 x (the scene schema's range)
 #   TEMPO=0.3 TEMPO_EXTRA=0.2 scripts/train_wide.sh     # 30 % at 0.65-1.3 x and 20 % more at 0.3-3 x
@@ -58,6 +60,9 @@ SLOW=${SLOW:-0}                    # people after them (subject-081 on) also dra
 BODIES=${BODIES:-0}                # people after those (subject-(081+SLOW) on) with heights, masses
                                    # and feet drawn over the scene schema's (sim/corpus.py
                                    # wide_body: 1.2-2.2 m, 30-200 kg, 0.15-0.35 m), into DATA/bodies
+GAITS=${GAITS:-0}                  # people after those (subject-(081+SLOW+BODIES) on) at wide paces
+                                   # with push-off and touch-down pitch drawn over the schema's
+                                   # (sim/corpus.py wide_gait: push_off 0.15-1), into DATA/gaits
 MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-}
 TRAIN_ONLY=${TRAIN_ONLY:-0}        # 1: stop after training (export and calibrate elsewhere)
 EXPORT_ONLY=${EXPORT_ONLY:-0}      # 1: no training, export and calibrate RUN/best.pt as it is
@@ -138,6 +143,13 @@ if [[ $BODIES != 0 ]]; then
     jobs+=("bodies $i ${MINUTES_PER_ACTION:-2} --effects mixed --insoles wide --bodies wide")
   done
 fi
+if [[ $GAITS != 0 ]]; then
+  mkdir -p "$DATA/gaits"
+  first=$((33 + MORE + SLOW + BODIES))
+  for i in $(seq "$first" $((first + GAITS - 1))); do
+    jobs+=("gaits $i ${MINUTES_PER_ACTION:-2} --effects mixed --insoles wide --paces wide --gaits wide")
+  done
+fi
 if [[ $CLEAN == 1 ]]; then  # the same people, insoles and motions, without the effects
   mkdir -p "$DATA/clean"
   for i in "${P_TRAIN[@]}"; do jobs+=("clean $((10#$i)) ${MINUTES_PER_ACTION:-4} --effects none"); done
@@ -155,6 +167,7 @@ files+=("$DATA"/extra/subject-*.ses "$DATA"/more/subject-*.ses)
 [[ $CLEAN == 1 ]] && files+=("$DATA"/clean/subject-*.ses)
 [[ $SLOW != 0 ]] && files+=("$DATA"/slow/subject-*.ses)
 [[ $BODIES != 0 ]] && files+=("$DATA"/bodies/subject-*.ses)
+[[ $GAITS != 0 ]] && files+=("$DATA"/gaits/subject-*.ses)
 echo "train_wide: decoding ${#files[@]} sessions into $CACHE"
 python - "$CACHE" "$JOBS" "${files[@]}" <<'EOF'
 import sys
@@ -203,7 +216,7 @@ if [[ $EXPORT_ONLY != 1 ]]; then
   echo "train_wide: training $RUN on $DEVICE"
   mkdir -p "$RUN"
   # The card quotes this (experiments/card_training.py): how the weights were made.
-  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO TEMPO_RANGE=$TEMPO_RANGE TEMPO_EXTRA=$TEMPO_EXTRA TEMPO_EXTRA_RANGE=$TEMPO_EXTRA_RANGE KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW BODIES=$BODIES RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO TEMPO_RANGE=$TEMPO_RANGE TEMPO_EXTRA=$TEMPO_EXTRA TEMPO_EXTRA_RANGE=$TEMPO_EXTRA_RANGE KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW BODIES=$BODIES GAITS=$GAITS RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
   "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
     --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
     --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \

@@ -110,6 +110,13 @@ def _corpus_parser() -> argparse.ArgumentParser:
         help="adults of 1.50-1.95 m, or height, mass and foot length drawn over what a "
         "scene accepts (1.2-2.2 m, 30-200 kg, feet 0.15-0.35 m; sim/corpus.py wide_body)",
     )
+    p.add_argument(
+        "--gaits",
+        choices=("typical", "wide"),
+        default="typical",
+        help="the typical push-off at toe-off and touch-down pitch, or both drawn over what a "
+        "scene accepts (push_off 0.15-1: shuffling walkers; sim/corpus.py wide_gait)",
+    )
     return p
 
 
@@ -219,6 +226,7 @@ def _corpus(a: argparse.Namespace) -> int:
         insoles=a.insoles,
         paces=a.paces,
         bodies=a.bodies,
+        gaits=a.gaits,
         progress=lambda line: print(line, flush=True),  # a line per subject, as it is done
     )
     total = manifest["total_duration_s"]

@@ -15,6 +15,11 @@ that about half of them walk as slowly as older people do, where the typical
 population walks at 1.05-1.65 m/s. ``bodies="wide"`` draws each person's
 height, mass and foot length again over what the scene schema accepts
 (``wide_body``), where the typical population is adults of 1.50-1.95 m.
+``gaits="wide"`` draws each person's push-off (how far the foot rolls over
+its toes at toe-off) and the foot's pitch at touch-down uniformly over what
+a scene accepts (``wide_gait``): shuffling walkers who land flat and barely
+lift their heels, where the typical population pushes off alike and mostly
+lands on the heel at 20 deg.
 The feet's shape and placement come from the subject's style seed and the
 session's seed (``foot.draw_feet``). The same arguments give the same files, byte for byte.
 """
@@ -48,6 +53,7 @@ REST_S: Final = (5.0, 20.0)  # standing between sets
 MANIFEST: Final = "manifest.json"
 PaceSpread = Literal["typical", "wide"]
 BodySpread = Literal["typical", "wide"]
+GaitSpread = Literal["typical", "wide"]
 # A wide body: body-mass index and foot length (a share of height) drawn uniformly in
 # these, then kept within the schema's mass and foot length (sim/scene.py SubjectModel).
 WIDE_BMI: Final = (16.0, 42.0)
@@ -81,6 +87,17 @@ def wide_body(rng: np.random.Generator) -> dict[str, float]:
     }
 
 
+def wide_gait(rng: np.random.Generator) -> dict[str, float]:
+    """Push-off and the foot's pitch at touch-down, each uniform over the range a scene
+    accepts (sim/traits.py): from a shuffle (flat landing, heel barely rising) to the
+    typical heel strike and roll-off, and beyond to forefoot landings."""
+    values = {}
+    for name in ("push_off", "strike_pitch_deg"):
+        r = TRAIT_RANGES[name]
+        values[name] = round(float(rng.uniform(r.low, r.high)), 4)
+    return values
+
+
 def subject_scene(
     index: int,
     subject: Subject,
@@ -91,6 +108,7 @@ def subject_scene(
     insoles: InsoleSpread = "typical",
     paces: PaceSpread = "typical",
     bodies: BodySpread = "typical",
+    gaits: GaitSpread = "typical",
 ) -> Scene:
     """The scene of one corpus subject (a lab session of all actions, derived seed, effects).
 
@@ -118,6 +136,9 @@ def subject_scene(
     if bodies == "wide":  # a generator of its own too: the style seed and the rest stay
         body = wide_body(np.random.default_rng([corpus_seed, index, 0xB0D1]))
         person = person.model_copy(update=body)
+    if gaits == "wide":  # and one for the gait: every other draw stays
+        gait = wide_gait(np.random.default_rng([corpus_seed, index, 0x6A17]))
+        person = person.model_copy(update=gait)
     return Scene(
         name=f"subject-{index:03d}",
         description=(
@@ -183,6 +204,7 @@ def write_corpus(
     insoles: InsoleSpread = "typical",
     paces: PaceSpread = "typical",
     bodies: BodySpread = "typical",
+    gaits: GaitSpread = "typical",
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Render every subject's session into ``out_dir`` and write the manifest.
@@ -206,6 +228,7 @@ def write_corpus(
             insoles=insoles,
             paces=paces,
             bodies=bodies,
+            gaits=gaits,
         )
         name = f"{scene.name}.ses"
         started = time.perf_counter()
@@ -241,6 +264,7 @@ def write_corpus(
         "insoles": insoles,
         "paces": paces,
         "bodies": bodies,
+        "gaits": gaits,
         "total_duration_s": sum(e["duration_s"] for e in entries),
         "sessions": entries,
     }

@@ -103,6 +103,7 @@ class SubjectModel(_Strict):
     fatigue_slowdown_per_min: float | None = _trait("fatigue_slowdown_per_min")
     fatigue_shallowing_per_min: float | None = _trait("fatigue_shallowing_per_min")
     cadence_spm: float | None = _trait("cadence_spm")
+    push_off: float | None = _trait("push_off")
     # The foot's shape (scotti.sim.foot): None draws it from style_seed.
     arch: ArchType | None = None
     ball_width_ratio: float | None = Field(

@@ -48,6 +48,16 @@ Walking (comfortable speed, healthy adults):
   (J NeuroEng Rehabil 2:19); drawn N(0.02, 0.006) clipped 0.01-0.04.
 - speed changes within a walk: slow drifts of a few per cent (our choice,
   amplitude N(0.05, 0.02) clipped 0.01-0.10).
+- push-off: at toe-off the walking foot rolls over its toes, heel up, by
+  0.6 rad (34 deg; 0.5 in a transition's steps) in the typical population,
+  not drawn (``push_off`` = 1). Walkers who shuffle (Parkinson's disease,
+  frailty) land flatter and push off less: reduced ankle push-off and heel
+  rise are among the features of parkinsonian gait (Morris et al. 1994,
+  Brain 117:1169, Svehlik et al. 2009, Arch Phys Med Rehabil 90:1880). A
+  scene, or a corpus drawn with ``--gaits wide``, may scale that roll down to
+  0.15 of it (our range); pedar's and GaPt03's real walks
+  (docs/real-data.md) keep 70 % of the stance load on the heel half or land
+  flat, as such walkers do.
 - left/right asymmetry of step length and depth: a few per cent in healthy
   adults (Sadeghi et al. 2000, Gait Posture 12:34); drawn N(0, 0.025)
   clipped +-0.06 (right minus left share).
@@ -90,6 +100,7 @@ TYPICAL_CADENCE_SPM: Final = (95.0, 135.0)  # the drawn population's limits; 100
 TYPICAL_SPEED_MPS: Final = (1.05, 1.65)  # the drawn population's walking speeds
 TYPICAL_STEP_RATIO: Final = (0.37, 0.47)  # the drawn population's step lengths (x height)
 COMFORTABLE_SPEED_MPS: Final = 1.36  # the population's mean (Bohannon 1997)
+PUSH_OFF_RANGE: Final = (0.15, 1.0)  # share of the typical toe-off roll; 1 for the population
 FATIGUE_CAP: Final = (0.30, 0.20)  # largest slow-down and shallowing of a set
 
 
@@ -128,6 +139,7 @@ TRAIT_RANGES: Final[dict[str, TraitRange]] = {
     "fatigue_slowdown_per_min": TraitRange("/min", 0.02, 0.08, "Sanchez-Medina 2011"),
     "fatigue_shallowing_per_min": TraitRange("/min", 0.01, 0.05, "our choice"),
     "cadence_spm": TraitRange("steps/min", *CADENCE_RANGE_SPM, "Grieve & Gear: 100-125"),
+    "push_off": TraitRange("x typical", *PUSH_OFF_RANGE, "our choice: shufflers to typical"),
 }
 
 
@@ -139,6 +151,7 @@ POPULATION_RANGES: Final[dict[str, TraitRange]] = TRAIT_RANGES | {
         "x height", *TYPICAL_STEP_RATIO, "Grieve & Gear 1966: 0.41-0.45"
     ),
     "cadence_spm": TraitRange("steps/min", *TYPICAL_CADENCE_SPM, "Grieve & Gear: 100-125"),
+    "push_off": TraitRange("x typical", 1.0, 1.0, "not drawn: the typical toe-off roll"),
 }
 
 
@@ -167,6 +180,7 @@ class Traits:
     fatigue_slowdown_per_min: float
     fatigue_shallowing_per_min: float
     cadence_spm: float
+    push_off: float = 1.0  # share of the typical toe-off roll (not drawn: see the module doc)
 
     def toe_out_rad(self, side: int) -> float:
         """Toe-out of the left (0) or right (1) foot, radians."""
@@ -237,6 +251,7 @@ def draw_traits(style_seed: int, height_m: float, given: Mapping[str, float | st
         "rep_pause_s": uniform("rep_pause_s"),
         "fatigue_slowdown_per_min": uniform("fatigue_slowdown_per_min"),
         "fatigue_shallowing_per_min": uniform("fatigue_shallowing_per_min"),
+        "push_off": 1.0,  # not drawn (no generator call): earlier corpora remake byte for byte
     }
     values = {**drawn, **given}
     if values["strike"] not in STRIKES:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -322,6 +323,38 @@ def test_strike_pattern_shows_in_foot_pitch_at_touch_down(
     assert len(pitches) >= 6
     steady = np.sort(pitches)[1:-1]  # the closing step lands at half the angle
     assert low < np.median(steady) < high
+
+
+def _toe_off_pitch(m: Motion, side: str) -> np.ndarray:
+    """Foot pitch (< 0 toes down) on the last frame of each contact, as the foot leaves."""
+    heel, toe = m.world[:, KP[f"{side}_heel"]], m.world[:, KP[f"{side}_big_toe"]]
+    contact = _contact(m, side)
+    offsets = np.flatnonzero(contact[:-1] & ~contact[1:])
+    d = toe - heel
+    pitch = np.arctan2(d[:, 2], np.linalg.norm(d[:, :2], axis=1))
+    return np.asarray(pitch[offsets])
+
+
+def test_push_off_scales_how_far_the_foot_rolls_over_its_toes_before_it_leaves() -> None:
+    """A shuffler (push_off 0.2) lifts the heel a fifth as far at toe-off as the typical
+    walker, whose foot leaves the floor pitched about 0.6 rad toes down."""
+    pitches = {}
+    for push_off in (1.0, 0.2):
+        m = _person_motion("walking", {"push_off": push_off}, rate=64.0, reps=8)
+        pitches[push_off] = np.r_[_toe_off_pitch(m, "left"), _toe_off_pitch(m, "right")]
+        assert len(pitches[push_off]) >= 6
+    typical, shuffle = np.median(pitches[1.0]), np.median(pitches[0.2])
+    assert -0.7 < typical < -0.4
+    assert shuffle == pytest.approx(0.2 * typical, abs=0.05)
+
+
+def test_the_typical_population_pushes_off_alike_and_draws_as_before() -> None:
+    """push_off is not drawn: every other trait of a seed is what it was without it."""
+    plain = Subject(HEIGHT, 70.0, style_seed=5).traits
+    given = Subject(HEIGHT, 70.0, style_seed=5, traits_given={"push_off": 0.3}).traits
+    assert plain.push_off == 1.0
+    assert given.push_off == 0.3
+    assert replace(given, push_off=1.0) == plain
 
 
 def test_a_walk_that_turns_changes_heading_and_labels_stay_in_the_persons_frame() -> None:

@@ -229,3 +229,20 @@ def test_corpus_with_wide_bodies_records_and_renders_each_persons_body(tmp_path:
         session = read_session(out / entry["file"])
         assert session.header.scene["subject"]["foot_length_m"] == scene.subject.foot_length_m  # type: ignore[index]
         assert len(session.labels) > 0
+
+
+def test_corpus_with_wide_gaits_records_and_renders_each_persons_push_off(tmp_path: Path) -> None:
+    out = tmp_path / "gaits"
+    argv = ["sim", "corpus", "-o", str(out), "--subjects", "2", "--minutes-per-action", "0.02"]
+    assert main([*argv, "--seed", "3", "--gaits", "wide", "--effects", "none"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["gaits"] == "wide"
+    people = draw_subjects(2, seed=3)
+    for i, entry in enumerate(manifest["sessions"]):
+        scene = subject_scene(
+            i, people[i], corpus_seed=3, minutes_per_action=0.02, effects="none", gaits="wide"
+        )
+        assert scene.subject.push_off is not None
+        assert entry["subject"]["push_off"] == pytest.approx(scene.subject.push_off)
+        session = read_session(out / entry["file"])
+        assert session.header.scene["subject"]["push_off"] == scene.subject.push_off  # type: ignore[index]

@@ -113,6 +113,34 @@ def test_wide_bodies_cover_the_schemas_bodies_and_leave_everything_else_as_it_wa
     assert typical_heights.min() >= 1.5  # the typical draw, as before
 
 
+def test_wide_gaits_cover_push_off_and_touch_down_and_leave_everything_else_as_it_was() -> None:
+    people = draw_subjects(64, seed=9)
+    typical = [
+        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects="realistic")
+        for i, s in enumerate(people)
+    ]
+    wide = [
+        subject_scene(
+            i, s, corpus_seed=9, minutes_per_action=0.1, effects="realistic", gaits="wide"
+        )
+        for i, s in enumerate(people)
+    ]
+    gait = {"push_off": None, "strike_pitch_deg": None}
+    for t, w in zip(typical, wide, strict=True):
+        assert (w.seed, w.insole, w.effects, w.session) == (t.seed, t.insole, t.effects, t.session)
+        assert w.subject.model_copy(update=gait) == t.subject
+        assert t.subject.subject().traits.push_off == 1.0  # the typical walker, as before
+    push = np.array([w.subject.push_off for w in wide], dtype=float)
+    pitch = np.array([w.subject.strike_pitch_deg for w in wide], dtype=float)
+    assert push.min() >= 0.15
+    assert push.max() <= 1.0
+    assert push.min() < 0.3  # shufflers
+    assert push.max() > 0.85
+    assert pitch.min() < -5.0  # toes first, flat and heel landings alike
+    assert pitch.max() > 25.0
+    assert (np.abs(pitch) < 5.0).any()
+
+
 def test_the_smallest_and_largest_wide_bodies_move() -> None:
     """A child's body on the smallest insole and a 2.2 m one: the simulator takes both."""
     people = draw_subjects(64, seed=9)

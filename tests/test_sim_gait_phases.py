@@ -69,3 +69,27 @@ def test_stance_swing_and_double_support_lie_in_the_gait_cycle_norms(
         if not _inside(r, measured[r.key])
     ]
     assert outside == []
+
+
+def test_given_traits_are_checked_by_name_and_range() -> None:
+    assert walking.parse_traits(["push_off=0.3", "walking_speed_mps=0.8"]) == {
+        "push_off": 0.3,
+        "walking_speed_mps": 0.8,
+    }
+    for bad in ("push_off", "push_of=0.3", "push_off=0.05", "push_off=x", "strike_pitch_deg=45"):
+        with pytest.raises(ValueError, match="--trait"):
+            walking.parse_traits([bad])
+
+
+def test_a_shuffler_lands_flat_and_rolls_off_sooner_in_the_pressure_frames(
+    tmp_path: Path,
+) -> None:
+    """Flat landing and little push-off (GaPt03's walk in docs/real-data.md starts its
+    stances 0.31 along the foot, where heel strikers start at 0.14-0.26)."""
+    typical = walking.walking_phases(walking.person_scene(200, 16), tmp_path).gait
+    shuffler = walking.walking_phases(
+        walking.person_scene(200, 16, traits={"push_off": 0.15, "strike_pitch_deg": 2.0}),
+        tmp_path,
+    ).gait
+    assert shuffler.cop_start > typical.cop_start + 0.08
+    assert shuffler.cop_end < typical.cop_end

@@ -7,7 +7,7 @@ import pytest
 from scotti.sim.motion import Subject
 from scotti.sim.scene import Scene, SceneError
 from scotti.sim.subjects import BODY_RANGES, draw_subjects, trait_spread
-from scotti.sim.traits import STRIKES, TRAIT_NAMES, TRAIT_RANGES
+from scotti.sim.traits import POPULATION_RANGES, STRIKES, TRAIT_NAMES, TRAIT_RANGES
 
 
 def test_drawn_traits_lie_in_their_ranges_and_differ_between_people() -> None:
@@ -16,8 +16,14 @@ def test_drawn_traits_lie_in_their_ranges_and_differ_between_people() -> None:
         values = np.array([getattr(s.traits, name) for s in subjects])
         assert drawn_in.low <= values.min(), name
         assert values.max() <= drawn_in.high, name
+        population = POPULATION_RANGES[name]
+        assert population.low <= values.min(), name
+        assert values.max() <= population.high, name
+        if population.high == population.low:  # push_off: not drawn, the typical walker's
+            continue
         # Not one value for everybody: at least a fifth of the range is used.
         assert np.ptp(values) > 0.2 * (drawn_in.high - drawn_in.low), name
+    assert {s.traits.push_off for s in subjects} == {1.0}
     strikes = [s.traits.strike for s in subjects]
     assert set(strikes) == set(STRIKES)
     assert strikes.count("heel") > 0.75 * len(strikes)  # mostly rearfoot
@@ -88,7 +94,8 @@ def test_trait_spread_reports_every_trait_over_a_fixed_population() -> None:
     for t in spread.traits:
         assert t.minimum <= t.p5 <= t.p95 <= t.maximum, t.name
         assert t.minimum <= t.mean <= t.maximum, t.name
-        assert t.minimum < t.maximum, t.name
+        # Drawn traits differ between people; push_off is the population's one value.
+        assert t.minimum < t.maximum or t.drawn_in.low == t.drawn_in.high == t.mean, t.name
         assert t.drawn_in.source
     assert sum(spread.strike_shares.values()) == pytest.approx(1.0)
     assert spread.strike_shares["heel"] == pytest.approx(

@@ -2,11 +2,13 @@
 
 For these four a repetition is one step (one foot's swing), as the progress
 labeller cuts them: by heel distance (walking, side walking), heel height
-(in place: cut with both feet down) or heel displacement (backward). Walking is built from a gait
-cycle with stance 60 %, double support 2 x 10 %, the person's own touch-down
-(heel strike, flat foot or toes first, ``Traits.strike``) -> flat foot ->
-heel rise -> toe off; the pelvis follows the standing feet and its height
-an inverted pendulum (``pendulum.py``). Steps land the person's step width
+(in place: cut with both feet down) or heel displacement (backward).
+Walking is built from a gait cycle with stance 60 %, double support
+2 x 10 %, the person's own touch-down (heel strike, flat foot or toes first,
+``Traits.strike``) -> flat foot -> heel rise -> toe off (rolling over the
+toes by 0.6 rad, scaled by the person's ``push_off``: a shuffling walker's
+heel barely rises); the pelvis follows the standing feet and its height an
+inverted pendulum (``pendulum.py``). Steps land the person's step width
 apart, turned out by their toe-out; the path may curve and turn (a lab
 walkway: straight, turn round, back) and the speed may drift, the heading
 following the path. Backward walking has its own gait in ``backward.py``.
@@ -74,7 +76,8 @@ def steps_for(spec: ActionSpec, step_s: float, least: int = 2) -> int:
 def walking(ctx: Context, spec: ActionSpec, place: Place) -> Segment:
     traits = ctx.subject.traits
     return _walk(
-        ctx, spec, place, ACTIONS.index("walking"), 1.0, 1.0, traits.strike_pitch_rad, -0.6, 0.04,
+        ctx, spec, place, ACTIONS.index("walking"), 1.0, 1.0, traits.strike_pitch_rad,
+        -0.6 * traits.push_off, 0.04,
         strike=traits.strike, turns=True,
     )  # fmt: skip
 
@@ -86,7 +89,8 @@ def transition_walk(
     spec = ActionSpec("walking", reps=max(2, steps), turn_rad=turn_rad)
     traits = ctx.subject.traits
     return _walk(
-        ctx, spec, place, NO_ACTION, length_scale, 0.9, traits.strike_pitch_rad, -0.5, 0.02,
+        ctx, spec, place, NO_ACTION, length_scale, 0.9, traits.strike_pitch_rad,
+        -0.5 * traits.push_off, 0.02,
         strike=traits.strike, turns=True,
     )  # fmt: skip
 
