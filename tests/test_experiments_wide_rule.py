@@ -141,3 +141,12 @@ def test_a_missing_recalibrated_shipped_model_is_named_before_any_work(
     assert wide_rule.main(argv) == 2
     err = capsys.readouterr().err
     assert f"{missing}: no such model" in err
+
+
+def test_a_candidate_holding_the_lines_run_so_far_is_not_yet_decided() -> None:
+    held = wide_rule.verdict([line(1, True), line(2, True)], run=[1, 2])
+    assert held.startswith("NOT DECIDED")
+    assert "line 3, 4 not run" in held
+    # A line that fails decides, whatever was left out.
+    failed = wide_rule.verdict([line(1, True), line(2, False)], run=[1, 2])
+    assert failed.endswith("line 2 of the rule fails")
