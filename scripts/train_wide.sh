@@ -30,6 +30,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SCOTTI=${SCOTTI:-scotti}
+PYTHON=${PYTHON:-python3}          # the interpreter that holds scotti (a GPU image may lack `python`)
 DATA=${DATA:-data/corpus13}
 CACHE=${CACHE:-data/cache13}
 JOBS=${JOBS:-$(nproc)}
@@ -77,7 +78,7 @@ RUN=${RUN:-runs/v13-$PARTITION-wide}  # per partition, so that p2 never resumes 
 # The partition's training and held-out people (three-digit indices); like
 # experiments/partition_runs.py, its last two training people and 031/032 validate.
 partition_people() {  # train|test
-  python - "$PARTITION" "$1" <<'PY'
+  "$PYTHON" - "$PARTITION" "$1" <<'PY'
 import json, sys
 parts = json.load(open("experiments/partitions.json"))["partitions"]
 part = next((p for p in parts if p["name"] == sys.argv[1]), None)
@@ -169,7 +170,7 @@ files+=("$DATA"/extra/subject-*.ses "$DATA"/more/subject-*.ses)
 [[ $BODIES != 0 ]] && files+=("$DATA"/bodies/subject-*.ses)
 [[ $GAITS != 0 ]] && files+=("$DATA"/gaits/subject-*.ses)
 echo "train_wide: decoding ${#files[@]} sessions into $CACHE"
-python - "$CACHE" "$JOBS" "${files[@]}" <<'EOF'
+"$PYTHON" - "$CACHE" "$JOBS" "${files[@]}" <<'EOF'
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from scotti.export.data import load_session
