@@ -9,9 +9,9 @@ insole, no transport effects) for each of the people of
 same bodies and styles, not their corpus sessions), decodes it with the
 project's reader (``scotti.export.data.load_session``) and prints the timing
 and load columns of real_vs_sim_gait's table plus the stance share of the stride.
-``--trait NAME=VALUE`` gives every person that trait (sim/traits.py; the
-scene schema checks it), e.g. a shuffler's ``push_off`` at a slow pace, to
-put beside the real walks of docs/real-data.md.
+``--trait NAME=VALUE`` gives every person that trait (sim/traits.py; a
+value outside the range a scene accepts is refused), e.g. a shuffler's
+``push_off`` at a slow pace, to put beside the real walks of docs/real-data.md.
 Writes nothing outside a temporary folder; a few seconds per person.
 """
 

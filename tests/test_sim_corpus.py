@@ -6,7 +6,7 @@ import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.actions import EXERCISES
 from scotti.sim.corpus import subject_scene
-from scotti.sim.scene import build_motion
+from scotti.sim.scene import Scene, build_motion
 from scotti.sim.subjects import draw_subjects
 
 
@@ -77,18 +77,23 @@ def test_wide_paces_draw_slow_walkers_and_leave_everything_else_as_it_was() -> N
     assert drawn.min() >= 95.0
 
 
-def test_wide_bodies_cover_the_schemas_bodies_and_leave_everything_else_as_it_was() -> None:
-    people = draw_subjects(64, seed=9)
+def _scenes(count: int, effects: str, **spread: str) -> tuple[list[Scene], list[Scene]]:
+    """Corpus seed 9's first ``count`` people: their typical scenes and those drawn with
+    ``spread`` (e.g. ``bodies="wide"``), person by person."""
+    people = draw_subjects(count, seed=9)
     typical = [
-        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects="realistic")
+        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects=effects)  # type: ignore[arg-type]
         for i, s in enumerate(people)
     ]
     wide = [
-        subject_scene(
-            i, s, corpus_seed=9, minutes_per_action=0.1, effects="realistic", bodies="wide"
-        )
+        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects=effects, **spread)  # type: ignore[arg-type]
         for i, s in enumerate(people)
     ]
+    return typical, wide
+
+
+def test_wide_bodies_cover_the_schemas_bodies_and_leave_everything_else_as_it_was() -> None:
+    typical, wide = _scenes(64, "realistic", bodies="wide")
     body = {"height_m": None, "mass_kg": None, "foot_length_m": None}
     for t, w in zip(typical, wide, strict=True):
         assert (w.seed, w.insole, w.effects, w.session) == (t.seed, t.insole, t.effects, t.session)
@@ -114,17 +119,7 @@ def test_wide_bodies_cover_the_schemas_bodies_and_leave_everything_else_as_it_wa
 
 
 def test_wide_gaits_cover_push_off_and_touch_down_and_leave_everything_else_as_it_was() -> None:
-    people = draw_subjects(64, seed=9)
-    typical = [
-        subject_scene(i, s, corpus_seed=9, minutes_per_action=0.1, effects="realistic")
-        for i, s in enumerate(people)
-    ]
-    wide = [
-        subject_scene(
-            i, s, corpus_seed=9, minutes_per_action=0.1, effects="realistic", gaits="wide"
-        )
-        for i, s in enumerate(people)
-    ]
+    typical, wide = _scenes(64, "realistic", gaits="wide")
     gait = {"push_off": None, "strike_pitch_deg": None}
     for t, w in zip(typical, wide, strict=True):
         assert (w.seed, w.insole, w.effects, w.session) == (t.seed, t.insole, t.effects, t.session)
