@@ -16,6 +16,8 @@
 #   BODIES=24 scripts/train_wide.sh            # also 24 people of every body the scene schema accepts
 #   GAITS=24 scripts/train_wide.sh             # also 24 slow walkers of every push-off and touch-down
 #                                              # pitch the scene schema accepts (shufflers)
+#   NOISY=24 scripts/train_wide.sh             # also 24 people whose transport has three effects
+#                                              # drawn over the scene schema's whole range
 #   TEMPO=0.3 scripts/train_wide.sh            # play 30 % of the chunks at 0.65-1.3 x their tempo
 #   TEMPO=0.5 TEMPO_RANGE=0.3,3 scripts/train_wide.sh  # half of them at 0.3-3 x (the scene schema's range)
 #   TEMPO=0.3 TEMPO_EXTRA=0.2 scripts/train_wide.sh     # 30 % at 0.65-1.3 x and 20 % more at 0.3-3 x
@@ -64,6 +66,10 @@ BODIES=${BODIES:-0}                # people after those (subject-(081+SLOW) on) 
 GAITS=${GAITS:-0}                  # people after those (subject-(081+SLOW+BODIES) on) at wide paces
                                    # with push-off and touch-down pitch drawn over the schema's
                                    # (sim/corpus.py wide_gait: push_off 0.15-1), into DATA/gaits
+NOISY=${NOISY:-0}                  # people after those with wide effects (sim/effects/wide.py: three
+                                   # effects a person drawn over the schema's range), into DATA/noisy;
+                                   # not in the calibrations (the flag's "familiar" stays the
+                                   # realistic transport)
 MINUTES_PER_ACTION=${MINUTES_PER_ACTION:-}
 TRAIN_ONLY=${TRAIN_ONLY:-0}        # 1: stop after training (export and calibrate elsewhere)
 EXPORT_ONLY=${EXPORT_ONLY:-0}      # 1: no training, export and calibrate RUN/best.pt as it is
@@ -151,6 +157,13 @@ if [[ $GAITS != 0 ]]; then
     jobs+=("gaits $i ${MINUTES_PER_ACTION:-2} --effects mixed --insoles wide --paces wide --gaits wide")
   done
 fi
+if [[ $NOISY != 0 ]]; then
+  mkdir -p "$DATA/noisy"
+  first=$((33 + MORE + SLOW + BODIES + GAITS))
+  for i in $(seq "$first" $((first + NOISY - 1))); do
+    jobs+=("noisy $i ${MINUTES_PER_ACTION:-2} --effects wide --insoles wide")
+  done
+fi
 if [[ $CLEAN == 1 ]]; then  # the same people, insoles and motions, without the effects
   mkdir -p "$DATA/clean"
   for i in "${P_TRAIN[@]}"; do jobs+=("clean $((10#$i)) ${MINUTES_PER_ACTION:-4} --effects none"); done
@@ -169,6 +182,7 @@ files+=("$DATA"/extra/subject-*.ses "$DATA"/more/subject-*.ses)
 [[ $SLOW != 0 ]] && files+=("$DATA"/slow/subject-*.ses)
 [[ $BODIES != 0 ]] && files+=("$DATA"/bodies/subject-*.ses)
 [[ $GAITS != 0 ]] && files+=("$DATA"/gaits/subject-*.ses)
+[[ $NOISY != 0 ]] && files+=("$DATA"/noisy/subject-*.ses)
 echo "train_wide: decoding ${#files[@]} sessions into $CACHE"
 "$PYTHON" - "$CACHE" "$JOBS" "${files[@]}" <<'EOF'
 import sys
@@ -217,7 +231,7 @@ if [[ $EXPORT_ONLY != 1 ]]; then
   echo "train_wide: training $RUN on $DEVICE"
   mkdir -p "$RUN"
   # The card quotes this (experiments/card_training.py): how the weights were made.
-  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO TEMPO_RANGE=$TEMPO_RANGE TEMPO_EXTRA=$TEMPO_EXTRA TEMPO_EXTRA_RANGE=$TEMPO_EXTRA_RANGE KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW BODIES=$BODIES GAITS=$GAITS RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO TEMPO_RANGE=$TEMPO_RANGE TEMPO_EXTRA=$TEMPO_EXTRA TEMPO_EXTRA_RANGE=$TEMPO_EXTRA_RANGE KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW BODIES=$BODIES GAITS=$GAITS NOISY=$NOISY RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
   "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
     --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
     --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
@@ -238,7 +252,11 @@ echo "train_wide: exporting $model"
 # the held-out people's distances) was 15.8 instead of 17.3 and its flag withheld 40 % of
 # the real windows instead of 23 % (docs/generalisation.md, "Slow walkers").
 calibration=()
-for f in "${files[@]}"; do [[ $f == "$DATA"/clean/* ]] || calibration+=("$f"); done
+# Nor on the wide effects' people: a flag calibrated on a second-late insole would call it
+# familiar, where it is what the flag is for.
+for f in "${files[@]}"; do
+  [[ $f == "$DATA"/clean/* || $f == "$DATA"/noisy/* ]] || calibration+=("$f")
+done
 "$SCOTTI" export "$RUN/best.pt" -o "$model" --calibrate "${calibration[@]}" --cache-dir "$CACHE" --force
 val=()
 for s in "${VALIDATION[@]}"; do

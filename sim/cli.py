@@ -84,10 +84,11 @@ def _corpus_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--effects",
-        choices=("realistic", "none", "mixed"),
+        choices=("realistic", "none", "mixed", "wide"),
         default="realistic",
-        help="transport and sensor effects: a fresh realistic draw per subject, none, or "
-        "mixed (a third of the subjects clean)",
+        help="transport and sensor effects: a fresh realistic draw per subject, none, "
+        "mixed (a third of the subjects clean), or wide (the realistic draw with three "
+        "effects drawn over the whole range a scene accepts; sim/effects/wide.py)",
     )
     p.add_argument(
         "--insoles",

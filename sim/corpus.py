@@ -19,7 +19,10 @@ height, mass and foot length again over what the scene schema accepts
 its toes at toe-off) and the foot's pitch at touch-down uniformly over what
 a scene accepts (``wide_gait``): shuffling walkers who land flat and barely
 lift their heels, where the typical population pushes off alike and mostly
-lands on the heel at 20 deg.
+lands on the heel at 20 deg. ``effects="wide"`` gives each person the
+realistic draw with three effects drawn again over everything a scene accepts
+(``sim.effects.wide``): a hysteresis up to 0.8, a radio link that stays bad,
+one insole up to a second late.
 The feet's shape and placement come from the subject's style seed and the
 session's seed (``foot.draw_feet``). The same arguments give the same files, byte for byte.
 """
@@ -37,6 +40,7 @@ import numpy as np
 from scotti.models.contract import ACTIONS
 from scotti.sim.actions import EXERCISES
 from scotti.sim.effects.registry import parse_effects, realistic_effects
+from scotti.sim.effects.wide import wide_effects
 from scotti.sim.foot import draw_feet
 from scotti.sim.insole import InsoleSpec, InsoleSpread, draw_insole
 from scotti.sim.motion import Subject
@@ -46,7 +50,7 @@ from scotti.sim.subjects import draw_subjects
 from scotti.sim.traits import TRAIT_RANGES
 from scotti.sim.writer import RenderReport, sim_input, write_session
 
-EffectsPreset = Literal["realistic", "none", "mixed"]
+EffectsPreset = Literal["realistic", "none", "mixed", "wide"]
 MIXED_CLEAN_SHARE: Final = 1 / 3  # of subjects without effects in a "mixed" corpus
 SET_S: Final = (30.0, 75.0)  # length of one set
 REST_S: Final = (5.0, 20.0)  # standing between sets
@@ -114,7 +118,9 @@ def subject_scene(
 
     ``mixed`` effects: a third of the subjects (a coin of their own) are clean,
     the rest get the draw a ``realistic`` corpus gives them, so that a model
-    meets both a clean and a noisy transport of the same population.
+    meets both a clean and a noisy transport of the same population. ``wide``
+    effects: that realistic draw with three effects drawn again over the whole
+    range a scene accepts (``sim.effects.wide``); nobody is clean.
     """
     seed = int(np.random.SeedSequence([corpus_seed, index]).generate_state(1)[0])
     raw_effects: list[dict[str, Any]] = []
@@ -122,7 +128,12 @@ def subject_scene(
         effects == "mixed"
         and np.random.default_rng([corpus_seed, index, 0xC1]).random() < MIXED_CLEAN_SHARE
     )
-    if not clean:
+    if effects == "wide":  # the realistic draw, a few effects drawn again over the schema
+        raw_effects = wide_effects(
+            np.random.default_rng([corpus_seed, index, 0xEF]),
+            np.random.default_rng([corpus_seed, index, 0xE1DE]),
+        )
+    elif not clean:
         raw_effects = realistic_effects(np.random.default_rng([corpus_seed, index, 0xEF]))
     # Each subject wears their own pair of insoles, drawn whatever the effects:
     # the clean copy differs from the realistic one by the effects alone.

@@ -246,3 +246,17 @@ def test_corpus_with_wide_gaits_records_and_renders_each_persons_push_off(tmp_pa
         assert entry["subject"]["push_off"] == pytest.approx(scene.subject.push_off)
         session = read_session(out / entry["file"])
         assert session.header.scene["subject"]["push_off"] == scene.subject.push_off  # type: ignore[index]
+
+
+def test_corpus_with_wide_effects_writes_each_persons_effects_to_its_header(tmp_path: Path) -> None:
+    out = tmp_path / "noisy"
+    argv = ["sim", "corpus", "-o", str(out), "--subjects", "2", "--minutes-per-action", "0.02"]
+    assert main([*argv, "--seed", "3", "--effects", "wide"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["effects"] == "wide"
+    people = draw_subjects(2, seed=3)
+    for i, entry in enumerate(manifest["sessions"]):
+        scene = subject_scene(i, people[i], corpus_seed=3, minutes_per_action=0.02, effects="wide")
+        session = read_session(out / entry["file"])
+        assert session.header.scene["effects"] == scene.effects  # type: ignore[index]
+        assert len(session.labels) > 0

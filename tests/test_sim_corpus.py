@@ -148,3 +148,15 @@ def test_the_smallest_and_largest_wide_bodies_move() -> None:
         motion = build_motion(scene)
         assert np.isfinite(motion.world).all()
         assert motion.subject.height_m == scene.subject.height_m
+
+
+def test_wide_effects_redraw_three_effects_and_leave_person_and_motion_as_they_were() -> None:
+    realistic, wide = _scenes(24, "realistic")[0], _scenes(24, "wide")[0]
+    for r, w in zip(realistic, wide, strict=True):
+        assert (w.seed, w.insole, w.subject, w.session) == (r.seed, r.insole, r.subject, r.session)
+        assert w.effects  # nobody is clean, where a third of a mixed corpus is
+        before = {e["name"]: e for e in r.effects}
+        changed = [e["name"] for e in w.effects if before.get(e["name"]) != e]
+        assert len(changed) == 3, changed
+    offsets = [e["offset_ms"] for w in wide for e in w.effects if e["name"] == "foot_offset"]
+    assert max(abs(o) for o in offsets) > 100.0  # a realistic draw stays within 20 ms
