@@ -20,7 +20,6 @@ from __future__ import annotations
 from typing import Any, Final, Literal, get_args, get_origin
 
 import numpy as np
-from annotated_types import Ge, Gt, Le, Lt
 from scotti.sim.effects.base import EffectParams
 from scotti.sim.effects.registry import EFFECT_MODELS, realistic_effects
 
@@ -41,13 +40,12 @@ WIDENED_PER_DRAW: Final = 3
 def parameter_range(model: type[EffectParams], name: str) -> tuple[float, float]:
     """(low, high) an effect's numeric parameter accepts (an open bound is taken as closed)."""
     low = high = None
-    for m in model.model_fields[name].metadata:
-        bound: Any = None
-        if isinstance(m, Ge | Gt):
-            bound = m.ge if isinstance(m, Ge) else m.gt
+    for m in model.model_fields[name].metadata:  # pydantic's Ge, Gt, Le, Lt constraints
+        bound = getattr(m, "ge", getattr(m, "gt", None))
+        if bound is not None:
             low = float(bound)
-        elif isinstance(m, Le | Lt):
-            bound = m.le if isinstance(m, Le) else m.lt
+        bound = getattr(m, "le", getattr(m, "lt", None))
+        if bound is not None:
             high = float(bound)
     if low is None or high is None:
         msg = f"{model.__name__}.{name} has no closed range to draw from"
