@@ -41,6 +41,7 @@ from scotti.models.contract import ACTIONS
 from scotti.sim.actions import EXERCISES
 from scotti.sim.effects.registry import parse_effects, realistic_effects
 from scotti.sim.effects.wide import wide_effects
+from scotti.sim.field_range import field_range
 from scotti.sim.foot import draw_feet
 from scotti.sim.insole import InsoleSpec, InsoleSpread, draw_insole
 from scotti.sim.motion import Subject
@@ -64,26 +65,15 @@ WIDE_BMI: Final = (16.0, 42.0)
 WIDE_FOOT_RATIO: Final = (0.125, 0.17)
 
 
-def _schema_range(field: str) -> tuple[float, float]:
-    """(ge, le) of a SubjectModel field: the range a scene may give."""
-    low = high = None
-    for m in SubjectModel.model_fields[field].metadata:
-        low = getattr(m, "ge", low)
-        high = getattr(m, "le", high)
-    assert low is not None
-    assert high is not None
-    return float(low), float(high)
-
-
 def wide_body(rng: np.random.Generator) -> dict[str, float]:
     """Height uniform over the schema's whole range (1.2-2.2 m), a body-mass index of
     16-42 and a foot of 0.125-0.17 x height, mass and foot kept within the schema:
     children's and very tall people's bodies, thin and heavy, short and long feet."""
-    height = float(rng.uniform(*_schema_range("height_m")))
+    height = float(rng.uniform(*field_range(SubjectModel, "height_m")))
     bmi = float(rng.uniform(*WIDE_BMI))
     ratio = float(rng.uniform(*WIDE_FOOT_RATIO))
-    mass = float(np.clip(bmi * height**2, *_schema_range("mass_kg")))
-    foot = float(np.clip(ratio * height, *_schema_range("foot_length_m")))
+    mass = float(np.clip(bmi * height**2, *field_range(SubjectModel, "mass_kg")))
+    foot = float(np.clip(ratio * height, *field_range(SubjectModel, "foot_length_m")))
     return {
         "height_m": round(height, 3),
         "mass_kg": round(mass, 1),

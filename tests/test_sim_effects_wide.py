@@ -11,10 +11,10 @@ from scotti.sim.effects.transport import UnplugParams
 from scotti.sim.effects.wide import (
     WIDENED,
     WIDENED_PER_DRAW,
-    parameter_range,
     schema_draw,
     wide_effects,
 )
+from scotti.sim.field_range import field_range
 
 
 def _draws(count: int) -> list[list[dict[str, object]]]:
@@ -49,7 +49,7 @@ def test_the_draws_reach_both_ends_of_every_widened_parameter() -> None:
             if get_origin(field.annotation) is Literal:
                 assert set(values) == set(get_args(field.annotation)), (name, field_name)
                 continue
-            low, high = parameter_range(model, field_name)
+            low, high = field_range(model, field_name)
             span = high - low
             assert min(values) >= low, (name, field_name)
             assert max(values) <= high, (name, field_name)
@@ -71,4 +71,4 @@ def test_every_widened_effect_is_widened_in_some_draws() -> None:
 
 def test_a_parameter_without_an_upper_bound_is_refused_by_name() -> None:
     with pytest.raises(ValueError, match=r"UnplugParams\.start_s"):
-        parameter_range(UnplugParams, "start_s")
+        field_range(UnplugParams, "start_s")

@@ -20,8 +20,8 @@ from __future__ import annotations
 from typing import Any, Final, Literal, get_args, get_origin
 
 import numpy as np
-from scotti.sim.effects.base import EffectParams
 from scotti.sim.effects.registry import EFFECT_MODELS, realistic_effects
+from scotti.sim.field_range import field_range
 
 WIDENED: Final = (
     "hysteresis",
@@ -37,22 +37,6 @@ WIDENED: Final = (
 WIDENED_PER_DRAW: Final = 3
 
 
-def parameter_range(model: type[EffectParams], name: str) -> tuple[float, float]:
-    """(low, high) an effect's numeric parameter accepts (an open bound is taken as closed)."""
-    low = high = None
-    for m in model.model_fields[name].metadata:  # pydantic's Ge, Gt, Le, Lt constraints
-        bound = getattr(m, "ge", getattr(m, "gt", None))
-        if bound is not None:
-            low = float(bound)
-        bound = getattr(m, "le", getattr(m, "lt", None))
-        if bound is not None:
-            high = float(bound)
-    if low is None or high is None:
-        msg = f"{model.__name__}.{name} has no closed range to draw from"
-        raise ValueError(msg)
-    return low, high
-
-
 def schema_draw(name: str, rng: np.random.Generator) -> dict[str, Any]:
     """One effect's table with every parameter drawn over the range its model accepts."""
     model = EFFECT_MODELS[name]
@@ -62,7 +46,7 @@ def schema_draw(name: str, rng: np.random.Generator) -> dict[str, Any]:
         if get_origin(kind) is Literal:
             table[field_name] = str(rng.choice(get_args(kind)))
             continue
-        low, high = parameter_range(model, field_name)
+        low, high = field_range(model, field_name)
         if kind is int:
             table[field_name] = int(rng.integers(int(low), int(high) + 1))
         else:
