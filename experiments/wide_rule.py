@@ -73,6 +73,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import insole_transfer
 import real_data
 from common import ROOT, ExperimentError, render_is_current, scotti_command, stamp_render
+from scotti.models.progress import STEP_CUTS, PeakParams
+from scotti.sim.relabel import relabel_session
 
 # The paper's bar (Table 2, real people) and the rule's margins against the shipped model.
 PAPER_APP: Final = 0.8952
@@ -88,6 +90,7 @@ SCENES: Final = ROOT / "sim" / "scenes"
 SCENE_ACCURACY: Final = 0.95
 SCENE_APP: Final = 0.88
 WORK: Final = ROOT / "data" / "wide_rule"
+IN_FORCE: Final = PeakParams().step_cut  # where the stepping actions' steps start today
 
 
 @dataclass
@@ -208,10 +211,18 @@ def scene_line(scene: str, metric: str, candidate: float, shipped: float) -> Lin
     )  # fmt: skip
 
 
-def scene_lines(candidate: Path, shipped: Path, scenes: Sequence[Path] | None = None) -> list[Line]:
+def scene_lines(
+    candidate: Path,
+    shipped: Path,
+    scenes: Sequence[Path] | None = None,
+    step_cut: str = IN_FORCE,
+) -> list[Line]:
     """Line 4: each scene file (all of sim/scenes unless SCENES) rendered into WORK once
     (again when the scene file is newer, or the simulator or the labelling convention
-    changed), both models scored on the same replay."""
+    changed), both models scored on the same replay. With a ``step_cut`` other than the
+    convention in force, the replay is the render with its labels remade so
+    (``scotti session relabel --step-cut``): a candidate convention is judged without
+    editing the one in force."""
     WORK.mkdir(parents=True, exist_ok=True)
     lines: list[Line] = []
     for scene in scenes if scenes is not None else sorted(SCENES.glob("*.toml")):
@@ -223,11 +234,23 @@ def scene_lines(candidate: Path, shipped: Path, scenes: Sequence[Path] | None = 
             subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
             part.replace(session)
             stamp_render(session)
+        if step_cut != IN_FORCE:
+            session = relabelled(session, step_cut)
         cand, ship = (r["metrics"] for r in eval_json([session], [candidate, shipped]))
         name = scene.name
         lines.append(scene_line(name, "accuracy", cand["action_accuracy"], ship["action_accuracy"]))
         lines.append(scene_line(name, "APP", cand["app"], ship["app"]))
     return lines
+
+
+def relabelled(session: Path, step_cut: str) -> Path:
+    """``session``'s copy under WORK/step-cut-STEP_CUT with its labels cut so, made
+    again whenever the render is newer than it."""
+    target: Path = WORK / f"step-cut-{step_cut}" / session.name
+    if not target.is_file() or target.stat().st_mtime < session.stat().st_mtime:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        relabel_session(session, target, PeakParams(step_cut=step_cut))
+    return target
 
 
 def verdict(lines: Sequence[Line], run: Sequence[int] = RULE_LINES) -> str:
@@ -285,6 +308,14 @@ def main(argv: list[str] | None = None) -> int:
         help="run only these lines (1 and 2 take minutes, 3 and 4 half an hour): a candidate "
         "that fails one is decided; one that holds them is not, until all four have run",
     )
+    parser.add_argument(
+        "--step-cut",
+        choices=STEP_CUTS,
+        default=IN_FORCE,
+        help="judge line 4 on the scenes' labels with the stepping actions cut so (a "
+        "candidate convention, models/progress.py; give line 1 a --held-out folder "
+        "relabelled the same way: scotti session relabel --step-cut)",
+    )
     args = parser.parse_args(argv)
     candidate, shipped = args.candidate.resolve(), args.shipped.resolve()
     shipped_flag = (args.shipped_flag or args.shipped).resolve()
@@ -292,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
         1: lambda: held_out_lines(candidate, shipped, args.held_out.resolve()),
         2: lambda: real_lines(candidate, shipped_flag),
         3: lambda: sensor_lines(candidate, shipped, args.every),
-        4: lambda: scene_lines(candidate, shipped),
+        4: lambda: scene_lines(candidate, shipped, step_cut=args.step_cut),
     }
     parts = [every_part[n] for n in sorted(set(args.lines))]
     try:

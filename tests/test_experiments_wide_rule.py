@@ -3,7 +3,8 @@
 The verdict names every failing line; the real files are pooled as
 docs/real-data.md pools them; the scene line holds the issue's bar where the
 shipped model meets it and a margin where it does not, and renders each scene
-once and scores both models through ``scotti eval``.
+once and scores both models through ``scotti eval``, on the labels of a candidate
+convention when one is given.
 """
 
 from __future__ import annotations
@@ -129,6 +130,25 @@ def test_the_scene_lines_render_each_scene_once_and_score_both_models(
     rendered = session.stat().st_mtime_ns
     wide_rule.scene_lines(MODEL, MODEL, [squat])
     assert session.stat().st_mtime_ns == rendered  # not rendered again
+
+
+@pytest.mark.slow
+def test_a_candidate_convention_is_judged_on_the_scenes_relabelled_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(wide_rule, "WORK", tmp_path)
+    walking = wide_rule.SCENES / "walking.toml"
+    _, app_in_force = wide_rule.scene_lines(MODEL, MODEL, [walking])
+    _, app_cut = wide_rule.scene_lines(MODEL, MODEL, [walking], step_cut="after_landing")
+    copy = tmp_path / "step-cut-after_landing" / "walking.scotti"
+    assert copy.is_file()
+    # The same frames under other labels: the shipped model, trained on the peaks,
+    # reads walking's progress differently against steps cut after each landing.
+    assert app_cut.candidate != pytest.approx(app_in_force.candidate, abs=1e-4)
+    assert app_cut.candidate == app_cut.shipped
+    relabelled = copy.stat().st_mtime_ns
+    wide_rule.scene_lines(MODEL, MODEL, [walking], step_cut="after_landing")
+    assert copy.stat().st_mtime_ns == relabelled  # remade only when the render is newer
 
 
 def test_a_missing_recalibrated_shipped_model_is_named_before_any_work(
