@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from scotti.models.progress import STEP_CUTS
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 sys.path.insert(0, str(EXPERIMENTS))
@@ -138,16 +139,17 @@ def test_a_candidate_convention_is_judged_on_the_scenes_relabelled_so(
 ) -> None:
     monkeypatch.setattr(wide_rule, "WORK", tmp_path)
     walking = wide_rule.SCENES / "walking.toml"
+    other = next(cut for cut in STEP_CUTS if cut != wide_rule.IN_FORCE)
     _, app_in_force = wide_rule.scene_lines(MODEL, MODEL, [walking])
-    _, app_cut = wide_rule.scene_lines(MODEL, MODEL, [walking], step_cut="after_landing")
-    copy = tmp_path / "step-cut-after_landing" / "walking.scotti"
+    _, app_cut = wide_rule.scene_lines(MODEL, MODEL, [walking], step_cut=other)
+    copy = tmp_path / f"step-cut-{other}" / "walking.scotti"
     assert copy.is_file()
-    # The same frames under other labels: the shipped model, trained on the peaks,
-    # reads walking's progress differently against steps cut after each landing.
+    # The same frames under other labels: the shipped model, trained on the convention
+    # in force, reads walking's progress differently against steps cut the other way.
     assert app_cut.candidate != pytest.approx(app_in_force.candidate, abs=1e-4)
     assert app_cut.candidate == app_cut.shipped
     relabelled = copy.stat().st_mtime_ns
-    wide_rule.scene_lines(MODEL, MODEL, [walking], step_cut="after_landing")
+    wide_rule.scene_lines(MODEL, MODEL, [walking], step_cut=other)
     assert copy.stat().st_mtime_ns == relabelled  # remade only when the render is newer
 
 
