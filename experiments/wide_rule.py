@@ -248,7 +248,6 @@ def relabelled(session: Path, step_cut: str) -> Path:
     again whenever the render is newer than it."""
     target: Path = WORK / f"step-cut-{step_cut}" / session.name
     if not target.is_file() or target.stat().st_mtime < session.stat().st_mtime:
-        target.parent.mkdir(parents=True, exist_ok=True)
         relabel_session(session, target, PeakParams(step_cut=step_cut))
     return target
 
