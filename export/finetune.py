@@ -9,7 +9,8 @@ from scotti.export.errors import ExportError
 from scotti.export.model import Scotti
 
 # Parts of the model that fine-tuning may keep fixed: the per-frame CNN, the
-# encoder (class token, positions, transformer layers, final norm, pooling) and
+# encoder (class token, positions or the streaming form's relative biases,
+# transformer layers, final norm, pooling) and
 # each task's head. Freezing all but one head fine-tunes that task alone and
 # leaves the other outputs exactly as they were (a zero loss weight does not:
 # the optimiser's weight decay still moves a head that is not frozen).
@@ -30,9 +31,14 @@ def freeze_parts(model: Scotti, groups: Sequence[str]) -> list[torch.nn.Module]:
         modules.append(model.cnn)
         params += list(model.cnn.parameters())
     if "encoder" in groups:
-        modules += [model.encoder, model.ln_final]
-        params += [model.class_token, model.positions, model.pool_weights]
-        params += list(model.encoder.parameters()) + list(model.ln_final.parameters())
+        params += [model.class_token, model.pool_weights]
+        if model.streaming is not None:  # layers and final norm live in one module
+            modules.append(model.streaming)
+            params += list(model.streaming.parameters())
+        else:
+            modules += [model.encoder, model.ln_final]
+            params += [model.positions]
+            params += list(model.encoder.parameters()) + list(model.ln_final.parameters())
     for head in HEADS:
         if head in groups:
             module = getattr(model, head)

@@ -26,6 +26,9 @@
 #                                              # fine-tune a model (e.g. after a labelling change:
 #                                              # `scotti session relabel OLD --out DATA` remakes the
 #                                              # corpus's labels without rendering it again)
+#   INIT=runs/x/best.pt FREEZE="cnn encoder pose_head action_head" LOSS_WEIGHTS=0,0,1 scripts/train_wide.sh
+#                                              # the progress head alone: pose, action and the
+#                                              # unfamiliar score stay INIT's bit for bit
 #
 # Every step is checkpointed: the people already rendered and decoded are not redone,
 # and training resumes from RUN/last.pt. Nothing here needs a GPU.
@@ -56,6 +59,9 @@ TEMPO_EXTRA_RANGE=${TEMPO_EXTRA_RANGE:-}  # LO,HI (empty: scotti train's default
 KEEP_NEAR=${KEEP_NEAR:-0}          # with INIT: weight of the pull of the pooled vectors towards
                                    # INIT's (scotti train --keep-near, export/anchor.py; 0: off)
 KEEP_NEAR_PASS=${KEEP_NEAR_PASS:-eval}  # what the pull compares: eval or matched (--keep-near-pass)
+FREEZE=${FREEZE:-}                 # parts kept as INIT has them (scotti train --freeze: cnn encoder
+                                   # pose_head action_head progress_head)
+LOSS_WEIGHTS=${LOSS_WEIGHTS:-0.01,1,3}  # pose,action,progress (scotti train --loss-weights)
 WORKERS=${WORKERS:-$((JOBS > 2 ? JOBS - 2 : 0))}
 MORE=${MORE:-48}                   # people rendered through wide insoles (subject-033 on)
 SLOW=${SLOW:-0}                    # people after them (subject-081 on) also drawn at wide walking
@@ -227,14 +233,16 @@ augment=()  # the augmentations asked for beyond the recipe's
 [[ $KEEP_NEAR != 0 ]] && augment+=(--keep-near "$KEEP_NEAR" --keep-near-pass "$KEEP_NEAR_PASS")
 init=(--config small)  # --init takes the size from its weights
 [[ -n $INIT ]] && init=(--init "$INIT")
+read -r -a frozen <<< "$FREEZE"
+[[ ${#frozen[@]} -gt 0 ]] && init+=(--freeze "${frozen[@]}")
 if [[ $EXPORT_ONLY != 1 ]]; then
   echo "train_wide: training $RUN on $DEVICE"
   mkdir -p "$RUN"
   # The card quotes this (experiments/card_training.py): how the weights were made.
-  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO TEMPO_RANGE=$TEMPO_RANGE TEMPO_EXTRA=$TEMPO_EXTRA TEMPO_EXTRA_RANGE=$TEMPO_EXTRA_RANGE KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW BODIES=$BODIES GAITS=$GAITS NOISY=$NOISY RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
+  echo "DATA=$DATA PARTITION=$PARTITION FORM=$FORM EPOCHS=$EPOCHS STRIDE=$STRIDE LR=$LR INIT=$INIT TRANSFER=$TRANSFER TEMPO=$TEMPO TEMPO_RANGE=$TEMPO_RANGE TEMPO_EXTRA=$TEMPO_EXTRA TEMPO_EXTRA_RANGE=$TEMPO_EXTRA_RANGE KEEP_NEAR=$KEEP_NEAR KEEP_NEAR_PASS=$KEEP_NEAR_PASS FREEZE=\"$FREEZE\" LOSS_WEIGHTS=$LOSS_WEIGHTS SEED=$SEED CLEAN=$CLEAN SLOW=$SLOW BODIES=$BODIES GAITS=$GAITS NOISY=$NOISY RUN=$RUN scripts/train_wide.sh" > "$RUN/command.txt"
   "$SCOTTI" train "${files[@]}" -o "$RUN" "${init[@]}" \
     --val-subjects "${VALIDATION[@]}" --test-fraction 0 --epochs "$EPOCHS" --patience 3 \
-    --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights 0.01,1,3 \
+    --stride "$STRIDE" --val-stride 8 --lr "$LR" --loss-weights "$LOSS_WEIGHTS" \
     --max-crosstalk 0.03 --ema 0.999 "${augment[@]}" "${form[@]}" \
     --device "$DEVICE" --workers "$WORKERS" --threads 2 --max-minutes "$MINUTES" --seed "$SEED" \
     --cache "$CACHE" --no-progress "${watch[@]}" "${resume[@]}"

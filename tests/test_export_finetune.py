@@ -14,6 +14,7 @@ from scotti.cli.main import main
 from scotti.export.data import load_session
 from scotti.export.errors import ExportError
 from scotti.export.losses import LossWeights
+from scotti.export.model import Scotti, ScottiConfig
 from scotti.export.train import Trainer, TrainOptions, freeze_parts, load_initial_weights
 from scotti.export.windows import WindowDataset
 
@@ -59,11 +60,14 @@ def test_frozen_parts_do_not_move(tmp_path: Path) -> None:
         freeze_parts(model, ["heads"])
 
 
-def test_only_the_progress_head_moves_when_the_rest_is_frozen(tmp_path: Path) -> None:
-    """Fine-tuning one task: the other outputs stay bit for bit what they were."""
+@pytest.mark.parametrize("arch", ["paper", "streaming"])
+def test_only_the_progress_head_moves_when_the_rest_is_frozen(tmp_path: Path, arch: str) -> None:
+    """Fine-tuning one task: the other outputs stay bit for bit what they were, in either
+    form (the streaming form keeps its layers and relative biases in another module)."""
     write_session(tmp_path / "a.scotti", 80, subject="a")
     data = WindowDataset([load_session(tmp_path / "a.scotti")], window=TINY["window"])
-    model = tiny_model(0)
+    torch.manual_seed(0)
+    model = Scotti(ScottiConfig.from_dict({**TINY, "arch": arch}))
     before = {k: v.clone() for k, v in model.state_dict().items()}
     rest = ("cnn", "encoder", "pose_head", "action_head")
     # Weight decay on: it would move a head whose loss weight is 0 but that is not frozen.
