@@ -49,6 +49,17 @@ and the shipped model's published share is read from its own weights with
 the flag fitted the same way (``--shipped-flag``, experiments/recalibrate_default.py); its
 other figures from the shipped graph as it is.
 
+Lines 2 and 3 gained a reading on 2026-12-01 (session 26), before the
+candidate it was written for (runs/v47) was trained: a candidate that keeps the
+shipped model's action path (``scotti train --freeze cnn encoder pose_head
+action_head``: only progress moves) cannot read real walking or a foreign
+sensor otherwise than the shipped model, and the lines as written refused it
+for that alone. Declared so (``--action-path-kept``), line 2 first checks that
+every real window gets the shipped graph's action probabilities (to
+``PATH_TOLERANCE``) and flags, and fails if one does not; its walking share
+must then be not lower instead of higher, and line 3's mean accuracy not lower
+instead of higher.
+
 Each part runs what its own command runs (``scotti eval --json``, the
 experiments' functions) and prints the figures beside each other; the last
 line says whether the candidate ships and, if not, which lines failed. Exit 0
@@ -90,6 +101,9 @@ SCENES: Final = ROOT / "sim" / "scenes"
 SCENE_ACCURACY: Final = 0.95
 SCENE_APP: Final = 0.88
 WORK: Final = ROOT / "data" / "wide_rule"
+# --action-path-kept: how far an action probability may move on a real window (the
+# same weights in the same graph give the same floats; this only absorbs a rebuild).
+PATH_TOLERANCE: Final = 1e-6
 IN_FORCE: Final = PeakParams().step_cut  # where the stepping actions' steps start today
 
 
@@ -153,27 +167,73 @@ def pooled_share(rows: Sequence[dict[str, Any]], key: str, weight: str) -> float
     return sum(r[key] * r[weight] for r in kept) / total if total else float("nan")
 
 
-def real_lines(candidate: Path, shipped: Path) -> list[Line]:
+def real_lines(candidate: Path, shipped: Path, path_kept: bool = False) -> list[Line]:
     if not real_data.REALDATA.is_dir():
         raise ExperimentError(f"{real_data.REALDATA}: no such folder (see its README)")
     both_feet = [r for r in real_data.RECORDINGS if not r.one_foot]
     rows: list[dict[str, Any]] = []
+    sessions = []
     for rec in both_feet:
         session = real_data.import_file(rec, real_data.REALDATA, real_data.WORK)
+        sessions.append(session)
         rows += real_data.score_file(rec, session, [candidate, shipped])
-    return real_figure_lines(rows, candidate, shipped)
+    lines = []
+    if path_kept:
+        differing, windows = action_path_difference(candidate, shipped, sessions)
+        lines.append(
+            Line(2, f"real files: windows off the shipped action path (of {windows})",
+                 differing, 0, "== 0", differing == 0)
+        )  # fmt: skip
+    return lines + real_figure_lines(rows, candidate, shipped, path_kept)
 
 
-def real_figure_lines(rows: Sequence[dict[str, Any]], candidate: Path, shipped: Path) -> list[Line]:
-    """Line 2 from real_data.score_file's rows of both models."""
+def action_path_difference(
+    candidate: Path, shipped: Path, sessions: Sequence[Path]
+) -> tuple[int, int]:
+    """(windows where the two models' predictions differ, windows compared) over the
+    sessions replayed through both: a window differs when its action probabilities
+    differ by more than PATH_TOLERANCE or its flags differ; a prediction one model
+    made and the other did not differs too."""
+    from scotti.evaluation.replay import replay_session_models
+    from scotti.models.kv_streaming import open_step_model
+
+    runtimes = [open_step_model(m, threads=1) for m in (candidate, shipped)]
+    differing = windows = 0
+    for session in sessions:
+        mine, theirs = (r.made for r in replay_session_models(session, runtimes))
+        differing += predictions_differing(mine, theirs)
+        windows += max(len(mine), len(theirs))
+    return differing, windows
+
+
+def predictions_differing(mine: Sequence[Any], theirs: Sequence[Any]) -> int:
+    """How many of two replays' predictions (``evaluation.sampling.Prediction``, matched
+    by the time they are for) differ in action probabilities or flags."""
+    by_time = {p.ext: p for p in theirs}
+    differing = len(set(by_time) ^ {p.ext for p in mine})
+    for p in mine:
+        other = by_time.get(p.ext)
+        if other is None:
+            continue
+        moved = float(np.max(np.abs(np.asarray(p.probs) - np.asarray(other.probs))))
+        differing += moved > PATH_TOLERANCE or set(p.flags) != set(other.flags)
+    return differing
+
+
+def real_figure_lines(
+    rows: Sequence[dict[str, Any]], candidate: Path, shipped: Path, path_kept: bool = False
+) -> list[Line]:
+    """Line 2 from real_data.score_file's rows of both models; with ``path_kept`` (the
+    candidate keeps the shipped action path) the walking share may equal the shipped's."""
     mine = {m: [r for r in rows if r["model"] == real_data.label(m)] for m in (candidate, shipped)}
     walk = {m: pooled_share(mine[m], "walking", "walking_windows") for m in mine}
     published = {m: pooled_share(mine[m], "walking_published", "walking_windows") for m in mine}
     key = "confident_wrong_unflagged"
     unflagged = {m: pooled_share(mine[m], key, "predictions") for m in mine}
+    more = walk[candidate] >= walk[shipped] if path_kept else walk[candidate] > walk[shipped]
     return [
         Line(2, "real files: walking share", walk[candidate], walk[shipped],
-             "> shipped", walk[candidate] > walk[shipped]),
+             ">= shipped" if path_kept else "> shipped", more),
         Line(2, "real files: walking published", published[candidate], published[shipped],
              ">= shipped", published[candidate] >= published[shipped]),
         Line(2, "real files: confident wrong, unflagged", unflagged[candidate],
@@ -181,15 +241,24 @@ def real_figure_lines(rows: Sequence[dict[str, Any]], candidate: Path, shipped: 
     ]  # fmt: skip
 
 
-def sensor_lines(candidate: Path, shipped: Path, every: int) -> list[Line]:
+def sensor_lines(candidate: Path, shipped: Path, every: int, path_kept: bool = False) -> list[Line]:
     insole_transfer.simulate_people()
     figures = {m: list(insole_transfer.sensor_figures(m, every)) for m in (candidate, shipped)}
+    return sensor_figure_lines(figures, candidate, shipped, path_kept)
+
+
+def sensor_figure_lines(
+    figures: dict[Path, list[dict[str, Any]]], candidate: Path, shipped: Path, path_kept: bool
+) -> list[Line]:
+    """Line 3 from insole_transfer's rows of both models; with ``path_kept`` the mean
+    accuracy may equal the shipped's."""
     mean = {m: float(np.mean([f["accuracy"] for f in figures[m]])) for m in figures}
     worst = {m: max(figures[m], key=lambda f: f["wrong_unflagged"]) for m in figures}
     w_cand, w_ship = worst[candidate], worst[shipped]
+    higher = mean[candidate] >= mean[shipped] if path_kept else mean[candidate] > mean[shipped]
     return [
         Line(3, "foreign sensors: mean accuracy", mean[candidate], mean[shipped],
-             "> shipped", mean[candidate] > mean[shipped]),
+             ">= shipped" if path_kept else "> shipped", higher),
         Line(3, f"foreign sensors: most wrong and unflagged ({w_cand['sensor']})",
              w_cand["wrong_unflagged"], w_ship["wrong_unflagged"],
              f"<= {MAX_WRONG_UNFLAGGED}", w_cand["wrong_unflagged"] <= MAX_WRONG_UNFLAGGED),
@@ -299,6 +368,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", type=Path, help="also write the lines here")
     parser.add_argument(
+        "--action-path-kept",
+        action="store_true",
+        help="the candidate keeps the shipped model's action path (only its progress head "
+        "was trained): line 2 checks every real window's actions and flags against the "
+        "shipped graph's, and lines 2 and 3 then ask for figures not lower, not higher",
+    )
+    parser.add_argument(
         "--lines",
         type=int,
         nargs="+",
@@ -320,8 +396,8 @@ def main(argv: list[str] | None = None) -> int:
     shipped_flag = (args.shipped_flag or args.shipped).resolve()
     every_part: dict[int, Callable[[], list[Line]]] = {
         1: lambda: held_out_lines(candidate, shipped, args.held_out.resolve()),
-        2: lambda: real_lines(candidate, shipped_flag),
-        3: lambda: sensor_lines(candidate, shipped, args.every),
+        2: lambda: real_lines(candidate, shipped_flag, args.action_path_kept),
+        3: lambda: sensor_lines(candidate, shipped, args.every, args.action_path_kept),
         4: lambda: scene_lines(candidate, shipped, step_cut=args.step_cut),
     }
     parts = [every_part[n] for n in sorted(set(args.lines))]
@@ -345,6 +421,7 @@ def main(argv: list[str] | None = None) -> int:
                 "shipped_flag": str(shipped_flag),
                 "lines": [asdict(line) for line in lines],
                 "lines_run": sorted(set(args.lines)),
+                "action_path_kept": args.action_path_kept,
                 "verdict": verdict(lines, args.lines),
             }
             args.json.write_text(json.dumps(out, indent=1) + "\n")

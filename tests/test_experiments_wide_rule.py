@@ -4,7 +4,8 @@ The verdict names every failing line; the real files are pooled as
 docs/real-data.md pools them; the scene line holds the issue's bar where the
 shipped model meets it and a margin where it does not, and renders each scene
 once and scores both models through ``scotti eval``, on the labels of a candidate
-convention when one is given.
+convention when one is given; a candidate declared to keep the shipped action path is
+checked window by window on real replays and may then equal the shipped on lines 2 and 3.
 """
 
 from __future__ import annotations
@@ -12,7 +13,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+from scotti.evaluation.sampling import Prediction
 from scotti.models.progress import STEP_CUTS
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
@@ -22,6 +25,8 @@ import real_data  # noqa: E402
 import wide_rule  # noqa: E402
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "scotti-default.onnx"
+TINY = Path(__file__).resolve().parent / "data" / "tiny" / "scotti-tiny.onnx"
+VENDORS = Path(__file__).resolve().parent / "data" / "vendors"
 
 
 def line(rule: int, passed: bool) -> wide_rule.Line:
@@ -172,3 +177,48 @@ def test_a_candidate_holding_the_lines_run_so_far_is_not_yet_decided() -> None:
     # A line that fails decides, whatever was left out.
     failed = wide_rule.verdict([line(1, True), line(2, False)], run=[1, 2])
     assert failed.endswith("line 2 of the rule fails")
+
+
+def prediction(ext: int, probs: tuple[float, ...], flags: tuple[str, ...] = ()) -> Prediction:
+    pose = np.zeros((19, 3), dtype=np.float32)
+    return Prediction(ext, pose, np.array(probs, dtype=np.float32), 0.5, flags)
+
+
+def test_a_window_is_off_the_action_path_when_its_probabilities_or_flags_move() -> None:
+    theirs = [prediction(1, (0.9, 0.1)), prediction(2, (0.2, 0.8)), prediction(3, (0.5, 0.5))]
+    assert wide_rule.predictions_differing(theirs, theirs) == 0
+    mine = [
+        prediction(1, (0.9, 0.1)),
+        prediction(2, (0.2 + 1e-3, 0.8 - 1e-3)),  # moved
+        prediction(3, (0.5, 0.5), ("unfamiliar",)),  # flagged where the shipped is not
+    ]
+    assert wide_rule.predictions_differing(mine, theirs) == 2
+    rounded = [prediction(1, (0.9 + 1e-8, 0.1)), *theirs[1:]]  # within PATH_TOLERANCE
+    assert wide_rule.predictions_differing(rounded, theirs) == 0
+    assert wide_rule.predictions_differing(theirs[:2], theirs) == 1  # one not made
+
+
+def test_a_candidate_keeping_the_action_path_may_equal_the_shipped_on_lines_2_and_3() -> None:
+    cand, ship = Path("runs/c/models/c.onnx"), Path("models/s.onnx")
+    rows = [real_row(cand, 0.88, 0.79, 0.0), real_row(ship, 0.88, 0.79, 0.0)]
+    assert not all(ln.passed for ln in wide_rule.real_figure_lines(rows, cand, ship))
+    assert all(ln.passed for ln in wide_rule.real_figure_lines(rows, cand, ship, path_kept=True))
+    sensors = [{"sensor": "grid", "accuracy": 0.98, "wrong_unflagged": 0.02}]
+    figures = {cand: sensors, ship: sensors}
+    assert not all(ln.passed for ln in wide_rule.sensor_figure_lines(figures, cand, ship, False))
+    assert all(ln.passed for ln in wide_rule.sensor_figure_lines(figures, cand, ship, True))
+    worse = {cand: [{**sensors[0], "accuracy": 0.97}], ship: sensors}
+    assert not all(ln.passed for ln in wide_rule.sensor_figure_lines(worse, cand, ship, True))
+
+
+@pytest.mark.slow
+def test_the_action_path_check_replays_real_windows_through_both_models(tmp_path: Path) -> None:
+    """The shipped graph against itself keeps the path on every window of the committed
+    GaCo01 cut; another model (the tiny test graph) leaves it on every one."""
+    rec = real_data.Recording("GaCo01_01_first5s.txt", "gaitpdb, 8 sensors", "walking")
+    session = real_data.import_file(rec, VENDORS, tmp_path)
+    differing, windows = wide_rule.action_path_difference(MODEL, MODEL, [session])
+    assert windows >= 35
+    assert differing == 0
+    differing, windows = wide_rule.action_path_difference(TINY, MODEL, [session])
+    assert differing == windows >= 35
