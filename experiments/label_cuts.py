@@ -7,9 +7,10 @@ in the middle of single support can only be guessed from the time since the
 last strike, and a model hedges there. For walking, side walking, walking in
 place and walking backward, every run of the action in the sessions (default:
 subject-000 of the realistic corpus) is cut three times: at the peaks of the
-indicator of models/progress.py, at those of its negative (its other
-extreme), and on the frame after each landing (the candidate convention,
-``run_progress`` with ``step_cut="after_landing"``, models/touchdown.py).
+indicator of models/progress.py (the convention before 2026-12-01), at those of
+its negative (its other extreme), and on the frame after each landing (the
+convention in force, ``run_progress`` with ``step_cut="after_landing"``,
+models/touchdown.py).
 Each cut is compared with the nearest foot strike: the frame where a foot's
 total count rises through ``--strike-share`` of its 95th percentile (0.3; 0.05
 takes the first frame of load). Printed per action and cut: the cuts, the
@@ -72,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
                     [s.frames[:, :, :width].sum((1, 2)), s.frames[:, :, width:].sum((1, 2))], 1
                 ).astype(np.float64)
                 for start, end in runs(s.action, a):
-                    if sign == 0.0:  # as the candidate convention cuts it
+                    if sign == 0.0:  # as the convention in force cuts it
                         params = PeakParams(step_cut="after_landing")
                         _, repetition = run_progress(s.keypoints[start:end], a, params)
                         cuts = np.flatnonzero(np.diff(repetition) > 0) + 1

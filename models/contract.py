@@ -143,9 +143,9 @@ def has_progress(action: int) -> bool:
 # - Repetitions are cut where the person rests (models/progress.py): squat and
 #   lunge standing tall, step-up on the floor, jump in the crouch; a repetition
 #   runs from its cut to the next. Walking, walking backward and walking in place
-#   run in steps, cut at the indicator's peaks (heel distance, minus the higher
-#   heel's height, heel displacement); the candidate convention cuts them on the
-#   frame after a foot lands (``PeakParams.step_cut``, models/touchdown.py).
+#   run in steps, cut on the frame after a foot lands (``PeakParams.step_cut``,
+#   models/touchdown.py), the values between from their indicators (heel
+#   distance, minus the higher heel's height, heel displacement).
 #   Side walking's repetition is its two-step cycle, cut at the heels' widest.
 # - A pause between repetitions, standing at that rest, is part of the set for
 #   its first ``SET_EDGE_REST_S``: it carries the set's action, progress ~0 (it

@@ -41,16 +41,16 @@ Choices the paper leaves open, fixed here:
   support -> the swing's top, 0.5 -> double support), not the paper's +height,
   whose peaks fall in the middle of single support, which the pressure maps do
   not mark (3.2 frames before the next foot strike, spread 0.9).
-- Walking, walking backward and walking in place may be cut on the frame
-  after a foot lands instead (``PeakParams.step_cut = "after_landing"``, the
-  candidate convention; ``run_progress``, models/touchdown.py
-  ``step_starts``), the first frame whose prediction sees the landing: the
-  model predicts frame t from frames t-T..t-1. h's peaks fall half a frame
+- Walking, walking backward and walking in place are cut on the frame after
+  a foot lands (``PeakParams.step_cut = "after_landing"``; ``run_progress``,
+  models/touchdown.py ``step_starts``), the first frame whose prediction sees
+  the landing: the model predicts frame t from frames t-T..t-1. h's peaks
+  (``step_cut = "peak"``, the convention before 2026-12-01) fall half a frame
   after the landing for walking (on its frame or the next, by the sampling's
-  luck) and 1.5 frames before it for walking backward, and the shipped model
-  hedges at 0.5 there (three quarters of walking's squared progress error;
-  `python experiments/progress_error_sites.py`); cut on the landing frame
-  itself, a model trained so hedged one frame earlier. The cuts fall +0.96
+  luck) and 1.5 frames before it for walking backward, and a model trained on
+  them hedged at 0.5 there (three quarters of walking's squared progress
+  error; `python experiments/progress_error_sites.py`); cut on the landing
+  frame itself, a model trained so hedged one frame earlier. The cuts fall +0.96
   frames after the insole first loads (spread 0.18; `python
   experiments/label_cuts.py data/corpus21/realistic/subject-013.ses
   --strike-share 0.05`). Within a step, h gives the values, rescaled to start
@@ -123,15 +123,14 @@ class PeakParams:
     rel_prominence: float = 0.25  # share of the smoothed run's range
     abs_prominence: float = 1e-3  # metres: a smaller wiggle is noise, not a repetition
     # Where the stepping actions of touchdown.TOUCHDOWN_CUT start a step (STEP_CUTS).
-    step_cut: str = "peak"
+    step_cut: str = "after_landing"
 
 
 # How walking, walking backward and walking in place are cut into steps:
-# "peak", at the indicator's peaks (the convention in force: the shipped model was
-# trained on it); "after_landing", on the frame after each landing (the candidate
-# convention, docs/generalisation.md "Where a step starts": `scotti session relabel
-# --step-cut after_landing` writes a corpus so; it becomes the default when a model
-# trained on it ships, and with it every simulated label).
+# "after_landing", on the frame after each landing (the convention in force: the
+# shipped model was trained on it, docs/generalisation.md "Steps cut after the
+# landing"); "peak", at the indicator's peaks (the convention before; `scotti session
+# relabel --step-cut peak` writes a corpus so, for models trained on it).
 STEP_CUTS: Final = ("peak", "after_landing")
 
 

@@ -1,11 +1,10 @@
 """Touch-downs: the frames where a foot lands, read from the keypoints alone.
 
-Under the candidate labelling convention (``PeakParams.step_cut =
-"after_landing"``, models/progress.py) the stepping actions of
-``TOUCHDOWN_CUT`` start a step on the first frame whose prediction can see the
-landing (``step_starts``: the frame after the first frame with load under the
-landing foot). Cut at the indicator's peak, as the convention in force does,
-the wrap from 1 to 0 falls half a frame after the landing on average for
+Under the labelling convention (``PeakParams.step_cut = "after_landing"``,
+models/progress.py) the stepping actions of ``TOUCHDOWN_CUT`` start a step on
+the first frame whose prediction can see the landing (``step_starts``: the
+frame after the first frame with load under the landing foot). Cut at the
+indicator's peak, as the convention before it did, the wrap from 1 to 0 falls half a frame after the landing on average for
 walking (on the landing frame or the next, by the sampling's luck) and 1.5
 frames before it for walking backward, so a causal model can only hedge
 there: 0.5 on the frame after the landing, three quarters of walking's
