@@ -4,10 +4,11 @@ Under the labelling convention (``PeakParams.step_cut = "after_landing"``,
 models/progress.py) the stepping actions of ``TOUCHDOWN_CUT`` start a step on
 the first frame whose prediction can see the landing (``step_starts``: the
 frame after the first frame with load under the landing foot). Cut at the
-indicator's peak, as the convention before it did, the wrap from 1 to 0 falls half a frame after the landing on average for
-walking (on the landing frame or the next, by the sampling's luck) and 1.5
-frames before it for walking backward, so a causal model can only hedge
-there: 0.5 on the frame after the landing, three quarters of walking's
+indicator's peak, as the convention before it did, the wrap from 1 to 0 falls
+half a frame after the landing on average for walking (on the landing frame or
+the next, by the sampling's luck) and 1.5 frames before it for walking
+backward, so a causal model can only hedge there: 0.5 on the frame after the
+landing, three quarters of walking's
 squared progress error (`python experiments/progress_error_sites.py`,
 `python experiments/label_cuts.py`).
 
