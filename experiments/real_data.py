@@ -149,15 +149,26 @@ def still_slots(session: Path) -> np.ndarray:
     return out
 
 
-def score_file(rec: Recording, session: Path, models: list[Path]) -> list[dict[str, Any]]:
+def replay_file(session: Path, models: list[Path]) -> list[Any]:
+    """``session`` replayed through each model on the daemon's path (one
+    ``evaluation.replay.SessionReplay`` a model, in their order)."""
     from scotti.evaluation.replay import replay_session_models
-    from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
     from scotti.models.kv_streaming import open_step_model
-    from scotti.models.ood import withheld
 
     runtimes = [open_step_model(m, threads=1) for m in models]  # either form of the model
+    return list(replay_session_models(session, runtimes))
+
+
+def score_file(
+    rec: Recording, session: Path, models: list[Path], replays: list[Any] | None = None
+) -> list[dict[str, Any]]:
+    """One row per model; ``replays`` (``replay_file``'s) when the caller has them."""
+    from scotti.models.contract import ACTIONS, FRAME_RATE_HZ
+    from scotti.models.ood import withheld
+
     still = still_slots(session)
-    replays = replay_session_models(session, runtimes)
+    if replays is None:
+        replays = replay_file(session, models)
     rows = []
     walking, standing = ACTIONS.index("walking"), ACTIONS.index("standing")
     for model, replay in zip(models, replays, strict=True):

@@ -172,14 +172,16 @@ def real_lines(candidate: Path, shipped: Path, path_kept: bool = False) -> list[
         raise ExperimentError(f"{real_data.REALDATA}: no such folder (see its README)")
     both_feet = [r for r in real_data.RECORDINGS if not r.one_foot]
     rows: list[dict[str, Any]] = []
-    sessions = []
+    differing = windows = 0
     for rec in both_feet:
         session = real_data.import_file(rec, real_data.REALDATA, real_data.WORK)
-        sessions.append(session)
-        rows += real_data.score_file(rec, session, [candidate, shipped])
+        replays = real_data.replay_file(session, [candidate, shipped])
+        rows += real_data.score_file(rec, session, [candidate, shipped], replays)
+        if path_kept:  # the same replays: the check costs no second pass
+            off, compared = pair_difference(replays)
+            differing, windows = differing + off, windows + compared
     lines = []
     if path_kept:
-        differing, windows = action_path_difference(candidate, shipped, sessions)
         lines.append(
             Line(2, f"real files: windows off the shipped action path (of {windows})",
                  differing, 0, "== 0", differing == 0)
@@ -194,16 +196,17 @@ def action_path_difference(
     sessions replayed through both: a window differs when its action probabilities
     differ by more than PATH_TOLERANCE or its flags differ; a prediction one model
     made and the other did not differs too."""
-    from scotti.evaluation.replay import replay_session_models
-    from scotti.models.kv_streaming import open_step_model
-
-    runtimes = [open_step_model(m, threads=1) for m in (candidate, shipped)]
     differing = windows = 0
     for session in sessions:
-        mine, theirs = (r.made for r in replay_session_models(session, runtimes))
-        differing += predictions_differing(mine, theirs)
-        windows += max(len(mine), len(theirs))
+        off, compared = pair_difference(real_data.replay_file(session, [candidate, shipped]))
+        differing, windows = differing + off, windows + compared
     return differing, windows
+
+
+def pair_difference(replays: Sequence[Any]) -> tuple[int, int]:
+    """(predictions differing, predictions compared) of one session's two replays."""
+    mine, theirs = (r.made for r in replays)
+    return predictions_differing(mine, theirs), max(len(mine), len(theirs))
 
 
 def predictions_differing(mine: Sequence[Any], theirs: Sequence[Any]) -> int:
