@@ -1,7 +1,8 @@
 """docs/coverage.md from the coverage grid's checkpoints: the headline (the worst
 cell), the goals, the unfamiliar flag as a detector of wrong predictions, the
 scene files as shipped, the accuracy table (parameter x value by action), a
-summary per parameter and the worst cells with every figure.
+summary per parameter, the worst cells with every figure, and every cell that
+publishes too many wrong answers with what they named.
 
 This module puts the sections together; the rows and formatters are in
 experiments/coverage_doc_rows.py, the opening sections in
@@ -27,6 +28,7 @@ from coverage_doc_tables import (
     accuracy_grid,
     declared_ranges,
     per_parameter,
+    published_wrong,
     scene_files,
     worst_cells,
 )
@@ -80,5 +82,7 @@ def markdown(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, A
     lines += ["", "## Accuracy by parameter and action", "", *accuracy_grid(summary, rows)]
     lines += ["", "## Per parameter", "", *per_parameter(summary, rows)]
     lines += ["", f"## The {WORST_SHOWN} worst cells", "", *worst_cells(scored)]
+    lines += ["", "## Wrong answers that went out, and what they named", ""]
+    lines += published_wrong(scored)
     lines += ["", "## What is not swept over the schema's range, and why", "", *declared_ranges()]
     return "\n".join(lines) + "\n"

@@ -51,6 +51,21 @@ class Row:
     def counts(self) -> Counts:
         return Counts.of(self.result["counts"]) if "counts" in self.result else Counts()
 
+    @property
+    def wrong_unflagged_as(self) -> dict[str, int]:
+        """The wrong answers that went out, by the action they named (a checkpoint
+        written before this was counted has none)."""
+        return {str(k): int(v) for k, v in self.result.get("wrong_unflagged_as", {}).items()}
+
+    def read_as(self, most: int = 2) -> str:
+        """The ``most`` actions the wrong published answers named, as shares of all
+        the cell's predictions: ``walking 88.5 %, standing 0.9 %``."""
+        total = self.counts.predictions
+        named = sorted(self.wrong_unflagged_as.items(), key=lambda kv: (-kv[1], kv[0]))
+        if not total or not named:
+            return "-"
+        return ", ".join(f"{action} {pct(n / total)}" for action, n in named[:most])
+
     def metric(self, name: str) -> float | None:
         value = self.result.get("metrics", {}).get(name)
         return None if value is None else float(value)

@@ -47,7 +47,7 @@ def headline(scored: Sequence[Row]) -> list[str]:
         f"Most wrong answers published (wrong and unflagged): {loud.action} with "
         f"{loud.label}: {pct(loud.counts.share('wrong_unflagged'))} of its predictions, "
         f"{pct(loud.counts.share('wrong_unflagged_confident'))} at a top probability "
-        f"above {CONFIDENT} (accuracy {pct(loud.accuracy)})."
+        f"above {CONFIDENT} (accuracy {pct(loud.accuracy)}; read as {loud.read_as()})."
     )
     return [" ".join(out)]
 

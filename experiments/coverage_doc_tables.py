@@ -12,6 +12,7 @@ from coverage_doc_rows import (
     GOAL_CELL_ACCURACY,
     GOAL_SCENE_ACCURACY,
     GOAL_SCENE_APP,
+    GOAL_WRONG_UNFLAGGED,
     Row,
     Summary,
     num,
@@ -220,6 +221,46 @@ def worst_cells(scored: Sequence[Row]) -> list[str]:
                 "wrong, unflagged",
                 "wrong, unflagged, confident",
                 "accuracy per person",
+            ],
+            body,
+        ),
+    ]
+
+
+def published_wrong(scored: Sequence[Row]) -> list[str]:
+    """Every cell over the goal for wrong answers that go out, most first, with what
+    they were read as: whether the motion is another action's (side steps of no length
+    are steps in place) or the model's mistake is for a reader to judge, not a count."""
+    over = [r for r in scored if (r.counts.share("wrong_unflagged") or 0.0) > GOAL_WRONG_UNFLAGGED]
+    over.sort(key=lambda r: -(r.counts.share("wrong_unflagged") or 0.0))
+    if not over:
+        return [f"No cell publishes more than {pct(GOAL_WRONG_UNFLAGGED)} wrong answers."]
+    body = [
+        [
+            r.action,
+            r.label,
+            pct(r.counts.share("wrong_unflagged")),
+            pct(r.counts.share("wrong_unflagged_confident")),
+            r.read_as(),
+            pct(r.accuracy),
+            pct(r.counts.share("unfamiliar")),
+        ]
+        for r in over
+    ]
+    return [
+        f"Every cell where more than {pct(GOAL_WRONG_UNFLAGGED)} of the predictions are wrong "
+        "and go out unflagged, most first; `read as`: the actions those wrong answers named, "
+        "as shares of all the cell's predictions.",
+        "",
+        *table(
+            [
+                "action",
+                "parameter = value",
+                "wrong, unflagged",
+                "of which confident",
+                "read as",
+                "accuracy",
+                "unfamiliar",
             ],
             body,
         ),

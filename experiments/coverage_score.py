@@ -12,6 +12,7 @@ top probability above ``CONFIDENT``.
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -23,7 +24,7 @@ from scotti.evaluation.replay import SessionReplay, replay_session
 from scotti.evaluation.scores import task_metrics
 from scotti.firmware_protocol.session import LabelRecord, SessionReader
 from scotti.firmware_protocol.wrap import seq_delta
-from scotti.models.contract import NO_ACTION
+from scotti.models.contract import ACTIONS, NO_ACTION
 from scotti.models.input_checks import OUT_OF_RANGE, UNLOADED
 from scotti.models.ood import UNFAMILIAR, withheld
 from scotti.models.runtime import ScottiRuntime
@@ -80,16 +81,19 @@ def detector(counts: Counts, flag: str = "unfamiliar") -> Detector:
     )
 
 
-def prediction_counts(path: Path, replay: SessionReplay) -> Counts:
-    """Every scored prediction of a replay, by outcome (labels read back from the file).
+def prediction_counts(path: Path, replay: SessionReplay) -> tuple[Counts, Counter[str]]:
+    """Every scored prediction of a replay, by outcome (labels read back from the file),
+    and what the wrong answers that went out (wrong and unflagged) were read as: the
+    action each named, counted.
 
     A prediction is matched to its label by unwrapped seq, as
     ``evaluation.frames.align`` does; the count of matches is checked against it.
     """
     labels = [r for r in _records(path) if isinstance(r, LabelRecord)]
     out = Counts()
+    published_as: Counter[str] = Counter()
     if not replay.made or not labels:
-        return out
+        return out, published_as
     first = replay.made[0].ext - 1
     ext = first + seq_delta(labels[0].seq, first & 0xFFFF)
     prev = labels[0].seq
@@ -107,7 +111,8 @@ def prediction_counts(path: Path, replay: SessionReplay) -> Counts:
         true = labels[row].action
         if true == NO_ACTION:
             continue
-        wrong = int(np.argmax(m.probs)) != true
+        named = int(np.argmax(m.probs))
+        wrong = named != true
         flags = set(m.flags)
         flagged = withheld(flags) is not None
         out.predictions += 1
@@ -122,10 +127,12 @@ def prediction_counts(path: Path, replay: SessionReplay) -> Counts:
         out.wrong_unflagged_confident += (
             wrong and not flagged and float(np.max(m.probs)) > CONFIDENT
         )
+        if wrong and not flagged:
+            published_as[ACTIONS[named]] += 1
     if matched != replay.evaluated:  # the same matching as the replay's, or a bug here
         msg = f"{path}: {matched} predictions matched, the replay scored {replay.evaluated}"
         raise RuntimeError(msg)
-    return out
+    return out, published_as
 
 
 def _records(path: Path) -> list[Any]:
@@ -164,13 +171,15 @@ def score_scenes(
     workdir.mkdir(parents=True, exist_ok=True)
     pooled: list[FrameScores] = []
     counts = Counts()
+    published_as: Counter[str] = Counter()
     per_person = []
     for k, scene in enumerate(scenes):
         path = workdir / f"{scene.name}-{k}.ses"
         render_scene(scene, path, subject_id=scene.name)
         replay = replay_session(path, runtime)
-        person = prediction_counts(path, replay)
+        person, named = prediction_counts(path, replay)
         counts += person
+        published_as += named
         pooled.append(replay.scores)
         per_person.append(task_metrics(replay.scores)["action_accuracy"])
         if not keep:
@@ -179,6 +188,8 @@ def score_scenes(
     return {
         "metrics": {k: _finite(v) for k, v in metrics.items()},
         "counts": asdict(counts),
+        # the wrong answers that went out, by the action they named (most first)
+        "wrong_unflagged_as": dict(published_as.most_common()),
         "accuracy_per_person": [_finite(a) for a in per_person],
         "cpu_s": round(time.process_time() - started, 3),
     }

@@ -27,6 +27,8 @@ sys.path.insert(0, str(EXPERIMENTS))
 
 import coverage
 import coverage_grid
+from coverage_doc_rows import Row
+from coverage_doc_tables import published_wrong
 from coverage_score import Counts, detector
 
 SCENES = Path(__file__).resolve().parent.parent / "sim" / "scenes"
@@ -168,6 +170,28 @@ def test_the_flag_as_detector_counts_precision_and_recall_of_wrong_predictions()
     assert detector(Counts(), "unfamiliar").precision is None
 
 
+def _row(label: str, predictions: int, wrong_unflagged: int, named: dict[str, int]) -> Row:
+    counts = Counts(predictions=predictions, wrong=wrong_unflagged, wrong_unflagged=wrong_unflagged)
+    return Row({"action": "side_walking", "path": "script.step_length_m", "label": label,
+                "counts": vars(counts), "metrics": {"action_accuracy": 0.5},
+                "wrong_unflagged_as": named})  # fmt: skip
+
+
+def test_cells_publishing_wrong_answers_are_listed_with_what_they_named() -> None:
+    over = _row("side_walking: script.step_length_m = 0.00015", 200, 150,
+                {"standing": 10, "in_place_walking": 140})  # fmt: skip
+    under = _row("side_walking: script.step_length_m = 0.6", 200, 10, {"walking": 10})
+    assert over.read_as() == "in_place_walking 70.0 %, standing 5.0 %"
+    assert over.read_as(most=1) == "in_place_walking 70.0 %"
+    lines = published_wrong([under, over])
+    rows = [line for line in lines if line.startswith("| side_walking")]
+    assert len(rows) == 1  # 5 % of its predictions is not over the goal
+    assert "script.step_length_m = 0.00015" in rows[0]
+    assert "in_place_walking 70.0 %" in rows[0]
+    assert _row("x: y = 1", 200, 0, {}).read_as() == "-"  # an older checkpoint: none counted
+    assert published_wrong([under])[0].startswith("No cell publishes more than")
+
+
 @pytest.mark.slow
 def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -203,6 +227,9 @@ def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
         assert 0.0 <= share <= 1.0
     assert counts.wrong == round((1 - m["action_accuracy"]) * counts.predictions)
     assert counts.wrong == counts.wrong_flagged + counts.wrong_unflagged
+    named = cell["wrong_unflagged_as"]
+    assert sum(named.values()) == counts.wrong_unflagged
+    assert set(named) <= set(ACTIONS) - {"squat"}  # a wrong answer names another action
     assert not list((cache / "sessions").rglob("*.ses"))  # sessions go once scored
     text = doc.read_text()
     row = next(line for line in text.splitlines() if line.startswith("| insole.model = ideal |"))
@@ -210,6 +237,7 @@ def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
     assert "**Worst cell: squat with" in text
     assert "squat.toml`" in text
     assert "precision (flagged that are wrong)" in text
+    assert "## Wrong answers that went out, and what they named" in text
     stamps = [p.stat().st_mtime_ns for p in checkpoints]
 
     assert coverage.main(argv) == 0
