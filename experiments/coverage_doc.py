@@ -1,8 +1,9 @@
 """docs/coverage.md from the coverage grid's checkpoints: the headline (the worst
 cell), the goals, the unfamiliar flag as a detector of wrong predictions, the
 scene files as shipped, the accuracy table (parameter x value by action), a
-summary per parameter, the worst cells with every figure, and every cell that
-publishes too many wrong answers with what they named.
+summary per parameter, where along its range each field holds
+(experiments/coverage_envelope.py), the worst cells with every figure, and every
+cell that publishes too many wrong answers with what they named.
 
 This module puts the sections together; the rows and formatters are in
 experiments/coverage_doc_rows.py, the opening sections in
@@ -32,6 +33,7 @@ from coverage_doc_tables import (
     scene_files,
     worst_cells,
 )
+from coverage_envelope import envelope_table
 
 __all__ = [
     "GOAL_CELL_ACCURACY",
@@ -79,6 +81,7 @@ def markdown(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, A
     lines += ["", "## The unfamiliar flag as a detector of wrong predictions", ""]
     lines += unfamiliar_as_detector(scored)
     lines += ["", "## Scene files as shipped", "", *scene_files(scenes)]
+    lines += ["", "## Where each field holds", "", *envelope_table(summary, rows)]
     lines += ["", "## Accuracy by parameter and action", "", *accuracy_grid(summary, rows)]
     lines += ["", "## Per parameter", "", *per_parameter(summary, rows)]
     lines += ["", f"## The {WORST_SHOWN} worst cells", "", *worst_cells(scored)]

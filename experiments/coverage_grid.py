@@ -1,6 +1,8 @@
 """The coverage grid: every field a scene may set, read from the scene schema, and
-the values each is swept over (its schema minimum and maximum; the scene's
-default is the baseline every row is measured against).
+the values each is swept over (its schema minimum and maximum, and
+``INTERIOR_LEVELS`` points between them, so that where along its range a field
+stops holding can be read; the scene's default is the baseline every row is
+measured against).
 
 A field is swept unless ``SKIPPED`` names it with a reason; a field without a
 range in the schema (an unbounded number) needs its values in ``NOT_RANGE``,
@@ -63,6 +65,28 @@ EXTRA_VALUES: Final[dict[str, tuple[str, tuple[Any, ...]]]] = {
     "insole.threshold_kpa": ("a softer insole measured in issue 37", (45.0,)),
     "insole.p_half_kpa": ("a softer insole measured in issue 37", (450.0,)),
     "insole.gain_sigma": ("the wider gain spread measured in issue 37", (0.45,)),
+    "script.step_length_m": (
+        "the steps people take (the interior points of a range from 0 are spaced by ratio)",
+        (0.3, 0.6, 0.9),
+    ),
+    "insole.saturation_counts": (
+        "where real amplifiers rail (the realistic insole draws 3000-4095 counts, "
+        "sim/insole.py): the interior points of so wide a range are spaced by ratio",
+        (2048.0, 3000.0),
+    ),
+}
+
+# Points strictly inside a ranged field's span, spaced evenly, or by equal ratios where
+# the span covers GEOMETRIC_RATIO or more (a probability from 1e-4 to 1, a time constant
+# from milliseconds to an hour): with the ends, five points show where a field holds.
+INTERIOR_LEVELS: Final = 3
+GEOMETRIC_RATIO: Final = 20.0
+# Ranged fields swept at their ends only (reason).
+NO_INTERIOR: Final[dict[str, str]] = {
+    "script.stand_s": "each value is minutes of standing for every person of a cell; the ends "
+    "(no stand, ten minutes) say what the stand does",
+    "effects.unplug.duration_s": "an unplug longer than the cell's session is the same cell; "
+    "the ends (a blink, a day) say what an unplug does",
 }
 
 # Other parameters of the same effect a swept one needs to matter at all (reason, values).
@@ -181,6 +205,7 @@ class Parameter:
 
     path: str
     values: tuple[Any, ...]
+    default: Any = None  # the schema's default (None: drawn per person, or none at all)
 
     @property
     def group(self) -> str:
@@ -213,7 +238,7 @@ def parameters(fields: list[SchemaField] | None = None) -> list[Parameter]:
         if field.path in SKIPPED:
             continue
         values = sweep_values(field)
-        out.append(Parameter(field.path, values))
+        out.append(Parameter(field.path, values, field.default))
     return out
 
 
@@ -233,11 +258,28 @@ def sweep_values(field: SchemaField) -> tuple[Any, ...]:
                 "NOT_RANGE or skip it in SKIPPED (experiments/coverage_grid.py), with a reason"
             )
             raise GridError(msg)
+        inside = () if field.path in NO_INTERIOR else interior(field.kind, *ends)
         # An extreme that is the default is the baseline's cell (or, for an effect's
         # parameter, the cell of that effect at its defaults): not a cell of its own.
-        values = tuple(v for v in dict.fromkeys(ends) if v != field.default)
+        values = tuple(v for v in dict.fromkeys((*ends, *inside)) if v != field.default)
     extra = EXTRA_VALUES.get(field.path, ("", ()))[1]
     return tuple(sorted(dict.fromkeys((*values, *extra)), key=_order))
+
+
+def interior(kind: str, low: float, high: float, levels: int = INTERIOR_LEVELS) -> tuple[Any, ...]:
+    """``levels`` points strictly between ``low`` and ``high``, evenly spaced, or by equal
+    ratios where ``high / low`` is ``GEOMETRIC_RATIO`` or more; three significant digits
+    (integers for an integer field), so a cell's label reads as a value one would type."""
+    steps = np.arange(1, levels + 1) / (levels + 1)
+    if low > 0 and high / low >= GEOMETRIC_RATIO:
+        points = low * (high / low) ** steps
+    else:
+        points = low + (high - low) * steps
+    if kind == "integer":
+        inside = [int(np.rint(p)) for p in points]
+    else:
+        inside = [float(f"{p:.3g}") for p in points]
+    return tuple(p for p in dict.fromkeys(inside) if low < p < high)
 
 
 def _order(value: Any) -> tuple[int, Any]:

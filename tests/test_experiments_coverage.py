@@ -27,8 +27,9 @@ sys.path.insert(0, str(EXPERIMENTS))
 
 import coverage
 import coverage_grid
-from coverage_doc_rows import Row
+from coverage_doc_rows import Row, Summary
 from coverage_doc_tables import published_wrong
+from coverage_envelope import envelope_table, envelopes
 from coverage_score import Counts, detector
 
 SCENES = Path(__file__).resolve().parent.parent / "sim" / "scenes"
@@ -192,6 +193,55 @@ def test_cells_publishing_wrong_answers_are_listed_with_what_they_named() -> Non
     assert published_wrong([under])[0].startswith("No cell publishes more than")
 
 
+def _cell(action: str, label: str, accuracy: float = 0.99, wrong_unflagged: int = 0,
+          unchanged: bool = False) -> Row:  # fmt: skip
+    path = None if label == "baseline" else label.split(" = ")[0]
+    if unchanged:
+        return Row({"action": action, "path": path, "label": label, "unchanged": True})
+    counts = Counts(predictions=100, wrong=wrong_unflagged, wrong_unflagged=wrong_unflagged)
+    return Row({"action": action, "path": path, "label": label, "counts": vars(counts),
+                "metrics": {"action_accuracy": accuracy, "app": 0.9}})  # fmt: skip
+
+
+def _summary(*params: coverage_grid.Parameter) -> Summary:
+    return Summary(command="", people=1, seconds=5.0, model="m", model_sha="0" * 12,
+                   commit="c", date="d", actions=("squat", "walking"), parameters=params,
+                   cpu_minutes=0.0, wall_minutes=0.0, jobs_left=0)  # fmt: skip
+
+
+def test_a_fields_envelope_runs_from_its_default_to_the_first_cell_that_misses() -> None:
+    tempo = coverage_grid.Parameter("script.tempo", (0.3, 0.975, 1.65, 2.33, 3.0), 1.0)
+    height = coverage_grid.Parameter("subject.height_m", (1.2, 1.45, 1.7, 1.95, 2.2))
+    rows = [_cell(a, "baseline") for a in ("squat", "walking")]
+    for v in tempo.values:
+        label = f"script.tempo = {v:g}"
+        rows.append(_cell("squat", label, accuracy=0.5 if v == 0.3 else 0.99))
+        rows.append(_cell("walking", label, wrong_unflagged=10 if v > 2 else 0))
+    for v in height.values:
+        label = f"subject.height_m = {v:g}"
+        bad = v in (1.2, 1.95)  # 1.95 misses: the longest run is 1.45 to 1.7, not 2.2 alone
+        rows.append(_cell("squat", label, accuracy=0.8 if bad else 0.99))
+        rows.append(_cell("walking", label, unchanged=True))  # the baseline's motion
+    found = {e.path: e for e in envelopes(_summary(tempo, height), rows)}
+    t = found["script.tempo"]
+    assert t.run == (0.975, 1.65)
+    assert t.below is not None
+    assert t.below.value == 0.3
+    assert set(t.below.misses) == {"squat"}
+    assert t.above is not None
+    assert t.above.value == 2.33
+    assert t.above.misses == {"walking": "wrong and unflagged 10.0 %"}
+    h = found["subject.height_m"]
+    assert h.run == (1.45, 1.7)
+    assert h.below is not None
+    assert h.below.value == 1.2
+    text = "\n".join(envelope_table(_summary(tempo, height), rows))
+    assert "| script.tempo | 0.3 to 3 | 0.975 to 1.65 | 0.3: squat (accuracy 50.0 %) |" in text
+    rows[0] = _cell("squat", "baseline", accuracy=0.5)  # the default itself misses
+    again = {e.path: e for e in envelopes(_summary(tempo), rows)}
+    assert again["script.tempo"].run is None
+
+
 @pytest.mark.slow
 def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -238,6 +288,7 @@ def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
     assert "squat.toml`" in text
     assert "precision (flagged that are wrong)" in text
     assert "## Wrong answers that went out, and what they named" in text
+    assert "| insole.model" not in text.split("## Where each field holds")[1].split("##")[0]
     stamps = [p.stat().st_mtime_ns for p in checkpoints]
 
     assert coverage.main(argv) == 0
