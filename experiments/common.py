@@ -254,6 +254,18 @@ def write_between_markers(doc: Path, text: str, begin: str, end: str) -> None:
     doc.write_text(content[: start + len(begin)] + "\n" + text + content[stop:])
 
 
+def write_card_section(card: Path, text: str, section: str) -> None:
+    """Put ``text`` between the card's ``<!-- SECTION:begin/end -->`` lines, adding them at
+    its end when it has none: a card written by scripts/ship_default.py has none, since
+    what was measured of the model after it shipped (the coverage grid, the real files)
+    belongs to that model alone, and a new default's card starts without it."""
+    begin, end = f"<!-- {section}:begin -->", f"<!-- {section}:end -->"
+    content = card.read_text()
+    if content.find(begin) < 0 or content.find(end) < content.find(begin):
+        card.write_text(content.rstrip("\n") + f"\n\n{begin}\n{end}\n")
+    write_between_markers(card, text, begin, end)
+
+
 def write_section(doc: Path, text: str, section: str) -> None:
     """Replace what stands between DOC's ``<!-- SECTION:begin/end -->`` lines."""
     write_between_markers(doc, text, f"<!-- {section}:begin -->", f"<!-- {section}:end -->")

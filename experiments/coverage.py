@@ -34,8 +34,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from common import ROOT, from_root, utc_now
-from coverage_doc import Row, Summary, markdown
+from common import ROOT, from_root, utc_now, write_card_section
+from coverage_doc import Row, Summary, card_section, markdown
 from coverage_grid import Cell, GridError, cells, digest, parameters, people
 from coverage_run import Job, cell_job, code_digest, run_jobs, scene_file_job
 from scotti.models.contract import ACTIONS
@@ -45,6 +45,7 @@ from scotti.sim.scene import Scene
 SCENES = ROOT / "sim" / "scenes"
 DEFAULT_MODEL = ROOT / "models" / "scotti-default.onnx"
 DOC = ROOT / "docs" / "coverage.md"  # the shipped model's table
+CARD = DEFAULT_MODEL.with_suffix(".card.md")  # its card quotes the headline and the goals
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -121,6 +122,12 @@ def _validate(raw: dict[str, object], cell: Cell) -> None:
         raise GridError(msg) from None
 
 
+def shipped_whole_grid(args: argparse.Namespace) -> bool:
+    """Whether the run is the shipped model over the whole grid (what its card may quote)."""
+    whole = not args.action and not args.param
+    return whole and args.model.resolve() == DEFAULT_MODEL.resolve()
+
+
 def doc_target(args: argparse.Namespace) -> Path:
     """Where the markdown goes. docs/coverage.md describes the shipped model over the whole
     grid, so only such a run writes it unless ``--write`` says otherwise: a candidate's run,
@@ -128,8 +135,7 @@ def doc_target(args: argparse.Namespace) -> Path:
     quietly replacing the shipped model's table with its own."""
     if args.write is not None:
         return args.write
-    whole = not args.action and not args.param
-    if whole and args.model.resolve() == DEFAULT_MODEL.resolve():
+    if shipped_whole_grid(args):
         return DOC
     return args.cache / "coverage.md"
 
@@ -185,6 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     target = doc_target(args)
     target.parent.mkdir(parents=True, exist_ok=True)
     target.write_text(markdown(summary, rows, scenes))
+    if target == DOC and shipped_whole_grid(args) and not outcome.left:
+        write_card_section(CARD, card_section(summary, rows, scenes), "coverage")
     print(
         f"coverage: {outcome.simulated} cells scored, {outcome.unchanged} unchanged, "
         f"{outcome.reused} from the cache, {outcome.left} left; wrote {target}"

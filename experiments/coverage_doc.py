@@ -33,7 +33,7 @@ from coverage_doc_tables import (
     scene_files,
     worst_cells,
 )
-from coverage_envelope import envelope_table
+from coverage_envelope import envelope_table, envelopes
 
 __all__ = [
     "GOAL_CELL_ACCURACY",
@@ -44,6 +44,7 @@ __all__ = [
     "WORST_SHOWN",
     "Row",
     "Summary",
+    "card_section",
     "markdown",
 ]
 
@@ -89,3 +90,30 @@ def markdown(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, A
     lines += published_wrong(scored)
     lines += ["", "## What is not swept over the schema's range, and why", "", *declared_ranges()]
     return "\n".join(lines) + "\n"
+
+
+def card_section(summary: Summary, rows: Sequence[Row], scenes: Sequence[dict[str, Any]]) -> str:
+    """What the shipped model's card quotes of the grid: the headline, the goals and how
+    many fields hold over their whole swept range (models/scotti-default.card.md)."""
+    scored = [r for r in rows if not r.unchanged and r.accuracy is not None]
+    found = envelopes(summary, rows)
+    whole = [e.path for e in found if e.run == (e.low, e.high)]
+    return "\n".join(
+        [
+            "## Outside its corpus: every parameter a scene may set",
+            "",
+            f"From docs/coverage.md (`{summary.command}`, {summary.date}; this graph, sha256 "
+            f"{summary.model_sha[:12]}): each field of the scene schema at the ends of its "
+            f"range and points between, for every action, {summary.people} simulated people "
+            "a cell.",
+            "",
+            *headline(scored),
+            "",
+            *goals(scored, scenes),
+            "",
+            f"Every action meets the cell goals over the whole swept range of {len(whole)} of "
+            f"the {len(found)} numeric fields; where the others stop: docs/coverage.md, "
+            '"Where each field holds".',
+            "",
+        ]
+    )

@@ -46,10 +46,20 @@ from typing import Any, Final
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import ROOT, ExperimentError, run, scotti_command, write_between_markers
+from common import (
+    ROOT,
+    ExperimentError,
+    run,
+    scotti_command,
+    write_between_markers,
+    write_card_section,
+)
 from common import table as markdown_table
 
 REALDATA = ROOT.parent / "shared" / "realdata"
+DOC = ROOT / "docs" / "real-data.md"
+DEFAULT_MODEL = ROOT / "models" / "scotti-default.onnx"
+CARD = DEFAULT_MODEL.with_suffix(".card.md")  # the shipped model's card quotes its table
 WORK = ROOT / "data" / "realdata"
 CONFIDENT: Final = 0.9
 STILL_S: Final = 1.5  # both feet on the ground this long: nobody walks there (still_slots)
@@ -291,6 +301,14 @@ def _pooled(rows: list[dict[str, Any]], key: str, weight: str) -> str:
     return _pct(sum(r[key] * r[weight] for r in rows if r.get(key) is not None) / total)
 
 
+def quotes_in_card(doc: Path | None, models: list[Path], chosen: list[Recording]) -> bool:
+    """Whether the run writes docs/real-data.md for the shipped model on every file, the
+    table its card quotes."""
+    if doc is None or doc.resolve() != DOC.resolve() or len(chosen) != len(RECORDINGS):
+        return False
+    return [m.resolve() for m in models] == [DEFAULT_MODEL.resolve()]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python experiments/real_data.py",
@@ -324,6 +342,9 @@ def main(argv: list[str] | None = None) -> int:
             args.json.write_text(json.dumps(rows, indent=1) + "\n")
         if args.write:
             write_between_markers(args.write, text, BEGIN, END)
+        if quotes_in_card(args.write, models, chosen):
+            heading = "## Real recordings of other insoles (docs/real-data.md)"
+            write_card_section(CARD, f"{heading}\n\n{text}", "real-data")
     except ExperimentError as exc:
         print(f"real_data: {exc}", file=sys.stderr)
         return 2

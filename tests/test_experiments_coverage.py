@@ -27,6 +27,8 @@ sys.path.insert(0, str(EXPERIMENTS))
 
 import coverage
 import coverage_grid
+from common import write_card_section
+from coverage_doc import card_section
 from coverage_doc_rows import Row, Summary
 from coverage_doc_tables import published_wrong
 from coverage_envelope import envelope_table, envelopes
@@ -242,6 +244,32 @@ def test_a_fields_envelope_runs_from_its_default_to_the_first_cell_that_misses()
     assert again["script.tempo"].run is None
 
 
+def test_the_card_quotes_the_headline_the_goals_and_how_many_fields_hold(
+    tmp_path: Path,
+) -> None:
+    tempo = coverage_grid.Parameter("script.tempo", (0.3, 3.0), 1.0)
+    rows = [_cell(a, "baseline") for a in ("squat", "walking")]
+    rows += [_cell("squat", "script.tempo = 0.3", accuracy=0.4)]
+    rows += [_cell("walking", "script.tempo = 0.3"), *(_cell(a, "script.tempo = 3") for a in
+             ("squat", "walking"))]  # fmt: skip
+    text = card_section(_summary(tempo), rows, [])
+    assert text.startswith("## Outside its corpus")
+    assert "**Worst cell: squat with script.tempo = 0.3: accuracy 40.0 %" in text
+    assert "| worst cell accuracy >= 90 % | 40.0 % (squat, script.tempo = 0.3)" in text
+    assert "whole swept range of 0 of the 1 numeric fields" in text
+    card = tmp_path / "m.card.md"
+    card.write_text("# Model card: m\n\n## Files\n- m.onnx\n")
+    write_card_section(card, text, "coverage")
+    write_card_section(card, "## Real recordings\n", "real-data")
+    write_card_section(card, text.replace("40.0 %", "41.0 %"), "coverage")  # replaced in place
+    written = card.read_text()
+    assert written.startswith("# Model card: m\n\n## Files\n- m.onnx\n\n<!-- coverage:begin -->")
+    assert written.count("<!-- coverage:begin -->") == 1
+    assert "41.0 %" in written
+    assert "40.0 %" not in written
+    assert written.index("coverage:end") < written.index("## Real recordings")
+
+
 @pytest.mark.slow
 def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -313,6 +341,7 @@ def test_only_the_shipped_models_whole_grid_writes_the_docs_table(
     args = coverage.build_parser().parse_args(["--cache", str(tmp_path), *extra])
     target = coverage.doc_target(args)
     assert (target == coverage.DOC) is shipped_doc
+    assert coverage.shipped_whole_grid(args) is shipped_doc  # and only it goes into the card
     if not shipped_doc:
         assert target == tmp_path / "coverage.md"
     chosen = coverage.build_parser().parse_args([*extra, "--write", str(tmp_path / "x.md")])

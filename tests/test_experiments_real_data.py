@@ -92,3 +92,14 @@ def test_a_walk_that_ends_standing_has_its_end_found_and_left_unscored(
     # The last 3 s are 48 predictions; the step into the stand may add a few frames.
     assert 48 <= round(row["still"] * row["predictions"]) <= 60
     assert row["walking_windows"] == round(row["predictions"] * (1 - row["still"]))
+
+
+def test_the_card_quotes_the_table_only_of_the_shipped_model_on_every_file(tmp_path: Path) -> None:
+    every = list(real_data.RECORDINGS)
+    shipped = [real_data.DEFAULT_MODEL]
+    assert real_data.quotes_in_card(real_data.DOC, shipped, every)
+    assert not real_data.quotes_in_card(None, shipped, every)  # printed, not written
+    assert not real_data.quotes_in_card(tmp_path / "x.md", shipped, every)
+    assert not real_data.quotes_in_card(real_data.DOC, [tmp_path / "cand.onnx"], every)
+    assert not real_data.quotes_in_card(real_data.DOC, [*shipped, tmp_path / "c.onnx"], every)
+    assert not real_data.quotes_in_card(real_data.DOC, shipped, every[:2])  # --only
