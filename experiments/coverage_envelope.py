@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 from common import table
 from coverage_doc_rows import (
@@ -29,6 +29,8 @@ from coverage_doc_rows import (
     pct,
     show,
 )
+
+SHOWN: Final = 3  # actions named where a run breaks; the accuracy grid has every one
 
 
 def shortfall(row: Row) -> str | None:
@@ -85,7 +87,7 @@ def envelopes(summary: Summary, rows: Sequence[Row]) -> list[Envelope]:
         if start is not None and all(pt.value != start.value for pt in points):
             points.append(start)
         points.sort(key=lambda pt: pt.value)
-        out.append(_envelope(p.path, values, points, start))
+        out.append(_envelope(p.path, points, start))
     return out
 
 
@@ -137,8 +139,8 @@ def _collect(
     return Point(value, misses, complete)
 
 
-def _envelope(path: str, values: list[Any], points: list[Point], start: Point | None) -> Envelope:
-    low, high = float(min(values)), float(max(values))
+def _envelope(path: str, points: list[Point], start: Point | None) -> Envelope:
+    low, high = points[0].value, points[-1].value  # the default's point included
     complete = all(pt.complete for pt in points)
     if start is not None:
         centre = next(i for i, pt in enumerate(points) if pt.value == start.value)
@@ -185,8 +187,12 @@ def _break(point: Point | None) -> str:
         return "-"
     if not point.complete and not point.misses:
         return f"{_value(point.value)}: not scored yet"
-    named = "; ".join(f"{a} ({why})" for a, why in point.misses.items())
-    return f"{_value(point.value)}: {named}"
+    reasons = set(point.misses.values())
+    if len(point.misses) > 1 and len(reasons) == 1 and point.complete:
+        return f"{_value(point.value)}: {len(point.misses)} actions ({reasons.pop()})"
+    named = [f"{a} ({why})" for a, why in point.misses.items()]
+    more = f"; {len(named) - SHOWN} more" if len(named) > SHOWN else ""
+    return f"{_value(point.value)}: {'; '.join(named[:SHOWN])}{more}"
 
 
 def _value(value: float) -> str:
@@ -216,7 +222,8 @@ def envelope_table(summary: Summary, rows: Sequence[Row]) -> list[str]:
         f"most {pct(GOAL_WRONG_UNFLAGGED)} of predictions wrong and unflagged), read from the "
         "field's default outwards where it has one (the baseline, or the effect at its "
         "defaults), else the longest such run; and the first value on each side that "
-        "breaks it, with the actions that miss and by what. Between two swept values "
+        f"breaks it, with the actions that miss and by what (the first {SHOWN}, in the "
+        "contract's order; every cell: the accuracy grid below). Between two swept values "
         "nothing was measured: a run ends somewhere between its last value and the break.",
         "",
         *table(["field", "swept", "every action holds from", "breaks below", "breaks above"], body),

@@ -239,6 +239,18 @@ def test_a_fields_envelope_runs_from_its_default_to_the_first_cell_that_misses()
     assert h.below.value == 1.2
     text = "\n".join(envelope_table(_summary(tempo, height), rows))
     assert "| script.tempo | 0.3 to 3 | 0.975 to 1.65 | 0.3: squat (accuracy 50.0 %) |" in text
+    flips = coverage_grid.Parameter("effects.line_corruption.flip_rate_per_byte", (0.0, 0.1), 1e-5)
+    silent = Row({"action": "squat", "path": flips.path, "label": f"{flips.path} = 0.1",
+                  "counts": vars(Counts()), "metrics": {}})  # fmt: skip
+    more = [_cell(a, "effects = line_corruption") for a in ("squat", "walking")]
+    more += [_cell(a, f"{flips.path} = 0") for a in ("squat", "walking")]
+    more += [silent, Row(silent.result | {"action": "walking"})]
+    f = envelopes(_summary(flips), more)[0]
+    assert f.run == (0.0, 1e-5)  # from the effect at its defaults, down to 0
+    assert (f.low, f.high) == (0.0, 0.1)
+    assert "| 0 to 1e-05 | - | 0.1: 2 actions (no prediction) |" in "\n".join(
+        envelope_table(_summary(flips), more)
+    )
     rows[0] = _cell("squat", "baseline", accuracy=0.5)  # the default itself misses
     again = {e.path: e for e in envelopes(_summary(tempo), rows)}
     assert again["script.tempo"].run is None
