@@ -32,12 +32,15 @@ import hashlib
 import shutil
 import subprocess
 import sys
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from common import ROOT, from_root, utc_now, write_card_section
 from coverage_doc import Row, Summary, card_section, markdown
-from coverage_grid import Cell, GridError, cells, digest, parameters, people
-from coverage_run import Job, cell_job, code_digest, run_jobs, scene_file_job
+from coverage_grid import Cell, GridError, Parameter, cells, digest, parameters, people
+from coverage_refine import refined, refinements
+from coverage_run import Job, Outcome, cell_job, code_digest, run_jobs, scene_file_job
 from scotti.models.contract import ACTIONS
 from scotti.sim import SimError
 from scotti.sim.scene import Scene
@@ -72,6 +75,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenes", type=Path, default=SCENES, help="scene files scored as shipped")
     p.add_argument("--no-scenes", action="store_true", help="skip the scene files")
     p.add_argument("--keep-sessions", action="store_true", help="keep the session files")
+    p.add_argument(
+        "--refine",
+        type=int,
+        default=0,
+        help="rounds of one more value between where each field's run ends and where it "
+        "breaks (experiments/coverage_refine.py)",
+    )
     return p
 
 
@@ -81,17 +91,7 @@ def plan(args: argparse.Namespace, salt: str) -> tuple[list[Job], list[Job], Sum
         p for p in parameters() if not args.param or any(p.path.startswith(x) for x in args.param)
     ]
     actions = tuple(args.action) if args.action else ACTIONS
-    persons = people(args.people)
-    moving = {p.path for p in swept if p.moves_only}
-    grid = []
-    for cell in cells(actions, swept):
-        scenes = [cell.scene(person, args.seconds) for person in persons]
-        for raw in scenes:
-            _validate(raw, cell)
-        baselines = None
-        if cell.path in moving:
-            baselines = [Cell(cell.action).scene(person, args.seconds) for person in persons]
-        grid.append(cell_job(cell, scenes, baselines, salt))
+    grid = cell_jobs(cells(actions, swept), swept, args, salt)
     found = [] if args.no_scenes else sorted(args.scenes.glob("*.toml"))
     files = [scene_file_job(f, salt) for f in found]
     summary = Summary(
@@ -109,6 +109,48 @@ def plan(args: argparse.Namespace, salt: str) -> tuple[list[Job], list[Job], Sum
         jobs_left=0,
     )
     return grid, files, summary
+
+
+def cell_jobs(
+    grid: list[Cell], swept: Sequence[Parameter], args: argparse.Namespace, salt: str
+) -> list[Job]:
+    """A job per cell: its people's scenes, and their baselines where only motion moves."""
+    persons = people(args.people)
+    moving = {p.path for p in swept if p.moves_only}
+    jobs = []
+    for cell in grid:
+        scenes = [cell.scene(person, args.seconds) for person in persons]
+        for raw in scenes:
+            _validate(raw, cell)
+        baselines = None
+        if cell.path in moving:
+            baselines = [Cell(cell.action).scene(person, args.seconds) for person in persons]
+        jobs.append(cell_job(cell, scenes, baselines, salt))
+    return jobs
+
+
+def refine(
+    args: argparse.Namespace, salt: str, grid: list[Job], summary: Summary, outcome: Outcome
+) -> tuple[list[Job], Summary]:
+    """``--refine`` rounds: a value between each run's end and its break, every action,
+    scored into ``outcome``; the grid and the summary's parameters with them."""
+    for _ in range(args.refine):
+        rows = [Row(outcome.results[j.key]) for j in grid if j.key in outcome.results]
+        added = refinements(summary, rows)
+        if not added or outcome.left:
+            break
+        swept = refined(summary.parameters, added)
+        more = [Cell(a, path, v) for path, values in added.items() for v in values
+                for a in summary.actions]  # fmt: skip
+        jobs = cell_jobs(more, swept, args, salt)
+        left = None
+        if args.max_minutes is not None:
+            left = max(0.0, args.max_minutes - outcome.wall_s / 60.0)
+        outcome.add(run_jobs(jobs, model=args.model, cache=args.cache, processes=args.jobs,
+                             max_minutes=left, keep=args.keep_sessions))  # fmt: skip
+        grid = grid + jobs
+        summary = replace(summary, parameters=swept)
+    return grid, summary
 
 
 def _validate(raw: dict[str, object], cell: Cell) -> None:
@@ -170,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
             max_minutes=args.max_minutes,
             keep=args.keep_sessions,
         )
+        grid, summary = refine(args, salt, grid, summary, outcome)
     except (GridError, SimError, OSError) as exc:
         print(f"coverage: {exc}", file=sys.stderr)
         return 2

@@ -89,6 +89,15 @@ class Outcome:
     left: int = 0  # jobs not started: the deadline came
     wall_s: float = 0.0
 
+    def add(self, other: Outcome) -> None:
+        """Another run's jobs into this one (``--refine`` rounds)."""
+        self.results.update(other.results)
+        self.simulated += other.simulated
+        self.unchanged += other.unchanged
+        self.reused += other.reused
+        self.left += other.left
+        self.wall_s += other.wall_s
+
 
 _RUNTIMES: dict[str, StepModel] = {}  # per worker process: the model, loaded once
 

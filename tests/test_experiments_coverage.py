@@ -32,6 +32,7 @@ from coverage_doc import card_section
 from coverage_doc_rows import Row, Summary
 from coverage_doc_tables import published_wrong
 from coverage_envelope import envelope_table, envelopes
+from coverage_refine import midpoint, refined, refinements
 from coverage_score import Counts, detector
 
 SCENES = Path(__file__).resolve().parent.parent / "sim" / "scenes"
@@ -251,9 +252,27 @@ def test_a_fields_envelope_runs_from_its_default_to_the_first_cell_that_misses()
     assert "| 0 to 1e-05 | - | 0.1: 2 actions (no prediction) |" in "\n".join(
         envelope_table(_summary(flips), more)
     )
+    added = refinements(_summary(tempo, height), rows)
+    assert set(added) == {"script.tempo", "subject.height_m"}
+    low, high = added["script.tempo"]
+    assert low == pytest.approx(0.6375, abs=0.001)  # halfway from 0.975 down to 0.3
+    assert high == pytest.approx(1.99)  # from 1.65 up to 2.33
+    assert added["subject.height_m"] == (pytest.approx(1.32, abs=0.01), 1.82)
+    more = refined((tempo, height), added)
+    assert more[0].values == (0.3, low, 0.975, 1.65, high, 2.33, 3.0)
+    assert more[0].default == 1.0
     rows[0] = _cell("squat", "baseline", accuracy=0.5)  # the default itself misses
     again = {e.path: e for e in envelopes(_summary(tempo), rows)}
     assert again["script.tempo"].run is None
+
+
+def test_a_refined_value_halves_the_span_where_a_field_stops_holding() -> None:
+    assert midpoint(1.0, 1.65, integer=False) == pytest.approx(1.325, abs=0.006)
+    assert midpoint(500.0, 10.0, integer=False) == pytest.approx(70.7)  # 50 x apart: by ratio
+    assert midpoint(0.0, -500.0, integer=False) == -250.0
+    assert midpoint(8, 16, integer=True) == 12
+    assert midpoint(30, 31, integer=True) is None  # nothing left between
+    assert midpoint(1.0, 1.001, integer=False) is None  # not at three significant digits
 
 
 def test_the_card_quotes_the_headline_the_goals_and_how_many_fields_hold(
@@ -294,7 +313,7 @@ def test_a_tiny_run_scores_every_metric_and_reuses_its_checkpoints(
     cache = tmp_path / "cache"
     argv = ["--action", "squat", "--param", "insole.model", "--people", "1", "--seconds", "5",
             "--model", str(TINY_STEP), "--cache", str(cache), "--write", str(doc),
-            "--scenes", str(scenes)]  # fmt: skip
+            "--scenes", str(scenes), "--refine", "2"]  # fmt: skip
     assert coverage.main(argv) == 0
     first = capsys.readouterr().out
     assert "3 cells scored, 0 unchanged, 0 from the cache, 0 left" in first
